@@ -70,7 +70,10 @@ pub fn disc_rect_gap(
             (-dy - r, Vec2::new(0.0, local.y.signum_or_one()))
         }
     };
-    let n = Vec2::new(co * n_local.x - s * n_local.y, s * n_local.x + co * n_local.y);
+    let n = Vec2::new(
+        co * n_local.x - s * n_local.y,
+        s * n_local.x + co * n_local.y,
+    );
     (gap, n)
 }
 
@@ -181,8 +184,15 @@ pub fn clearance_and_normal(a: &Placed, b: &Placed) -> (f64, Vec2) {
             let (gap, n) = disc_rect_gap(b.position, radius, a.position, a.heading, length, width);
             (gap.max(0.0), -n)
         }
-        (Shape::Rect { length: la, width: wa }, Shape::Rect { length: lb, width: wb }) => {
-            (rect_rect_gap(a, (la, wa), b, (lb, wb)), centre_dir())
-        }
+        (
+            Shape::Rect {
+                length: la,
+                width: wa,
+            },
+            Shape::Rect {
+                length: lb,
+                width: wb,
+            },
+        ) => (rect_rect_gap(a, (la, wa), b, (lb, wb)), centre_dir()),
     }
 }

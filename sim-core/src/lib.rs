@@ -5,5 +5,20 @@
 //! The equations and every decision the paper leaves open are in `shared/spec/model.md`; each
 //! module names the section it implements.
 
+pub mod cognition;
 pub mod geometry;
+pub mod grid;
+pub mod metrics;
+pub mod observation;
+pub mod params;
+pub mod pedestrian;
+pub mod pedeval;
+pub mod risk;
 pub mod scenario;
+pub mod vehicle;
+pub mod world;
+
+pub use geometry::{Shape, Vec2};
+pub use params::{PedestrianModel, WorldParams};
+pub use scenario::{AgentKind, Scenario, ScenarioPool, Split};
+pub use world::{AgentId, EpisodeConfig, StepError, StepOutcome, World, WorldError};

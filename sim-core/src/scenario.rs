@@ -50,13 +50,20 @@ impl AgentRecord {
 
     /// The goal: the last recorded position.
     pub fn goal(&self) -> [f64; 2] {
-        *self.positions.last().expect("validated: tracks are never empty")
+        *self
+            .positions
+            .last()
+            .expect("validated: tracks are never empty")
     }
 
     /// Mean recorded speed in m/s (the pedestrian's desired speed `v0`).
     pub fn mean_speed(&self) -> f64 {
         let n = self.velocities.len().max(1) as f64;
-        self.velocities.iter().map(|v| v[0].hypot(v[1])).sum::<f64>() / n
+        self.velocities
+            .iter()
+            .map(|v| v[0].hypot(v[1]))
+            .sum::<f64>()
+            / n
     }
 
     /// Recorded position at absolute scenario step `step`, if recorded then.
@@ -88,7 +95,11 @@ pub struct Scenario {
 impl Scenario {
     /// Number of recorded steps (the last recorded step of any agent, plus one).
     pub fn recorded_steps(&self) -> u32 {
-        self.agents.iter().map(|a| a.end_step() + 1).max().unwrap_or(0)
+        self.agents
+            .iter()
+            .map(|a| a.end_step() + 1)
+            .max()
+            .unwrap_or(0)
     }
 }
 

@@ -1,0 +1,135 @@
+//! Cognitive uncertainty: the predict–observe–update loop of paper Algorithm 1 (model.md 3).
+//!
+//! Each observer keeps an isotropic Gaussian belief `N(mu, s2 I)` over each perceived agent's
+//! velocity. The variance sequence depends only on how many updates a belief has had, so it is
+//! tabulated once per parameter set ([`VarianceSchedule`]); the per-pair work is then a few
+//! multiply-adds with no logarithm.
+
+use crate::geometry::Vec2;
+use crate::params::{CognitionParams, PredictionModel};
+
+/// Number of dimensions of the velocity belief.
+pub const DIM: f64 = 2.0;
+
+/// `KL(N(mu_p, s2_p I_k) || N(mu_o, s2_o I_k))` for isotropic `k`-dimensional Gaussians:
+/// `0.5 * [k s2_p/s2_o + |mu_o - mu_p|^2/s2_o - k + k ln(s2_o/s2_p)]`.
+pub fn kl_isotropic(mu_p: Vec2, s2_p: f64, mu_o: Vec2, s2_o: f64, k: f64) -> f64 {
+    0.5 * (k * s2_p / s2_o + (mu_o - mu_p).norm_squared() / s2_o - k + k * (s2_o / s2_p).ln())
+}
+
+/// Bayesian fusion of the prior `N(mu_p, s2_p)` with the observation `N(mu_o, s2_o)`:
+/// `1/s2_post = 1/s2_p + 1/s2_o`, `mu_post = s2_post (mu_p/s2_p + mu_o/s2_o)`.
+pub fn posterior(mu_p: Vec2, s2_p: f64, mu_o: Vec2, s2_o: f64) -> (Vec2, f64) {
+    let s2_post = 1.0 / (1.0 / s2_p + 1.0 / s2_o);
+    (s2_post * (mu_p / s2_p + mu_o / s2_o), s2_post)
+}
+
+/// The variances a belief goes through, indexed by the number of updates it has had.
+///
+/// `post[0] = s0^2`; update `n >= 1` has prior variance `prior[n] = post[n-1] + q^2` and posterior
+/// `post[n]`. The sequence converges; once a value repeats bit for bit the table stops and later
+/// updates reuse its last entry, which is exactly what the recurrence would give.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VarianceSchedule {
+    /// Prior variance of update `n` (index 0 unused).
+    prior: Vec<f64>,
+    /// Posterior variance after `n` updates.
+    post: Vec<f64>,
+    /// The part of the KL that does not depend on the means, for update `n`.
+    kl_const: Vec<f64>,
+    /// `s2_post / s2_p` and `s2_post / s2_o` of update `n`: the weights of the posterior mean.
+    w_prior: Vec<f64>,
+    w_obs: Vec<f64>,
+    /// `0.5 / s2_o`: the KL's factor on the squared mean difference.
+    half_inv_s2o: f64,
+}
+
+/// Bound on the tabulated length; the recurrence converges long before it for any sane parameters.
+const MAX_SCHEDULE: usize = 4096;
+
+impl VarianceSchedule {
+    pub fn new(p: &CognitionParams) -> Self {
+        let s2_o = p.s_o * p.s_o;
+        let q2 = p.q * p.q;
+        let mut s = Self {
+            prior: vec![f64::NAN],
+            post: vec![p.s0 * p.s0],
+            kl_const: vec![0.0],
+            w_prior: vec![0.0],
+            w_obs: vec![0.0],
+            half_inv_s2o: 0.5 / s2_o,
+        };
+        loop {
+            let last = *s.post.last().expect("never empty");
+            let s2_p = last + q2;
+            let s2_post = 1.0 / (1.0 / s2_p + 1.0 / s2_o);
+            s.prior.push(s2_p);
+            s.post.push(s2_post);
+            s.kl_const
+                .push(kl_isotropic(Vec2::zeros(), s2_p, Vec2::zeros(), s2_o, DIM));
+            s.w_prior.push(s2_post / s2_p);
+            s.w_obs.push(s2_post / s2_o);
+            if s2_post == last || s.post.len() >= MAX_SCHEDULE {
+                break;
+            }
+        }
+        s
+    }
+
+    fn index(&self, updates: u32) -> usize {
+        (updates as usize).min(self.post.len() - 1)
+    }
+
+    /// Posterior variance after `updates` updates.
+    pub fn posterior_variance(&self, updates: u32) -> f64 {
+        self.post[self.index(updates)]
+    }
+
+    /// Prior variance used by update number `updates` (>= 1).
+    pub fn prior_variance(&self, updates: u32) -> f64 {
+        self.prior[self.index(updates.max(1))]
+    }
+}
+
+/// One observer's belief about one other agent's velocity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Belief {
+    /// Posterior mean, m/s.
+    pub mu: Vec2,
+    /// Number of updates since first sight (the variance is `schedule.posterior_variance(updates)`).
+    pub updates: u32,
+    /// Last observed velocity, m/s (for the constant-acceleration prediction).
+    pub last_obs: Vec2,
+    /// Last observed change of velocity over one step, m/s.
+    pub last_delta: Vec2,
+}
+
+impl Belief {
+    /// First sight (or re-entry into range): `mu = v`, `s2 = s0^2`, and `u = 0`.
+    pub fn first_sight(v: Vec2) -> Self {
+        Self {
+            mu: v,
+            updates: 0,
+            last_obs: v,
+            last_delta: Vec2::zeros(),
+        }
+    }
+
+    /// One predict–observe–update cycle with the observed velocity `v_obs`; returns the
+    /// uncertainty `u_t = KL(prior || observation)`.
+    #[inline]
+    pub fn update(&mut self, v_obs: Vec2, model: PredictionModel, s: &VarianceSchedule) -> f64 {
+        let mu_p = match model {
+            PredictionModel::ConstantVelocity => self.mu,
+            PredictionModel::ConstantAcceleration => self.mu + self.last_delta,
+        };
+        let n = s.index(self.updates + 1);
+        let diff = v_obs - mu_p;
+        let u = s.kl_const[n] + s.half_inv_s2o * diff.norm_squared();
+        self.mu = mu_p * s.w_prior[n] + v_obs * s.w_obs[n];
+        self.updates = self.updates.saturating_add(1);
+        self.last_delta = v_obs - self.last_obs;
+        self.last_obs = v_obs;
+        u
+    }
+}

@@ -1,0 +1,102 @@
+//! Uniform-grid neighbour search: one step costs O(N) at fixed density instead of O(N^2).
+//!
+//! Cells are at least the query radius wide, so every neighbour of an agent lies in the 3x3
+//! block of cells around it. Agents are bucketed by a counting sort that keeps slot order inside
+//! each cell, so the order in which neighbours are visited is a pure function of the state.
+
+use crate::geometry::Vec2;
+
+#[derive(Debug, Default, Clone)]
+pub struct Grid {
+    origin: Vec2,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    cell_of: Vec<u32>,
+    /// `starts[c]..starts[c + 1]` indexes `sorted` for cell `c`.
+    starts: Vec<u32>,
+    sorted: Vec<u32>,
+}
+
+impl Grid {
+    /// Rebuilds the grid over `positions` for queries of radius `radius` (all inputs finite).
+    pub fn rebuild(&mut self, positions: &[Vec2], radius: f64) {
+        let n = positions.len();
+        self.cell_of.clear();
+        self.sorted.clear();
+        if n == 0 {
+            self.nx = 0;
+            self.ny = 0;
+            self.starts.clear();
+            self.starts.push(0);
+            return;
+        }
+        let (mut lo, mut hi) = (positions[0], positions[0]);
+        for p in positions {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let extent = hi - lo;
+        // Cells no narrower than the radius; widened when the agents are so sparse that the grid
+        // would have far more cells than agents (memory stays O(N)).
+        let mut cell = radius.max(1e-9);
+        let max_cells = (4 * n + 64) as f64;
+        let cells_for = |c: f64| ((extent.x / c).floor() + 1.0) * ((extent.y / c).floor() + 1.0);
+        while cells_for(cell) > max_cells {
+            cell *= 2.0;
+        }
+        self.origin = lo;
+        self.cell = cell;
+        self.nx = (extent.x / cell).floor() as usize + 1;
+        self.ny = (extent.y / cell).floor() as usize + 1;
+        let ncell = self.nx * self.ny;
+        self.starts.clear();
+        self.starts.resize(ncell + 1, 0);
+        for p in positions {
+            let c = self.cell_index(*p);
+            self.cell_of.push(c as u32);
+            self.starts[c + 1] += 1;
+        }
+        for c in 0..ncell {
+            self.starts[c + 1] += self.starts[c];
+        }
+        self.sorted.resize(n, 0);
+        let mut fill: Vec<u32> = self.starts[..ncell].to_vec();
+        for (i, &c) in self.cell_of.iter().enumerate() {
+            let slot = &mut fill[c as usize];
+            self.sorted[*slot as usize] = i as u32;
+            *slot += 1;
+        }
+    }
+
+    fn cell_coords(&self, p: Vec2) -> (usize, usize) {
+        let cx = (((p.x - self.origin.x) / self.cell).floor().max(0.0) as usize).min(self.nx - 1);
+        let cy = (((p.y - self.origin.y) / self.cell).floor().max(0.0) as usize).min(self.ny - 1);
+        (cx, cy)
+    }
+
+    fn cell_index(&self, p: Vec2) -> usize {
+        let (cx, cy) = self.cell_coords(p);
+        cy * self.nx + cx
+    }
+
+    /// Calls `f(j)` for every agent slot `j` in the 3x3 block of cells around agent `i` (a
+    /// superset of its neighbours within the radius, `i` itself included).
+    #[inline]
+    pub fn for_each_candidate(&self, i: usize, mut f: impl FnMut(usize)) {
+        let c = self.cell_of[i] as usize;
+        let (cx, cy) = (c % self.nx, c / self.nx);
+        let y0 = cy.saturating_sub(1);
+        let y1 = (cy + 1).min(self.ny - 1);
+        let x0 = cx.saturating_sub(1);
+        let x1 = (cx + 1).min(self.nx - 1);
+        for y in y0..=y1 {
+            // Cells x0..=x1 of one row are contiguous in `sorted`.
+            let a = self.starts[y * self.nx + x0] as usize;
+            let b = self.starts[y * self.nx + x1 + 1] as usize;
+            for &j in &self.sorted[a..b] {
+                f(j as usize);
+            }
+        }
+    }
+}

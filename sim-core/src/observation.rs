@@ -1,0 +1,122 @@
+//! Observation of an external agent (model.md 7): node features in its ego frame (x forward),
+//! padded to `max_agents` with a validity mask, and the risk-graph adjacency among those nodes.
+//!
+//! Node 0 is the ego agent. The other nodes are the agents inside its perception radius, nearest
+//! (by clearance, then by id) first; agents beyond `max_agents - 1` of them are left out.
+
+use crate::geometry::Vec2;
+use crate::risk;
+use crate::scenario::AgentKind;
+use crate::vehicle::wrap_angle;
+use crate::world::{AgentId, World};
+
+/// Features per node.
+pub const NODE_FEATURES: usize = 11;
+
+/// Names of the node features, in order. Positions in m, velocities in m/s, angles in rad.
+pub const FEATURE_NAMES: [&str; NODE_FEATURES] = [
+    "rel_x",
+    "rel_y",
+    "rel_vx",
+    "rel_vy",
+    "speed",
+    "heading_diff",
+    "radius",
+    "is_vehicle",
+    "goal_dx",
+    "goal_dy",
+    "goal_dist",
+];
+
+/// Why an observation could not be written.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ObservationError {
+    #[error("max_agents must be at least 1")]
+    NoRoom,
+    #[error("buffers have lengths {got:?}, expected {want:?} (features, adjacency, mask)")]
+    BufferSize { got: [usize; 3], want: [usize; 3] },
+}
+
+/// Lengths of the feature, adjacency and mask buffers for `max_agents` nodes.
+pub fn buffer_lengths(max_agents: usize) -> [usize; 3] {
+    [
+        max_agents * NODE_FEATURES,
+        max_agents * max_agents,
+        max_agents,
+    ]
+}
+
+impl World {
+    /// Writes agent `ego`'s observation into the given row-major buffers: `features`
+    /// `[max_agents, NODE_FEATURES]`, `adjacency` `[max_agents, max_agents]` with
+    /// `adjacency[a][b] = A(node a, node b)`, and `mask` `[max_agents]`. Returns `false` (and
+    /// zeroes everything) when `ego` is not present.
+    pub fn fill_observation(
+        &self,
+        ego: AgentId,
+        max_agents: usize,
+        features: &mut [f32],
+        adjacency: &mut [f32],
+        mask: &mut [u8],
+    ) -> Result<bool, ObservationError> {
+        if max_agents == 0 {
+            return Err(ObservationError::NoRoom);
+        }
+        let want = buffer_lengths(max_agents);
+        let got = [features.len(), adjacency.len(), mask.len()];
+        if got != want {
+            return Err(ObservationError::BufferSize { got, want });
+        }
+        features.fill(0.0);
+        adjacency.fill(0.0);
+        mask.fill(0);
+        let Some(ego_slot) = self.slot_of(ego) else {
+            return Ok(false);
+        };
+        let mut near: Vec<(f64, AgentId, usize)> = self
+            .out_edges(ego_slot)
+            .iter()
+            .map(|e| (e.clearance, e.target, e.target_slot as usize))
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.truncate(max_agents - 1);
+        let mut slots = Vec::with_capacity(near.len() + 1);
+        slots.push(ego_slot);
+        slots.extend(near.iter().map(|n| n.2));
+
+        let me = self.agent(ego).expect("slot found above");
+        let (s, c) = me.heading.sin_cos();
+        let to_ego = |v: Vec2| Vec2::new(c * v.x + s * v.y, -s * v.x + c * v.y);
+        let views: Vec<_> = self.agents().collect();
+        for (node, &slot) in slots.iter().enumerate() {
+            let a = &views[slot];
+            let rel = to_ego(a.position - me.position);
+            let rel_v = to_ego(a.velocity - me.velocity);
+            let row = &mut features[node * NODE_FEATURES..(node + 1) * NODE_FEATURES];
+            row[0] = rel.x as f32;
+            row[1] = rel.y as f32;
+            row[2] = rel_v.x as f32;
+            row[3] = rel_v.y as f32;
+            row[4] = a.velocity.norm() as f32;
+            row[5] = wrap_angle(a.heading - me.heading) as f32;
+            row[6] = a.shape.bounding_radius() as f32;
+            row[7] = f32::from(u8::from(a.kind == AgentKind::Vehicle));
+            if node == 0 {
+                let g = to_ego(me.goal - me.position);
+                row[8] = g.x as f32;
+                row[9] = g.y as f32;
+                row[10] = g.norm() as f32;
+            }
+            mask[node] = 1;
+        }
+        let lambda = self.params().risk.lambda;
+        for (na, &sa) in slots.iter().enumerate() {
+            for e in self.out_edges(sa) {
+                if let Some(nb) = slots.iter().position(|&sb| sb == e.target_slot as usize) {
+                    adjacency[na * max_agents + nb] = risk::adjacency(e.psi, e.u, lambda) as f32;
+                }
+            }
+        }
+        Ok(true)
+    }
+}
