@@ -123,7 +123,7 @@ impl Belief {
             PredictionModel::ConstantVelocity => self.mu,
             PredictionModel::ConstantAcceleration => self.mu + self.last_delta,
         };
-        let n = s.index(self.updates + 1);
+        let n = s.index(self.updates.saturating_add(1));
         let diff = v_obs - mu_p;
         let u = s.kl_const[n] + s.half_inv_s2o * diff.norm_squared();
         self.mu = mu_p * s.w_prior[n] + v_obs * s.w_obs[n];

@@ -174,7 +174,7 @@ pub fn clearance_and_normal(a: &Placed, b: &Placed) -> (f64, Vec2) {
             let d = a.position - b.position;
             let n = d.norm();
             let dir = if n > 0.0 { d / n } else { Vec2::zeros() };
-            ((n - ra - rb).max(0.0), dir)
+            ((n - (ra + rb)).max(0.0), dir)
         }
         (Shape::Disc { radius }, Shape::Rect { length, width }) => {
             let (gap, n) = disc_rect_gap(a.position, radius, b.position, b.heading, length, width);

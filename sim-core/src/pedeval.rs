@@ -16,23 +16,29 @@ pub struct PedestrianEpisode {
     pub errors: DisplacementErrors,
     /// A simulated pedestrian collided with someone at a step after the start.
     pub collided: bool,
-    /// Simulated positions per simulated pedestrian, steps `0..=T` (for plots).
+    /// Simulated positions per simulated pedestrian, from its entry to the step it left or the
+    /// last recorded step (for plots).
     pub simulated: Vec<(AgentId, Vec<Vec2>)>,
 }
 
 /// Runs `scenario` over its recorded window with the pedestrians driven by `model`.
 ///
 /// A simulated pedestrian that reaches its goal early leaves the scene; its last simulated
-/// position stands for it at the remaining steps. Errors are taken at every step at which the
+/// position (the one at which it arrived) stands for it at the remaining steps. Errors are taken at every step at which the
 /// pedestrian is recorded, from the step after its entry.
 pub fn evaluate_scenario(
     scenario: Arc<Scenario>,
     params: &WorldParams,
     model: PedestrianModel,
 ) -> Result<PedestrianEpisode, WorldError> {
+    let end = scenario.recorded_steps().saturating_sub(1);
+    // The whole recorded window is evaluated: the horizon (the ego's recorded duration plus
+    // `horizon_extra`) must not cut it short when other agents are recorded for longer.
+    let mut params = *params;
+    params.horizon_extra = params.horizon_extra.max(f64::from(end) * params.dt);
     let mut world = World::new(
         scenario.clone(),
-        *params,
+        params,
         EpisodeConfig::replay_vehicles(model),
     )?;
     let simulated_ids: Vec<AgentId> = (0..scenario.agents.len() as AgentId)
@@ -46,7 +52,6 @@ pub fn evaluate_scenario(
     let mut sim_err: Vec<Vec<Vec2>> = vec![Vec::new(); simulated_ids.len()];
     let mut rec_err: Vec<Vec<Vec2>> = vec![Vec::new(); simulated_ids.len()];
     let mut collided = false;
-    let end = scenario.recorded_steps().saturating_sub(1);
     for _ in 0..end {
         let out = world
             .step(&[])
@@ -58,9 +63,17 @@ pub fn evaluate_scenario(
         }
         let t = out.step;
         for (k, &id) in simulated_ids.iter().enumerate() {
-            if let Some(a) = world.agent(id) {
-                last[k] = Some(a.position);
-                simulated[k].push(a.position);
+            // Present, or removed during this step (at its goal) at the position it reached.
+            let now = world.agent(id).map(|a| a.position).or_else(|| {
+                world
+                    .departed()
+                    .iter()
+                    .find(|(d, _)| *d == id)
+                    .map(|(_, p)| *p)
+            });
+            if let Some(p) = now {
+                last[k] = Some(p);
+                simulated[k].push(p);
             }
             let rec = &scenario.agents[id as usize];
             if let (Some(p), Some(r)) = (last[k], rec.position_at(t)) {

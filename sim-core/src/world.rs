@@ -165,7 +165,7 @@ pub struct StepOutcome {
     /// One entry per external agent active during the step, in [`EpisodeConfig::external`] order.
     pub agents: Vec<AgentOutcome>,
     pub events: Vec<Event>,
-    /// No external agent is left active, or the horizon was reached.
+    /// Every external agent has entered and finished its episode, or the horizon was reached.
     pub episode_over: bool,
 }
 
@@ -313,6 +313,8 @@ pub struct World {
     /// Agents not yet entered, by descending start step (the next to enter is last).
     pending: Vec<AgentId>,
     externals: Vec<ExternalTrack>,
+    /// Agents removed during the last step, with their position when they left.
+    departed: Vec<(AgentId, Vec2)>,
     // Scratch reused by every step.
     grid: Grid,
     next: Agents,
@@ -437,6 +439,7 @@ impl World {
             edges: Vec::new(),
             pending,
             externals,
+            departed: Vec::new(),
             grid: Grid::default(),
             next: Agents::default(),
             next_edges: Vec::new(),
@@ -489,6 +492,13 @@ impl World {
     /// External agents whose episode is still running (they need an action next step).
     pub fn active_externals(&self) -> impl Iterator<Item = AgentId> + '_ {
         self.externals.iter().filter(|e| e.active).map(|e| e.id)
+    }
+
+    /// The agents that left the scene during the last step (one [`Event::Left`] each), with
+    /// their position when they left: for a pedestrian at its goal, its arrival position, which
+    /// is no longer visible through [`World::agent`].
+    pub fn departed(&self) -> &[(AgentId, Vec2)] {
+        &self.departed
     }
 
     /// How agent `id` is controlled.
@@ -647,6 +657,7 @@ impl World {
                 events.push(Event::Left {
                     agent: self.agents.id[i],
                 });
+                self.departed.push((self.agents.id[i], self.agents.pos[i]));
             }
         }
         self.next_edges.clear();
@@ -727,7 +738,7 @@ impl World {
                 };
                 let clearance = match (a.shape[i], a.shape[j]) {
                     (Shape::Disc { radius: ri }, Shape::Disc { radius: rj }) => {
-                        (d.norm() - ri - rj).max(0.0)
+                        (d.norm() - (ri + rj)).max(0.0)
                     }
                     _ => {
                         let placed_j = Placed {
@@ -792,6 +803,7 @@ impl World {
         }
 
         let mut events = Vec::new();
+        self.departed.clear();
         // 1. External agents whose episode ended last step leave now.
         self.remove_leaving(&mut events);
 
@@ -885,8 +897,14 @@ impl World {
                 self.external_outcome(k, clipped, omega, truncated, &mut outcome.events);
             outcome.agents.push(agent_outcome);
         }
-        self.over =
-            truncated || !self.externals.iter().any(|e| e.active) && !self.externals.is_empty();
+        // Over when every external agent has entered and finished (one whose record starts
+        // later keeps the episode running until it enters), or at the horizon.
+        let all_finished = !self.externals.is_empty()
+            && self
+                .externals
+                .iter()
+                .all(|e| !e.active && !e.speeds.is_empty());
+        self.over = truncated || all_finished;
         outcome.episode_over = self.over;
         Ok(outcome)
     }
@@ -949,8 +967,9 @@ impl World {
         let vmax = self.params.ped_speed_max;
         let (pos, vel) = match self.params.pedestrians.for_model(model) {
             None => {
-                // `cv`: the initial velocity vector for the whole episode.
-                let v = a.initial_vel[i];
+                // `cv`: the initial velocity vector for the whole episode, under the pedestrian
+                // speed cap (model.md 1) like every simulated pedestrian.
+                let v = pedestrian::clip_norm(a.initial_vel[i], vmax);
                 (a.pos[i] + v * dt, v)
             }
             Some(p) => {

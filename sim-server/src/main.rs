@@ -1,1 +1,165 @@
-fn main() {}
+//! `sim-server`: the sharedspace command line. Thin: parses arguments, sets up logging, and
+//! calls into the library.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use clap::{Parser, Subcommand};
+use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::scenario::ScenarioPool;
+use sim_server::params_file::load_params;
+use sim_server::rollout::{rollout, EgoDrive};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "sim-server",
+    version,
+    about = "sharedspace: shared-space AV/pedestrian simulation"
+)]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run one scenario and write every step as JSON lines (see docs/ROLLOUT.md).
+    Rollout(RolloutArgs),
+    /// Time one full world step (1 AV + N CR-SFM pedestrians at 0.25 /m²) and print JSON.
+    BenchStep(BenchStepArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct BenchStepArgs {
+    /// Number of pedestrians.
+    #[arg(long)]
+    n: usize,
+    /// Seconds of stepping to average over.
+    #[arg(long, default_value_t = 2.0)]
+    seconds: f64,
+    /// Scene seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(clap::Args, Debug)]
+struct PoolArgs {
+    /// Scenario pool file (JSON, scenarios/FORMAT.md); the embedded HBS pool when absent.
+    #[arg(long)]
+    pool: Option<PathBuf>,
+    /// World-parameter file (JSON5, any subset of the fields of docs/PARAMETERS.md).
+    #[arg(long)]
+    params: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct RolloutArgs {
+    #[command(flatten)]
+    pool: PoolArgs,
+    /// Scenario name, or its index in the pool.
+    #[arg(long, default_value = "0")]
+    scenario: String,
+    /// Pedestrian model: cv, sfm, ra_sfm, cr_sfm or replay.
+    #[arg(long, default_value = "cr_sfm")]
+    model: String,
+    /// `replay` (the AV follows its record) or a constant normalised action `ACC,YAW_RATE` in [-1, 1].
+    #[arg(long, default_value = "replay")]
+    av: String,
+    /// Output file; standard output when absent.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
+    match &args.pool {
+        Some(path) => scenarios::pool::load_pool_file(path).map_err(|e| e.to_string()),
+        None => Ok(scenarios::embedded::default_pool()),
+    }
+}
+
+fn load_world_params(args: &PoolArgs) -> Result<WorldParams, String> {
+    match &args.params {
+        Some(path) => load_params(path).map_err(|e| e.to_string()),
+        None => Ok(WorldParams::default()),
+    }
+}
+
+fn parse_model(name: &str) -> Result<PedestrianModel, String> {
+    PedestrianModel::from_name(name).ok_or_else(|| {
+        format!("unknown pedestrian model `{name}` (expected cv, sfm, ra_sfm, cr_sfm or replay)")
+    })
+}
+
+fn parse_ego(text: &str) -> Result<EgoDrive, String> {
+    if text == "replay" {
+        return Ok(EgoDrive::Replay);
+    }
+    let parts: Vec<&str> = text.split(',').collect();
+    let parse = |s: &str| s.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+    match parts.as_slice() {
+        [a, b] => match (parse(a), parse(b)) {
+            (Some(a), Some(b)) => Ok(EgoDrive::Constant([a, b])),
+            _ => Err(format!(
+                "--av `{text}`: expected two finite numbers ACC,YAW_RATE"
+            )),
+        },
+        _ => Err(format!("--av `{text}`: expected `replay` or ACC,YAW_RATE")),
+    }
+}
+
+fn run_rollout(args: RolloutArgs) -> Result<(), String> {
+    let pool = load_pool(&args.pool)?;
+    let params = load_world_params(&args.pool)?;
+    let model = parse_model(&args.model)?;
+    let ego = parse_ego(&args.av)?;
+    let scenario = pool
+        .scenarios
+        .iter()
+        .find(|s| s.name == args.scenario)
+        .or_else(|| {
+            args.scenario
+                .parse::<usize>()
+                .ok()
+                .and_then(|k| pool.scenarios.get(k))
+        })
+        .ok_or_else(|| format!("no scenario `{}` in pool `{}`", args.scenario, pool.name))?;
+    let scenario = Arc::new(scenario.clone());
+    let result = match &args.out {
+        Some(path) => {
+            let file = std::fs::File::create(path)
+                .map_err(|e| format!("creating {}: {e}", path.display()))?;
+            let mut w = std::io::BufWriter::new(file);
+            rollout(scenario, params, model, ego, &mut w)
+        }
+        None => rollout(scenario, params, model, ego, &mut std::io::stdout().lock()),
+    };
+    result.map(|_| ()).map_err(|e| e.to_string())
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
+    let args = Args::parse();
+    let result = match args.command {
+        Command::Rollout(a) => run_rollout(a),
+        Command::BenchStep(a) => {
+            let (ns, edges, steps) =
+                sim_server::step_timing::time_steps(a.n, a.seed, a.seconds, 10);
+            println!(
+                "{}",
+                serde_json::json!({"n": a.n, "ns_per_step": ns, "edges": edges, "steps": steps})
+            );
+            Ok(())
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,84 @@
+//! Scenario builders shared by the integration tests (not a test file itself).
+#![allow(dead_code)]
+
+use std::sync::Arc;
+
+use sim_core::scenario::{AgentKind, AgentRecord, Scenario, Split};
+
+/// The only sampling interval a world accepts by default, s.
+pub const DT: f64 = 0.5;
+
+/// A record that starts at `start_step` at `p0` and moves with constant velocity `v` for `n`
+/// samples (positions `p0 + k * v * dt`).
+pub fn line(kind: AgentKind, start_step: u32, p0: [f64; 2], v: [f64; 2], n: usize) -> AgentRecord {
+    let positions = (0..n)
+        .map(|k| {
+            let t = k as f64 * DT;
+            [p0[0] + v[0] * t, p0[1] + v[1] * t]
+        })
+        .collect();
+    AgentRecord {
+        record_id: 0,
+        kind,
+        start_step,
+        positions,
+        velocities: vec![v; n],
+        non_reactive: false,
+    }
+}
+
+/// A record with explicit positions and velocities.
+pub fn track(
+    kind: AgentKind,
+    start_step: u32,
+    positions: Vec<[f64; 2]>,
+    velocities: Vec<[f64; 2]>,
+) -> AgentRecord {
+    AgentRecord {
+        record_id: 0,
+        kind,
+        start_step,
+        positions,
+        velocities,
+        non_reactive: false,
+    }
+}
+
+/// A scenario (dt 0.5, train split) with `agents`; `ego` indexes `agents`. Record ids are set to
+/// the agent indices.
+pub fn scenario(ego: usize, mut agents: Vec<AgentRecord>) -> Arc<Scenario> {
+    for (k, a) in agents.iter_mut().enumerate() {
+        a.record_id = k as u64;
+    }
+    Arc::new(Scenario {
+        name: "test".into(),
+        split: Split::Train,
+        dt: DT,
+        ego,
+        agents,
+    })
+}
+
+/// A tiny deterministic generator (xorshift64*) so that tests need no random crate.
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        let mut x = self.0;
+        x ^= x >> 12;
+        x ^= x << 25;
+        x ^= x >> 27;
+        self.0 = x;
+        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        let u = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        lo + (hi - lo) * u
+    }
+}

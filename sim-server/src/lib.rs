@@ -1,0 +1,6 @@
+//! sharedspace server crate: the zenoh simulation server and the command-line tools built on the
+//! pure `sim-core` pipeline.
+
+pub mod params_file;
+pub mod rollout;
+pub mod step_timing;

@@ -1,0 +1,184 @@
+//! The `rollout` command: one scenario, one pedestrian model, every step written as a JSON line.
+//!
+//! Format (one JSON object per line; `docs/ROLLOUT.md` documents every field):
+//! - `{"type":"header", ...}`: scenario, model, parameters, agents (id, record id, kind, control);
+//! - `{"type":"step", ...}` for step 0 and every step after: agents' positions, velocities,
+//!   headings; the risk graph's edges `[observer, target, psi, u, A]`; reward terms of the
+//!   external agents for the transition into this step; events;
+//! - `{"type":"end", ...}`: why the rollout stopped and the external agents' episode metrics.
+
+use std::io::Write;
+use std::sync::Arc;
+
+use serde_json::{json, Value};
+use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::scenario::Scenario;
+use sim_core::world::{AgentOutcome, Control, EpisodeConfig, Event, World, WorldError};
+
+/// How the scenario's ego vehicle moves during a rollout.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EgoDrive {
+    /// Replays its record (the run ends with the record).
+    Replay,
+    /// Is external and holds this normalised action `[acc, yaw rate]` every step.
+    Constant([f64; 2]),
+}
+
+/// Why a rollout failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RolloutError {
+    #[error(transparent)]
+    World(#[from] WorldError),
+    #[error(transparent)]
+    Step(#[from] sim_core::StepError),
+    #[error("writing the rollout: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+fn control_name(c: Control) -> String {
+    match c {
+        Control::External => "external".into(),
+        Control::Replay => "replay".into(),
+        Control::Model(m) => m.name().into(),
+    }
+}
+
+fn kind_name(k: sim_core::AgentKind) -> &'static str {
+    match k {
+        sim_core::AgentKind::Pedestrian => "pedestrian",
+        sim_core::AgentKind::Vehicle => "vehicle",
+    }
+}
+
+fn event_json(e: &Event) -> Value {
+    match *e {
+        Event::Collision { a, b } => json!({"event": "collision", "a": a, "b": b}),
+        Event::GoalReached { agent } => json!({"event": "goal_reached", "agent": agent}),
+        Event::Entered { agent } => json!({"event": "entered", "agent": agent}),
+        Event::Left { agent } => json!({"event": "left", "agent": agent}),
+    }
+}
+
+fn step_json(world: &World, outcomes: &[AgentOutcome], events: &[Event]) -> Value {
+    let agents: Vec<Value> = world
+        .agents()
+        .map(|a| {
+            json!({
+                "id": a.id,
+                "x": a.position.x, "y": a.position.y,
+                "vx": a.velocity.x, "vy": a.velocity.y,
+                "heading": a.heading,
+            })
+        })
+        .collect();
+    let edges: Vec<Value> = world
+        .graph_edges()
+        .map(|e| json!([e.observer, e.target, e.psi, e.u, e.a]))
+        .collect();
+    let rewards: Vec<Value> = outcomes
+        .iter()
+        .map(|o| {
+            json!({
+                "agent": o.agent,
+                "total": o.reward.total(),
+                "progress": o.reward.progress,
+                "success": o.reward.success,
+                "collision": o.reward.collision,
+                "danger": o.reward.danger,
+                "comfort": o.reward.comfort,
+                "terminated": o.terminated,
+                "truncated": o.truncated,
+                "action_clipped": o.action_clipped,
+            })
+        })
+        .collect();
+    json!({
+        "type": "step",
+        "step": world.step_index(),
+        "time": world.time(),
+        "agents": agents,
+        "edges": edges,
+        "rewards": rewards,
+        "events": events.iter().map(event_json).collect::<Vec<_>>(),
+    })
+}
+
+/// Runs `scenario` and writes the JSON lines to `out`. Returns the number of steps taken.
+pub fn rollout(
+    scenario: Arc<Scenario>,
+    params: WorldParams,
+    model: PedestrianModel,
+    ego: EgoDrive,
+    out: &mut impl Write,
+) -> Result<u32, RolloutError> {
+    let config = match ego {
+        EgoDrive::Replay => EpisodeConfig::replay_vehicles(model),
+        EgoDrive::Constant(_) => EpisodeConfig::ego_external(&scenario, model),
+    };
+    let mut world = World::new(scenario.clone(), params, config)?;
+    let agents: Vec<Value> = scenario
+        .agents
+        .iter()
+        .enumerate()
+        .map(|(id, a)| {
+            json!({
+                "id": id,
+                "record_id": a.record_id,
+                "kind": kind_name(a.kind),
+                "control": control_name(world.control(id as u32).expect("id in range")),
+                "start_step": a.start_step,
+                "end_step": a.end_step(),
+            })
+        })
+        .collect();
+    let header = json!({
+        "type": "header",
+        "format": "sharedspace-rollout/1",
+        "scenario": scenario.name,
+        "model": model.name(),
+        "dt": params.dt,
+        "horizon": world.horizon(),
+        "ego": scenario.ego,
+        "ego_drive": match ego { EgoDrive::Replay => json!("replay"), EgoDrive::Constant(a) => json!(a) },
+        "params": serde_json::to_value(params).expect("params serialise"),
+        "agents": agents,
+    });
+    writeln!(out, "{header}")?;
+    writeln!(out, "{}", step_json(&world, &[], &[]))?;
+    let last_recorded = scenario.recorded_steps().saturating_sub(1);
+    let mut metrics = Vec::new();
+    let reason = loop {
+        if world.is_over() {
+            break "episode_over";
+        }
+        if ego == EgoDrive::Replay && world.step_index() >= last_recorded {
+            break "record_ended";
+        }
+        let actions: Vec<_> = match ego {
+            EgoDrive::Constant(a) => world.active_externals().map(|id| (id, a)).collect(),
+            EgoDrive::Replay => Vec::new(),
+        };
+        let outcome = world.step(&actions)?;
+        metrics.extend(
+            outcome
+                .agents
+                .iter()
+                .filter_map(|o| o.metrics.map(|m| (o.agent, m))),
+        );
+        writeln!(
+            out,
+            "{}",
+            step_json(&world, &outcome.agents, &outcome.events)
+        )?;
+    };
+    let metrics: Vec<Value> = metrics
+        .iter()
+        .map(|(agent, m)| json!({"agent": agent, "metrics": serde_json::to_value(m).expect("metrics serialise")}))
+        .collect();
+    writeln!(
+        out,
+        "{}",
+        json!({"type": "end", "reason": reason, "steps": world.step_index(), "metrics": metrics})
+    )?;
+    Ok(world.step_index())
+}

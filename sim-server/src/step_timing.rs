@@ -1,0 +1,75 @@
+//! The benchmark scene of one full world step (cognition, risk and graph all on): one external
+//! AV among `N` CR-SFM pedestrians at 0.25 pedestrians per square metre, shared by the criterion
+//! bench (`benches/world_step.rs`) and `sim-server bench-step`, which the pysocialforce
+//! comparison script (`bench/step_vs_pysocialforce.py`) runs side by side with pysocialforce.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use scenarios::synthetic::{generate, Layout, SyntheticConfig};
+use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::world::{EpisodeConfig, World};
+
+/// Steps taken before timing so that beliefs have a history (not all first sights).
+pub const WARM_UP_STEPS: u32 = 3;
+
+/// A warmed-up world of 1 AV + `n` pedestrians (random layout, density 0.25 /m², `seed`).
+pub fn bench_world(n: usize, seed: u64) -> World {
+    let cfg = SyntheticConfig::new(Layout::Random, n, seed);
+    let scenario = Arc::new(generate(&cfg).expect("benchmark scene is valid"));
+    let config = EpisodeConfig::ego_external(&scenario, PedestrianModel::CrSfm);
+    let mut world = World::new(scenario, WorldParams::default(), config).expect("benchmark world");
+    for _ in 0..WARM_UP_STEPS {
+        if world.is_over() {
+            break;
+        }
+        step_once(&mut world);
+    }
+    world
+}
+
+/// One step with the AV holding a gentle constant action.
+#[inline]
+pub fn step_once(world: &mut World) {
+    let actions: Vec<_> = world
+        .active_externals()
+        .map(|id| (id, [0.1, 0.0]))
+        .collect();
+    world.step(&actions).expect("benchmark step");
+}
+
+/// Mean wall time of one step in nanoseconds, measured over at least `min_seconds` (restarting
+/// from a clone of the warmed-up world every `steps_per_clone` steps; clones are not timed).
+pub fn time_steps(
+    n: usize,
+    seed: u64,
+    min_seconds: f64,
+    steps_per_clone: u32,
+) -> (f64, usize, u64) {
+    let base = bench_world(n, seed);
+    let edges = base.edge_count();
+    let mut total = 0.0;
+    let mut steps = 0u64;
+    while total < min_seconds || steps == 0 {
+        let mut w = base.clone();
+        if w.is_over() {
+            // The AV's episode ended during warm-up: time the pedestrians' world without it.
+            w = World::new(
+                base.scenario().clone(),
+                *base.params(),
+                EpisodeConfig::replay_vehicles(PedestrianModel::CrSfm),
+            )
+            .expect("benchmark world");
+        }
+        let t0 = Instant::now();
+        for _ in 0..steps_per_clone {
+            if w.is_over() {
+                break;
+            }
+            step_once(&mut w);
+            steps += 1;
+        }
+        total += t0.elapsed().as_secs_f64();
+    }
+    (total / steps as f64 * 1e9, edges, steps)
+}
