@@ -92,44 +92,45 @@ impl VarianceSchedule {
 }
 
 /// One observer's belief about one other agent's velocity.
+///
+/// The belief holds only what is the observer's own; what was observed of the target (its last
+/// change of velocity, for the constant-acceleration prediction) is the target's history, the
+/// same for every observer, and is passed in by the caller.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Belief {
     /// Posterior mean, m/s.
     pub mu: Vec2,
     /// Number of updates since first sight (the variance is `schedule.posterior_variance(updates)`).
     pub updates: u32,
-    /// Last observed velocity, m/s (for the constant-acceleration prediction).
-    pub last_obs: Vec2,
-    /// Last observed change of velocity over one step, m/s.
-    pub last_delta: Vec2,
 }
 
 impl Belief {
     /// First sight (or re-entry into range): `mu = v`, `s2 = s0^2`, and `u = 0`.
     pub fn first_sight(v: Vec2) -> Self {
-        Self {
-            mu: v,
-            updates: 0,
-            last_obs: v,
-            last_delta: Vec2::zeros(),
+        Self { mu: v, updates: 0 }
+    }
+
+    /// The internal model's prediction `v_hat` of the target's velocity. `last_change` is the
+    /// target's observed change of velocity over the previous step, `v(t-1) - v(t-2)`; it is only
+    /// known once the belief has had an update (before that the prediction is `mu`).
+    #[inline]
+    pub fn predict(&self, model: PredictionModel, last_change: Vec2) -> Vec2 {
+        match model {
+            PredictionModel::ConstantAcceleration if self.updates > 0 => self.mu + last_change,
+            _ => self.mu,
         }
     }
 
-    /// One predict–observe–update cycle with the observed velocity `v_obs`; returns the
-    /// uncertainty `u_t = KL(prior || observation)`.
+    /// One observe–update cycle: prior `N(mu_p, s_p^2)` with `mu_p` the prediction, observation
+    /// `N(v_obs, s_o^2)`; returns the uncertainty `u_t = KL(prior || observation)` and stores the
+    /// posterior.
     #[inline]
-    pub fn update(&mut self, v_obs: Vec2, model: PredictionModel, s: &VarianceSchedule) -> f64 {
-        let mu_p = match model {
-            PredictionModel::ConstantVelocity => self.mu,
-            PredictionModel::ConstantAcceleration => self.mu + self.last_delta,
-        };
+    pub fn update(&mut self, mu_p: Vec2, v_obs: Vec2, s: &VarianceSchedule) -> f64 {
         let n = s.index(self.updates.saturating_add(1));
         let diff = v_obs - mu_p;
         let u = s.kl_const[n] + s.half_inv_s2o * diff.norm_squared();
         self.mu = mu_p * s.w_prior[n] + v_obs * s.w_obs[n];
         self.updates = self.updates.saturating_add(1);
-        self.last_delta = v_obs - self.last_obs;
-        self.last_obs = v_obs;
         u
     }
 }

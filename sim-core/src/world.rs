@@ -231,6 +231,8 @@ struct Agents {
     pos: Vec<Vec2>,
     vel: Vec<Vec2>,
     acc: Vec<Vec2>,
+    /// Acceleration at the previous step (what the constant-acceleration prediction extrapolates).
+    prev_acc: Vec<Vec2>,
     /// Unicycle speed for vehicles, `|v|` for pedestrians.
     speed: Vec<f64>,
     heading: Vec<f64>,
@@ -263,6 +265,7 @@ impl Agents {
         r(&mut self.pos, keep);
         r(&mut self.vel, keep);
         r(&mut self.acc, keep);
+        r(&mut self.prev_acc, keep);
         r(&mut self.speed, keep);
         r(&mut self.heading, keep);
         r(&mut self.goal, keep);
@@ -324,6 +327,7 @@ pub struct World {
     epoch: u64,
     keep: Vec<bool>,
     slot_map: Vec<u32>,
+    acc_norm: Vec<f64>,
 }
 
 const NO_SLOT: u32 = u32::MAX;
@@ -448,6 +452,7 @@ impl World {
             epoch: 0,
             keep: Vec::new(),
             slot_map: Vec::new(),
+            acc_norm: Vec::new(),
         };
         let mut events = Vec::new();
         w.enter_pending(&mut events);
@@ -618,6 +623,7 @@ impl World {
             a.pos.push(pos);
             a.vel.push(vel);
             a.acc.push(Vec2::zeros());
+            a.prev_acc.push(Vec2::zeros());
             a.speed.push(speed);
             a.heading.push(heading);
             a.goal.push(v2(rec.goal()));
@@ -693,8 +699,11 @@ impl World {
         self.next_edges.clear();
         let a = &self.agents;
         let model = self.params.cognition.prediction;
-        let gamma1 = self.params.risk.gamma1;
-        let gamma2 = self.params.risk.gamma2;
+        let risk_params = &self.params.risk;
+        let dt = self.params.dt;
+        self.acc_norm.clear();
+        self.acc_norm.extend(a.acc.iter().map(|v| v.norm()));
+        let acc_norm = &self.acc_norm;
         let mut new_start = Vec::with_capacity(n);
         let mut new_len = Vec::with_capacity(n);
         for i in 0..n {
@@ -731,14 +740,16 @@ impl World {
                 let vj = a.vel[j];
                 let (belief, u) = if stamp[target as usize] == epoch {
                     let mut b = edges[stamp_edge[target as usize] as usize].belief;
-                    let u = b.update(vj, model, schedule);
+                    let mu_p = b.predict(model, a.prev_acc[j] * dt);
+                    let u = b.update(mu_p, vj, schedule);
                     (b, u)
                 } else {
                     (Belief::first_sight(vj), 0.0)
                 };
+                let dist = d.norm();
                 let clearance = match (a.shape[i], a.shape[j]) {
                     (Shape::Disc { radius: ri }, Shape::Disc { radius: rj }) => {
-                        (d.norm() - (ri + rj)).max(0.0)
+                        (dist - (ri + rj)).max(0.0)
                     }
                     _ => {
                         let placed_j = Placed {
@@ -749,8 +760,7 @@ impl World {
                         clearance_and_normal(&placed_i, &placed_j).0
                     }
                 };
-                let dv = risk::virtual_distance(clearance, xi, xj, vj, a.acc[j].norm(), gamma1);
-                let psi = risk::physical_risk(dv, gamma2);
+                let psi = risk::risk_with(clearance, d, dist, vj, acc_norm[j], risk_params);
                 out.push(Edge {
                     target,
                     target_slot: j as u32,
@@ -838,6 +848,7 @@ impl World {
                 },
                 Control::Model(m) => self.move_pedestrian(i, m),
             };
+            next.prev_acc[i] = self.agents.acc[i];
             next.acc[i] = (vel - self.agents.vel[i]) / dt;
             next.pos[i] = pos;
             next.vel[i] = vel;

@@ -312,8 +312,11 @@ fn belief_first_sight_is_the_observed_velocity_with_no_updates() {
     let b = Belief::first_sight(v(1.0, -2.0));
     assert_eq!(b.mu, v(1.0, -2.0));
     assert_eq!(b.updates, 0);
-    assert_eq!(b.last_obs, v(1.0, -2.0));
-    assert_eq!(b.last_delta, Vec2::zeros());
+    // before any update even the constant-acceleration model predicts the mean
+    assert_eq!(
+        b.predict(PredictionModel::ConstantAcceleration, v(9.0, 9.0)),
+        v(1.0, -2.0)
+    );
 }
 
 #[test]
@@ -325,7 +328,11 @@ fn belief_update_constant_velocity_over_three_steps() {
 
     // step 1: mu_p = (1, 0), s_p^2 = 1.09, o = (1.5, 0): |o - mu_p|^2 = 0.25
     // u1 = 0.5 [2*1.09/0.25 + 0.25/0.25 - 2 + 2 ln(0.25/1.09)]
-    let u1 = b.update(v(1.5, 0.0), PredictionModel::ConstantVelocity, &sched);
+    let u1 = b.update(
+        b.predict(PredictionModel::ConstantVelocity, Vec2::zeros()),
+        v(1.5, 0.0),
+        &sched,
+    );
     close(
         u1,
         0.5 * (2.0 * h.prior1 / s2o + 0.25 / s2o - 2.0 + 2.0 * (s2o / h.prior1).ln()),
@@ -336,7 +343,11 @@ fn belief_update_constant_velocity_over_three_steps() {
     assert_eq!(b.updates, 1);
 
     // step 2: mu_p = mu1, s_p^2 = prior2, o = (1.5, 0.5): |o - mu_p|^2 = (1.5 - mu1x)^2 + 0.25
-    let u2 = b.update(v(1.5, 0.5), PredictionModel::ConstantVelocity, &sched);
+    let u2 = b.update(
+        b.predict(PredictionModel::ConstantVelocity, Vec2::zeros()),
+        v(1.5, 0.5),
+        &sched,
+    );
     let d2 = (1.5 - mu1x).powi(2) + 0.25;
     close(
         u2,
@@ -351,7 +362,7 @@ fn belief_update_constant_velocity_over_three_steps() {
 
     // step 3: observation equal to the belief mean: only the variance part of the KL remains
     let obs = b.mu;
-    let u3 = b.update(obs, PredictionModel::ConstantVelocity, &sched);
+    let u3 = b.update(obs, obs, &sched);
     close(
         u3,
         0.5 * (2.0 * h.prior3 / s2o - 2.0 + 2.0 * (s2o / h.prior3).ln()),
@@ -371,7 +382,8 @@ fn belief_update_constant_acceleration_over_three_steps() {
     let mut b = Belief::first_sight(v(1.0, 0.0));
 
     // step 1: no change observed yet: mu_p = mu0 = (1, 0); |(1.5,0) - (1,0)|^2 = 0.25
-    let u1 = b.update(v(1.5, 0.0), ca, &sched);
+    // the observed change of velocity is the target's history, supplied by the caller
+    let u1 = b.update(b.predict(ca, Vec2::zeros()), v(1.5, 0.0), &sched);
     close(
         u1,
         0.5 * (2.0 * h.prior1 / s2o + 0.25 / s2o - 2.0 + 2.0 * (s2o / h.prior1).ln()),
@@ -381,7 +393,7 @@ fn belief_update_constant_acceleration_over_three_steps() {
     close_v(b.mu, [mu1, 0.0]);
 
     // step 2: mu_p = mu1 + (1.5 - 1.0) = mu1 + 0.5; o = 2.0
-    let u2 = b.update(v(2.0, 0.0), ca, &sched);
+    let u2 = b.update(b.predict(ca, v(0.5, 0.0)), v(2.0, 0.0), &sched);
     let mp2 = mu1 + 0.5;
     close(
         u2,
@@ -393,7 +405,7 @@ fn belief_update_constant_acceleration_over_three_steps() {
     close_v(b.mu, [mu2, 0.0]);
 
     // step 3: mu_p = mu2 + (2.0 - 1.5) = mu2 + 0.5; o = 2.5
-    let u3 = b.update(v(2.5, 0.0), ca, &sched);
+    let u3 = b.update(b.predict(ca, v(0.5, 0.0)), v(2.5, 0.0), &sched);
     let mp3 = mu2 + 0.5;
     close(
         u3,
@@ -407,7 +419,11 @@ fn belief_update_constant_acceleration_over_three_steps() {
     let mut cv = Belief::first_sight(v(1.0, 0.0));
     let mut u_cv = 0.0;
     for o in [1.5, 2.0, 2.5] {
-        u_cv = cv.update(v(o, 0.0), PredictionModel::ConstantVelocity, &sched);
+        u_cv = cv.update(
+            cv.predict(PredictionModel::ConstantVelocity, Vec2::zeros()),
+            v(o, 0.0),
+            &sched,
+        );
     }
     assert!(u3 < u_cv, "CA {u3} should be less surprised than CV {u_cv}");
 }
@@ -984,7 +1000,34 @@ fn belief_update_count_saturates_instead_of_overflowing() {
     // observation equal to the mean: u = 0.5 [2 s_p^2/0.25 - 2 + 2 ln(0.25/s_p^2)] at the
     // steady prior s_p^2 = fixed + 0.09
     let sp = (-0.09 + 0.0981f64.sqrt()) / 2.0 + 0.09;
-    let u = b.update(v(1.0, 0.0), PredictionModel::ConstantVelocity, &sched);
+    let u = b.update(
+        b.predict(PredictionModel::ConstantVelocity, Vec2::zeros()),
+        v(1.0, 0.0),
+        &sched,
+    );
     close(u, 0.5 * (2.0 * sp / 0.25 - 2.0 + 2.0 * (0.25 / sp).ln()));
     assert_eq!(b.updates, u32::MAX);
+}
+
+#[test]
+fn folded_risk_equals_the_virtual_distance_composition() {
+    // risk_with folds d_v = d (1 + tanh z) and psi = 1 / (1 + gamma2 d_v) into
+    // psi = (1 + e) / (1 + e + 2 gamma2 d), e = exp(-2z); both must agree to rounding.
+    let params = sim_core::params::RiskParams::default();
+    for (x_j, v_j, acc, d) in [
+        (v(5.0, 0.0), v(-1.0, 0.0), 0.4, 4.4),
+        (v(5.0, 0.0), v(1.0, 0.0), 0.0, 4.4),
+        (v(0.0, 3.0), v(0.3, -2.0), 1.5, 2.1),
+        (v(0.0, 3.0), v(0.0, 0.0), 0.0, 0.0),
+        (v(1.0, 1.0), v(-300.0, -300.0), 50.0, 0.7),
+    ] {
+        let x_i = v(0.0, 0.0);
+        let to_i = x_i - x_j;
+        let unfolded = sim_core::risk::physical_risk(
+            sim_core::risk::virtual_distance(d, x_i, x_j, v_j, acc, params.gamma1),
+            params.gamma2,
+        );
+        let folded = sim_core::risk::risk_with(d, to_i, to_i.norm(), v_j, acc, &params);
+        assert!((folded - unfolded).abs() <= 1e-14, "{folded} vs {unfolded}");
+    }
 }

@@ -2,5 +2,6 @@
 //! pure `sim-core` pipeline.
 
 pub mod params_file;
+pub mod pedeval_cmd;
 pub mod rollout;
 pub mod step_timing;

@@ -28,6 +28,8 @@ enum Command {
     Rollout(RolloutArgs),
     /// Time one full world step (1 AV + N CR-SFM pedestrians at 0.25 /m²) and print JSON.
     BenchStep(BenchStepArgs),
+    /// Evaluate pedestrian models against the record (paper Table I; docs/RESULTS.md).
+    EvalPeds(sim_server::pedeval_cmd::EvalPedsArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -110,8 +112,12 @@ fn parse_ego(text: &str) -> Result<EgoDrive, String> {
 
 fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     let pool = load_pool(&args.pool)?;
-    let params = load_world_params(&args.pool)?;
     let model = parse_model(&args.model)?;
+    let params = match &args.pool.params {
+        Some(path) => sim_server::params_file::load_params_for_model(path, model)
+            .map_err(|e| e.to_string())?,
+        None => load_world_params(&args.pool)?,
+    };
     let ego = parse_ego(&args.av)?;
     let scenario = pool
         .scenarios
@@ -145,6 +151,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let result = match args.command {
         Command::Rollout(a) => run_rollout(a),
+        Command::EvalPeds(a) => sim_server::pedeval_cmd::run(&a),
         Command::BenchStep(a) => {
             let (ns, edges, steps) =
                 sim_server::step_timing::time_steps(a.n, a.seed, a.seconds, 10);

@@ -1,0 +1,756 @@
+//! One simulation env: a seeded scenario sequence, the current episode's [`World`], and the
+//! translation between sim-core results and protocol messages. Pure and synchronous.
+
+use std::sync::Arc;
+
+use protocol::{
+    encode, AgentDesc, AgentKind as WireKind, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply,
+    Event, EventKind, EventsMsg, F32Array, F64Array, KeySpace, Mode, ObsBatch, Outcome,
+    ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StatesMsg, StepInfo, StepResult,
+    U32Array, U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
+};
+use sim_core::geometry::Shape;
+use sim_core::metrics::EpisodeStatus;
+use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::scenario::{AgentKind, Split};
+use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, World};
+
+use super::pools::{ScenarioSequence, ServedPool};
+
+/// Which publications somebody listens to (decided by the network layer from zenoh matching
+/// status); a topic nobody matches is neither encoded nor sent.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Gates {
+    pub states: bool,
+    pub uncertainty: bool,
+    pub risk_graph: bool,
+    pub events: bool,
+    pub result: bool,
+}
+
+impl Gates {
+    /// Nothing is published.
+    pub const NONE: Gates = Gates {
+        states: false,
+        uncertainty: false,
+        risk_graph: false,
+        events: false,
+        result: false,
+    };
+    /// Everything is published.
+    pub const ALL: Gates = Gates {
+        states: true,
+        uncertainty: true,
+        risk_graph: true,
+        events: true,
+        result: true,
+    };
+
+    /// Whether any of the per-state topics is wanted.
+    pub fn any(&self) -> bool {
+        self.states || self.uncertainty || self.risk_graph || self.events || self.result
+    }
+}
+
+/// An encoded publication: key expression and MessagePack payload.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Publication {
+    pub key: String,
+    pub topic: EnvTopic,
+    pub payload: Vec<u8>,
+}
+
+/// The configuration shared by the envs of one `CreateEnv`.
+#[derive(Debug)]
+pub struct EnvSpec {
+    pub client_id: String,
+    pub pool: Arc<ServedPool>,
+    pub split: Split,
+    /// Scenario indices an episode may be drawn from.
+    pub candidates: Arc<Vec<usize>>,
+    pub pinned: Option<usize>,
+    pub model: PedestrianModel,
+    pub params: WorldParams,
+    /// External agent names (`vehicle_{k}`) in action order.
+    pub external_names: Vec<String>,
+    /// The `k` of each `vehicle_{k}`.
+    pub external_vehicles: Vec<usize>,
+    pub mode: Mode,
+    pub max_agents: u32,
+    pub autoreset: bool,
+    pub realtime_factor: f64,
+    pub keys: KeySpace,
+}
+
+impl EnvSpec {
+    pub fn n_ext(&self) -> usize {
+        self.external_names.len()
+    }
+}
+
+/// Mutable output slices of one env's step (or reset) in row-major layout, one env's share of a
+/// (possibly batched) result.
+pub struct Slots<'a> {
+    pub features: &'a mut [f32],
+    pub adjacency: &'a mut [f32],
+    pub mask: &'a mut [u8],
+    pub node_ids: &'a mut [u32],
+    pub reward: &'a mut [f32],
+    /// progress, success, collision, danger, comfort.
+    pub terms: [&'a mut [f32]; 5],
+    pub terminated: &'a mut [u8],
+    pub truncated: &'a mut [u8],
+}
+
+/// Owned buffers for `k` envs with `n_ext` agents and `m` nodes each.
+#[derive(Debug, Clone, Default)]
+pub struct Buffers {
+    pub k: usize,
+    pub n_ext: usize,
+    pub m: usize,
+    pub features: Vec<f32>,
+    pub adjacency: Vec<f32>,
+    pub mask: Vec<u8>,
+    pub node_ids: Vec<u32>,
+    pub reward: Vec<f32>,
+    pub terms: [Vec<f32>; 5],
+    pub terminated: Vec<u8>,
+    pub truncated: Vec<u8>,
+}
+
+impl Buffers {
+    pub fn new(k: usize, n_ext: usize, m: usize) -> Self {
+        let f = N_FEATURES as usize;
+        let e = k * n_ext;
+        Self {
+            k,
+            n_ext,
+            m,
+            features: vec![0.0; e * m * f],
+            adjacency: vec![0.0; e * m * m],
+            mask: vec![0; e * m],
+            node_ids: vec![PAD_NODE_ID; e * m],
+            reward: vec![0.0; e],
+            terms: std::array::from_fn(|_| vec![0.0; e]),
+            terminated: vec![0; e],
+            truncated: vec![0; e],
+        }
+    }
+
+    /// The slots of env `i`.
+    pub fn slots(&mut self, i: usize) -> Slots<'_> {
+        let (n, m, f) = (self.n_ext, self.m, N_FEATURES as usize);
+        let e = i * n..(i + 1) * n;
+        let [t0, t1, t2, t3, t4] = &mut self.terms;
+        Slots {
+            features: &mut self.features[i * n * m * f..(i + 1) * n * m * f],
+            adjacency: &mut self.adjacency[i * n * m * m..(i + 1) * n * m * m],
+            mask: &mut self.mask[i * n * m..(i + 1) * n * m],
+            node_ids: &mut self.node_ids[i * n * m..(i + 1) * n * m],
+            reward: &mut self.reward[e.clone()],
+            terms: [
+                &mut t0[e.clone()],
+                &mut t1[e.clone()],
+                &mut t2[e.clone()],
+                &mut t3[e.clone()],
+                &mut t4[e.clone()],
+            ],
+            terminated: &mut self.terminated[e.clone()],
+            truncated: &mut self.truncated[e],
+        }
+    }
+
+    fn shape(&self, batched: bool, rest: &[usize]) -> Vec<u32> {
+        let mut s = Vec::with_capacity(rest.len() + 1);
+        if batched {
+            s.push(self.k as u32);
+        }
+        s.extend(rest.iter().map(|&d| d as u32));
+        s
+    }
+
+    fn err(e: protocol::ArrayError) -> ErrorReply {
+        ErrorReply::new(ErrorCode::Internal, format!("building arrays: {e}"))
+    }
+
+    /// The observation arrays (with a leading K axis when `batched`).
+    pub fn obs(&self, batched: bool) -> Result<ObsBatch, ErrorReply> {
+        let (n, m, f) = (self.n_ext, self.m, N_FEATURES as usize);
+        Ok(ObsBatch {
+            features: F32Array::new(self.shape(batched, &[n, m, f]), &self.features)
+                .map_err(Self::err)?,
+            adjacency: F32Array::new(self.shape(batched, &[n, m, m]), &self.adjacency)
+                .map_err(Self::err)?,
+            mask: U8Array::new(self.shape(batched, &[n, m]), &self.mask).map_err(Self::err)?,
+            node_ids: U32Array::new(self.shape(batched, &[n, m]), &self.node_ids)
+                .map_err(Self::err)?,
+        })
+    }
+
+    /// Reward, terms, terminated, truncated arrays.
+    pub fn rewards(
+        &self,
+        batched: bool,
+    ) -> Result<(F32Array, WireTerms, U8Array, U8Array), ErrorReply> {
+        let s = self.shape(batched, &[self.n_ext]);
+        let a = |v: &[f32]| F32Array::new(s.clone(), v).map_err(Self::err);
+        Ok((
+            a(&self.reward)?,
+            WireTerms {
+                progress: a(&self.terms[0])?,
+                success: a(&self.terms[1])?,
+                collision: a(&self.terms[2])?,
+                danger: a(&self.terms[3])?,
+                comfort: a(&self.terms[4])?,
+            },
+            U8Array::new(s.clone(), &self.terminated).map_err(Self::err)?,
+            U8Array::new(s.clone(), &self.truncated).map_err(Self::err)?,
+        ))
+    }
+}
+
+/// The parts of a step result that are not arrays.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepMeta {
+    pub episode: u64,
+    pub scenario: String,
+    pub step: u32,
+    pub t: f64,
+    pub info: StepInfo,
+    pub reset: Option<ResetResult>,
+}
+
+/// One env.
+#[derive(Debug)]
+pub struct Env {
+    pub id: String,
+    pub spec: Arc<EnvSpec>,
+    seq: ScenarioSequence,
+    episode: u64,
+    world: Option<World>,
+    scenario: usize,
+    /// Agent ids of the external agents in the current episode, in action order.
+    ext_ids: Vec<AgentId>,
+    returns: Vec<f64>,
+    /// Realtime: held action and last applied sequence number per external agent.
+    held: Vec<[f64; 2]>,
+    held_seq: Vec<Option<u64>>,
+    pub closed: bool,
+}
+
+fn to_wire_kind(k: AgentKind) -> WireKind {
+    match k {
+        AgentKind::Vehicle => WireKind::Vehicle,
+        AgentKind::Pedestrian => WireKind::Pedestrian,
+    }
+}
+
+fn outcome_of(s: EpisodeStatus) -> Outcome {
+    match s {
+        EpisodeStatus::Success => Outcome::Success,
+        EpisodeStatus::Collision => Outcome::Collision,
+        EpisodeStatus::Timeout => Outcome::Timeout,
+    }
+}
+
+fn event(kind: EventKind, step: u32, t: f64, agents: Vec<u32>) -> Event {
+    Event {
+        kind,
+        step,
+        t,
+        agents,
+        outcome: None,
+    }
+}
+
+/// Writes the observations of `ext_ids` into the slots (`node_ids` included).
+fn write_obs(world: &World, ext_ids: &[AgentId], m: usize, s: &mut Slots<'_>) {
+    let f = N_FEATURES as usize;
+    let mut near: Vec<(f64, AgentId)> = Vec::new();
+    for (e, &ego) in ext_ids.iter().enumerate() {
+        let feats = &mut s.features[e * m * f..(e + 1) * m * f];
+        let adj = &mut s.adjacency[e * m * m..(e + 1) * m * m];
+        let mask = &mut s.mask[e * m..(e + 1) * m];
+        let ids = &mut s.node_ids[e * m..(e + 1) * m];
+        ids.fill(PAD_NODE_ID);
+        // Buffer sizes are right by construction and m >= 1 is checked at creation.
+        let present = world
+            .fill_observation(ego, m, feats, adj, mask)
+            .unwrap_or(false);
+        if !present {
+            continue;
+        }
+        // Same node order as `fill_observation`: ego, then by (clearance, id).
+        near.clear();
+        near.extend(
+            world
+                .graph_edges()
+                .filter(|g| g.observer == ego)
+                .map(|g| (g.clearance, g.target)),
+        );
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.truncate(m - 1);
+        ids[0] = ego;
+        for (k, &(_, id)) in near.iter().enumerate() {
+            ids[k + 1] = id;
+        }
+    }
+}
+
+impl Env {
+    pub fn new(id: String, spec: Arc<EnvSpec>, seed: u64) -> Self {
+        let n = spec.n_ext();
+        Self {
+            id,
+            seq: ScenarioSequence::new(spec.candidates.clone(), seed),
+            spec,
+            episode: 0,
+            world: None,
+            scenario: 0,
+            ext_ids: Vec::new(),
+            returns: vec![0.0; n],
+            held: vec![[0.0; 2]; n],
+            held_seq: vec![None; n],
+            closed: false,
+        }
+    }
+
+    pub fn episode(&self) -> u64 {
+        self.episode
+    }
+
+    pub fn world(&self) -> Option<&World> {
+        self.world.as_ref()
+    }
+
+    fn scenario_name(&self) -> String {
+        self.spec.pool.scenarios[self.scenario].scenario.name.clone()
+    }
+
+    /// Starts a new episode (`Reset`). Publications of the first state go to `pubs`.
+    pub fn reset(
+        &mut self,
+        seed: Option<u64>,
+        scenario: Option<&str>,
+        gates: Gates,
+        pubs: &mut Vec<Publication>,
+    ) -> Result<ResetResult, ErrorReply> {
+        let spec = self.spec.clone();
+        let pool = &spec.pool;
+        let idx = match scenario {
+            Some(name) => {
+                let Some(i) = pool.find(name) else {
+                    return Err(ErrorReply::new(
+                        ErrorCode::BadRequest,
+                        format!("no scenario {name:?} in pool {:?}", pool.name),
+                    )
+                    .with_env(self.id.clone()));
+                };
+                if !spec.candidates.contains(&i) {
+                    return Err(ErrorReply::new(
+                        ErrorCode::BadRequest,
+                        format!(
+                            "scenario {name:?} is not in this env's candidates (split {:?} of pool {:?} with at least {} vehicles)",
+                            spec.split,
+                            pool.name,
+                            spec.external_vehicles.iter().max().map_or(0, |k| k + 1)
+                        ),
+                    )
+                    .with_env(self.id.clone()));
+                }
+                if let Some(seed) = seed {
+                    self.seq.reseed(seed);
+                }
+                i
+            }
+            None => {
+                if let Some(seed) = seed {
+                    self.seq.reseed(seed);
+                }
+                match spec.pinned {
+                    Some(p) => p,
+                    None => self.seq.next_scenario(),
+                }
+            }
+        };
+        let served = &pool.scenarios[idx];
+        let ext_ids: Vec<AgentId> = spec
+            .external_vehicles
+            .iter()
+            .map(|&k| served.vehicles[k])
+            .collect();
+        let config = EpisodeConfig {
+            pedestrian_model: spec.model,
+            model_overrides: Vec::new(),
+            external: ext_ids.clone(),
+        };
+        let world = World::new(served.scenario.clone(), spec.params, config).map_err(|e| {
+            ErrorReply::new(ErrorCode::Internal, format!("cannot start episode: {e}"))
+                .with_env(self.id.clone())
+        })?;
+        self.world = Some(world);
+        self.scenario = idx;
+        self.ext_ids = ext_ids;
+        self.episode += 1;
+        self.returns.iter_mut().for_each(|r| *r = 0.0);
+        self.held.iter_mut().for_each(|h| *h = [0.0; 2]);
+        self.held_seq.iter_mut().for_each(|h| *h = None);
+        let result = self.reset_result()?;
+        if gates.any() {
+            let events = vec![event(
+                EventKind::EpisodeStart,
+                0,
+                0.0,
+                result.agents.iter().map(|a| a.id).collect(),
+            )];
+            self.publish_state(gates, &events, pubs);
+        }
+        Ok(result)
+    }
+
+    fn reset_result(&self) -> Result<ResetResult, ErrorReply> {
+        let world = self.world.as_ref().expect("reset_result after a reset");
+        let served = &self.spec.pool.scenarios[self.scenario];
+        let mut agents: Vec<AgentDesc> = world
+            .agents()
+            .map(|a| {
+                let (length, width) = match a.shape {
+                    Shape::Rect { length, width } => (Some(length), Some(width)),
+                    Shape::Disc { .. } => (None, None),
+                };
+                AgentDesc {
+                    id: a.id,
+                    name: served.names[a.id as usize].clone(),
+                    kind: to_wire_kind(a.kind),
+                    external: self.ext_ids.contains(&a.id),
+                    radius: a.shape.bounding_radius(),
+                    length,
+                    width,
+                }
+            })
+            .collect();
+        agents.sort_by_key(|a| a.id);
+        let mut buf = Buffers::new(1, self.spec.n_ext(), self.spec.max_agents as usize);
+        write_obs(
+            world,
+            &self.ext_ids,
+            self.spec.max_agents as usize,
+            &mut buf.slots(0),
+        );
+        Ok(ResetResult {
+            env_id: self.id.clone(),
+            episode: self.episode,
+            scenario: served.scenario.name.clone(),
+            step: 0,
+            t: 0.0,
+            horizon_steps: world.horizon(),
+            agents,
+            obs: buf.obs(false)?,
+        })
+    }
+
+    /// Checks the env can be stepped in lockstep now.
+    pub fn check_steppable(&self, lockstep: bool) -> Result<(), ErrorReply> {
+        let err = |code, m: &str| Err(ErrorReply::new(code, m).with_env(self.id.clone()));
+        if self.closed {
+            return err(ErrorCode::EnvClosed, "env is closed");
+        }
+        if lockstep && self.spec.mode != Mode::Lockstep {
+            return err(
+                ErrorCode::WrongMode,
+                "env is in realtime mode: publish actions on its action keys instead of stepping",
+            );
+        }
+        match &self.world {
+            None => err(ErrorCode::NeedsReset, "env was never reset; send Reset first"),
+            Some(w) if w.is_over() => err(
+                ErrorCode::NeedsReset,
+                "the episode is over (autoreset off); send Reset",
+            ),
+            Some(_) => Ok(()),
+        }
+    }
+
+    /// One step with `actions` (one row per external agent, finite; checked by the caller).
+    /// Writes arrays into `slots`, publications into `pubs`.
+    pub fn step_into(
+        &mut self,
+        actions: &[[f64; 2]],
+        slots: &mut Slots<'_>,
+        gates: Gates,
+        pubs: &mut Vec<Publication>,
+    ) -> Result<StepMeta, ErrorReply> {
+        self.check_steppable(false)?;
+        let n = self.spec.n_ext();
+        if actions.len() != n {
+            return Err(ErrorReply::new(
+                ErrorCode::WrongShape,
+                format!("expected {n} action rows, got {}", actions.len()),
+            )
+            .with_env(self.id.clone()));
+        }
+        let world = self.world.as_mut().expect("checked above");
+        let active: Vec<(AgentId, [f64; 2])> = world
+            .active_externals()
+            .filter_map(|id| {
+                self.ext_ids
+                    .iter()
+                    .position(|&x| x == id)
+                    .map(|k| (id, actions[k]))
+            })
+            .collect();
+        let out = world.step(&active).map_err(|e| {
+            let code = match e {
+                StepError::EpisodeOver => ErrorCode::NeedsReset,
+                StepError::NonFiniteAction { .. } => ErrorCode::NonFiniteAction,
+                _ => ErrorCode::Internal,
+            };
+            ErrorReply::new(code, e.to_string()).with_env(self.id.clone())
+        })?;
+        let step = out.step;
+        let dt = world.params().dt;
+        let t = step as f64 * dt;
+        slots.reward.fill(0.0);
+        for term in slots.terms.iter_mut() {
+            term.fill(0.0);
+        }
+        slots.terminated.fill(0);
+        slots.truncated.fill(0);
+        let mut clipped = vec![false; n];
+        let mut events: Vec<Event> = out
+            .events
+            .iter()
+            .map(|e| match *e {
+                SimEvent::Collision { a, b } => event(EventKind::Collision, step, t, vec![a, b]),
+                SimEvent::GoalReached { agent } => {
+                    event(EventKind::GoalReached, step, t, vec![agent])
+                }
+                SimEvent::Entered { agent } => event(EventKind::AgentEntered, step, t, vec![agent]),
+                SimEvent::Left { agent } => event(EventKind::AgentLeft, step, t, vec![agent]),
+            })
+            .collect();
+        let mut metrics = Vec::new();
+        for o in &out.agents {
+            let Some(k) = self.ext_ids.iter().position(|&x| x == o.agent) else {
+                continue;
+            };
+            let r = &o.reward;
+            let total = r.total();
+            slots.reward[k] = total as f32;
+            slots.terms[0][k] = r.progress as f32;
+            slots.terms[1][k] = r.success as f32;
+            slots.terms[2][k] = r.collision as f32;
+            slots.terms[3][k] = r.danger as f32;
+            slots.terms[4][k] = r.comfort as f32;
+            slots.terminated[k] = u8::from(o.terminated);
+            slots.truncated[k] = u8::from(o.truncated);
+            self.returns[k] += total;
+            if o.action_clipped {
+                clipped[k] = true;
+                events.push(event(EventKind::ActionClipped, step, t, vec![o.agent]));
+            }
+            if let Some(mm) = &o.metrics {
+                let outcome = outcome_of(mm.status);
+                events.push(Event {
+                    outcome: Some(outcome),
+                    ..event(EventKind::EpisodeEnd, step, t, vec![o.agent])
+                });
+                metrics.push(EpisodeMetrics {
+                    agent: self.spec.external_names[k].clone(),
+                    outcome,
+                    steps: mm.steps,
+                    duration: mm.steps as f64 * dt,
+                    episode_return: self.returns[k],
+                    avg_speed: mm.avg_speed,
+                    avg_abs_jerk: mm.avg_abs_jerk,
+                    max_abs_acc: mm.max_abs_acc,
+                });
+            }
+        }
+        let world = self.world.as_ref().expect("present");
+        write_obs(world, &self.ext_ids, self.spec.max_agents as usize, slots);
+        let over = world.is_over();
+        if gates.any() {
+            self.publish_state(gates, &events, pubs);
+        }
+        let meta_episode = self.episode;
+        let scenario = self.scenario_name();
+        let reset = if over && self.spec.autoreset {
+            Some(self.reset(None, None, gates, pubs)?)
+        } else {
+            None
+        };
+        Ok(StepMeta {
+            episode: meta_episode,
+            scenario,
+            step,
+            t,
+            info: StepInfo {
+                action_clipped: clipped,
+                events,
+                metrics,
+            },
+            reset,
+        })
+    }
+
+    /// A single (unbatched) step result.
+    pub fn step_single(
+        &mut self,
+        actions: &[[f64; 2]],
+        gates: Gates,
+        pubs: &mut Vec<Publication>,
+    ) -> Result<StepResult, ErrorReply> {
+        let mut buf = Buffers::new(1, self.spec.n_ext(), self.spec.max_agents as usize);
+        let meta = self.step_into(actions, &mut buf.slots(0), gates, pubs)?;
+        let (reward, reward_terms, terminated, truncated) = buf.rewards(false)?;
+        Ok(StepResult {
+            env_id: self.id.clone(),
+            episode: meta.episode,
+            scenario: meta.scenario,
+            step: meta.step,
+            t: meta.t,
+            obs: buf.obs(false)?,
+            reward,
+            reward_terms,
+            terminated,
+            truncated,
+            info: meta.info,
+            reset: meta.reset,
+        })
+    }
+
+    /// Realtime: records an action for external agent `agent` unless `seq` is older than the last
+    /// one applied. Returns whether it was taken.
+    pub fn hold_action(&mut self, agent: &str, action: [f64; 2], seq: u64) -> Result<bool, String> {
+        let Some(k) = self.spec.external_names.iter().position(|a| a == agent) else {
+            return Err(format!("{agent:?} is not an external agent of env {}", self.id));
+        };
+        if self.held_seq[k].is_some_and(|last| seq < last) {
+            return Ok(false);
+        }
+        self.held_seq[k] = Some(seq);
+        self.held[k] = action;
+        Ok(true)
+    }
+
+    /// Realtime: one tick with the held actions. `None` when the env waits for a reset.
+    pub fn realtime_tick(
+        &mut self,
+        gates: Gates,
+        pubs: &mut Vec<Publication>,
+    ) -> Option<Result<StepResult, ErrorReply>> {
+        let waiting = match &self.world {
+            None => true,
+            Some(w) => w.is_over(),
+        };
+        if self.closed || waiting {
+            return None;
+        }
+        let held = self.held.clone();
+        let r = self.step_single(&held, gates, pubs);
+        if gates.result {
+            if let Ok(res) = &r {
+                if let Ok(key) = self.spec.keys.env_result(&self.id) {
+                    pubs.push(Publication {
+                        key,
+                        topic: EnvTopic::Result,
+                        payload: encode(res),
+                    });
+                }
+            }
+        }
+        Some(r)
+    }
+
+    /// Encodes the wanted publications of the current state.
+    fn publish_state(&self, gates: Gates, events: &[Event], pubs: &mut Vec<Publication>) {
+        let Some(world) = &self.world else { return };
+        let keys = &self.spec.keys;
+        let (episode, step, t) = (self.episode, world.step_index(), world.time());
+        let env_id = self.id.clone();
+        let mut push = |topic: EnvTopic, payload: Vec<u8>| {
+            if let Ok(key) = keys.env_topic(&self.id, topic) {
+                pubs.push(Publication {
+                    key,
+                    topic,
+                    payload,
+                });
+            }
+        };
+        if gates.states {
+            let mut agents: Vec<_> = world.agents().collect();
+            agents.sort_by_key(|a| a.id);
+            let n = agents.len() as u32;
+            let ids: Vec<u32> = agents.iter().map(|a| a.id).collect();
+            let kinds: Vec<u8> = agents.iter().map(|a| to_wire_kind(a.kind).code()).collect();
+            let pos: Vec<f64> = agents
+                .iter()
+                .flat_map(|a| [a.position.x, a.position.y])
+                .collect();
+            let vel: Vec<f64> = agents
+                .iter()
+                .flat_map(|a| [a.velocity.x, a.velocity.y])
+                .collect();
+            let hd: Vec<f64> = agents.iter().map(|a| a.heading).collect();
+            let msg = StatesMsg {
+                env_id: env_id.clone(),
+                episode,
+                step,
+                t,
+                ids: U32Array::from_slice(&ids),
+                kinds: U8Array::from_slice(&kinds),
+                positions: F64Array::new(vec![n, 2], &pos).expect("shape"),
+                velocities: F64Array::new(vec![n, 2], &vel).expect("shape"),
+                headings: F64Array::from_slice(&hd),
+            };
+            push(EnvTopic::States, encode(&msg));
+        }
+        if gates.uncertainty || gates.risk_graph {
+            let mut edges: Vec<_> = world.graph_edges().collect();
+            edges.sort_by_key(|e| (e.observer, e.target));
+            let src: Vec<u32> = edges.iter().map(|e| e.observer).collect();
+            let dst: Vec<u32> = edges.iter().map(|e| e.target).collect();
+            let u: Vec<f64> = edges.iter().map(|e| e.u).collect();
+            if gates.uncertainty {
+                let msg = UncertaintyMsg {
+                    env_id: env_id.clone(),
+                    episode,
+                    step,
+                    t,
+                    src: U32Array::from_slice(&src),
+                    dst: U32Array::from_slice(&dst),
+                    u: F64Array::from_slice(&u),
+                };
+                push(EnvTopic::Uncertainty, encode(&msg));
+            }
+            if gates.risk_graph {
+                let psi: Vec<f64> = edges.iter().map(|e| e.psi).collect();
+                let a: Vec<f64> = edges.iter().map(|e| e.a).collect();
+                let msg = RiskGraphMsg {
+                    env_id: env_id.clone(),
+                    episode,
+                    step,
+                    t,
+                    lambda: world.params().risk.lambda,
+                    src: U32Array::from_slice(&src),
+                    dst: U32Array::from_slice(&dst),
+                    psi: F64Array::from_slice(&psi),
+                    u: F64Array::from_slice(&u),
+                    a: F64Array::from_slice(&a),
+                };
+                push(EnvTopic::RiskGraph, encode(&msg));
+            }
+        }
+        if gates.events && !events.is_empty() {
+            let msg = EventsMsg {
+                env_id,
+                episode,
+                step,
+                t,
+                events: events.to_vec(),
+            };
+            push(EnvTopic::Events, encode(&msg));
+        }
+    }
+}

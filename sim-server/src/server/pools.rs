@@ -1,0 +1,211 @@
+//! Scenario pools as the server serves them, and the per-env scenario sequence.
+//!
+//! **Agent names.** In every scenario the vehicles are named `vehicle_0`, `vehicle_1`, ... with
+//! `vehicle_0` the scenario's ego (`Scenario::ego`) and the other vehicles following in the
+//! scenario's agent order; pedestrians are `pedestrian_0`, `pedestrian_1`, ... in agent order.
+//!
+//! **Scenario sequence.** An env draws its episodes from the candidate scenarios of its pool
+//! split (those with enough vehicles for its external agents), in pool order. The sequence is a
+//! series of random permutations of the candidates: the first is drawn by a SplitMix64 generator
+//! seeded with the env's seed (`CreateEnv.seed + k` for the k-th env of a request), and each
+//! time a permutation is used up the next one is drawn from the same generator. `Reset.seed`
+//! re-seeds the generator and starts a fresh permutation. So a trainer's sequence of scenarios
+//! depends only on (pool, split, external agents, seed, env index, resets with seeds), never on
+//! other trainers or on timing.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use protocol::PoolSummary;
+use scenarios::synthetic::SplitMix64;
+use sim_core::scenario::{AgentKind, Scenario, ScenarioPool, Split};
+use sim_core::world::AgentId;
+
+/// One scenario with the server's naming of its agents.
+#[derive(Debug)]
+pub struct ServedScenario {
+    pub scenario: Arc<Scenario>,
+    /// Agent ids of the vehicles: index k is `vehicle_k` (the ego first).
+    pub vehicles: Vec<AgentId>,
+    /// Name of every agent, indexed by agent id.
+    pub names: Vec<String>,
+}
+
+impl ServedScenario {
+    pub fn new(scenario: Scenario) -> Self {
+        let mut vehicles: Vec<AgentId> = Vec::new();
+        if scenario
+            .agents
+            .get(scenario.ego)
+            .is_some_and(|a| a.kind == AgentKind::Vehicle)
+        {
+            vehicles.push(scenario.ego as AgentId);
+        }
+        for (k, a) in scenario.agents.iter().enumerate() {
+            if a.kind == AgentKind::Vehicle && k != scenario.ego {
+                vehicles.push(k as AgentId);
+            }
+        }
+        let mut names = vec![String::new(); scenario.agents.len()];
+        for (k, &id) in vehicles.iter().enumerate() {
+            names[id as usize] = format!("vehicle_{k}");
+        }
+        let mut peds = 0usize;
+        for (k, a) in scenario.agents.iter().enumerate() {
+            if a.kind == AgentKind::Pedestrian {
+                names[k] = format!("pedestrian_{peds}");
+                peds += 1;
+            }
+        }
+        Self {
+            scenario: Arc::new(scenario),
+            vehicles,
+            names,
+        }
+    }
+}
+
+/// A pool as served: scenarios by split and by name.
+#[derive(Debug)]
+pub struct ServedPool {
+    pub name: String,
+    pub scenarios: Vec<ServedScenario>,
+    by_name: HashMap<String, usize>,
+}
+
+impl ServedPool {
+    pub fn new(pool: ScenarioPool) -> Self {
+        let scenarios: Vec<ServedScenario> =
+            pool.scenarios.into_iter().map(ServedScenario::new).collect();
+        let by_name = scenarios
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.scenario.name.clone(), i))
+            .collect();
+        Self {
+            name: pool.name,
+            scenarios,
+            by_name,
+        }
+    }
+
+    /// Index of the scenario called `name`.
+    pub fn find(&self, name: &str) -> Option<usize> {
+        self.by_name.get(name).copied()
+    }
+
+    /// Indices of the scenarios of `split` with at least `vehicles` vehicles, in pool order.
+    pub fn candidates(&self, split: Split, vehicles: usize) -> Vec<usize> {
+        self.scenarios
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.scenario.split == split && s.vehicles.len() >= vehicles)
+            .map(|(i, _)| i)
+            .collect()
+    }
+
+    pub fn summary(&self) -> PoolSummary {
+        let count = |split| {
+            self.scenarios
+                .iter()
+                .filter(|s| s.scenario.split == split)
+                .count() as u32
+        };
+        PoolSummary {
+            name: self.name.clone(),
+            train: count(Split::Train),
+            test: count(Split::Test),
+        }
+    }
+}
+
+/// The seeded scenario sequence of one env (see the module docs).
+#[derive(Debug, Clone)]
+pub struct ScenarioSequence {
+    candidates: Arc<Vec<usize>>,
+    rng: SplitMix64,
+    order: Vec<usize>,
+    next: usize,
+}
+
+impl ScenarioSequence {
+    /// A sequence over `candidates` (must be non-empty) seeded with `seed`.
+    pub fn new(candidates: Arc<Vec<usize>>, seed: u64) -> Self {
+        let mut s = Self {
+            candidates,
+            rng: SplitMix64::new(seed),
+            order: Vec::new(),
+            next: 0,
+        };
+        s.reseed(seed);
+        s
+    }
+
+    /// Re-seeds the generator and starts a fresh permutation.
+    pub fn reseed(&mut self, seed: u64) {
+        self.rng = SplitMix64::new(seed);
+        self.order.clear();
+        self.next = 0;
+    }
+
+    fn shuffle(&mut self) {
+        self.order.clear();
+        self.order.extend(self.candidates.iter().copied());
+        // Fisher–Yates.
+        for i in (1..self.order.len()).rev() {
+            let j = (self.rng.next_u64() % (i as u64 + 1)) as usize;
+            self.order.swap(i, j);
+        }
+        self.next = 0;
+    }
+
+    /// The next scenario index.
+    pub fn next_scenario(&mut self) -> usize {
+        if self.next >= self.order.len() {
+            self.shuffle();
+        }
+        let s = self.order[self.next];
+        self.next += 1;
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sequence_is_a_series_of_permutations() {
+        let c = Arc::new((10..17).collect::<Vec<_>>());
+        let mut s = ScenarioSequence::new(c.clone(), 42);
+        let first: Vec<usize> = (0..7).map(|_| s.next_scenario()).collect();
+        let mut sorted = first.clone();
+        sorted.sort();
+        assert_eq!(sorted, *c);
+        let second: Vec<usize> = (0..7).map(|_| s.next_scenario()).collect();
+        let mut sorted2 = second.clone();
+        sorted2.sort();
+        assert_eq!(sorted2, *c);
+        // Reproducible.
+        let mut t = ScenarioSequence::new(c.clone(), 42);
+        let again: Vec<usize> = (0..7).map(|_| t.next_scenario()).collect();
+        assert_eq!(first, again);
+        // Another seed gives another order (for this seed pair).
+        let mut u = ScenarioSequence::new(c, 43);
+        let other: Vec<usize> = (0..7).map(|_| u.next_scenario()).collect();
+        assert_ne!(first, other);
+        // Reseeding restarts.
+        t.reseed(42);
+        assert_eq!(t.next_scenario(), first[0]);
+    }
+
+    #[test]
+    fn ego_is_vehicle_0() {
+        let pool = scenarios::embedded::default_pool();
+        let served = ServedPool::new(pool);
+        for s in &served.scenarios {
+            assert_eq!(s.vehicles.first().copied(), Some(s.scenario.ego as AgentId));
+            assert_eq!(s.names[s.scenario.ego], "vehicle_0");
+        }
+    }
+}
