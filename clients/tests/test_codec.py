@@ -1,0 +1,260 @@
+"""The codec against the golden wire samples (tests/golden/, described in its README.md)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from sharedspace import codec
+from sharedspace.errors import (
+    EnvClosed,
+    NonFiniteAction,
+    NoServer,
+    ProtocolError,
+    ServerError,
+    SharedspaceError,
+    VersionMismatch,
+    WrongShape,
+)
+
+GOLDEN = Path(__file__).resolve().parents[2] / "tests" / "golden"
+FILES = sorted(p.name for p in GOLDEN.glob("*.msgpack"))
+
+
+# ---------------------------------------------------------------------------------------------
+# A parser of the README's notation.
+
+
+class _Array:
+    def __init__(self, dtype, shape, data):
+        self.dtype, self.shape, self.data = dtype, shape, data
+
+
+_TOKEN = re.compile(
+    r"""\s*(?:
+        (?P<array>array\ dtype=(?P<dt>\S+)\ shape=\[(?P<shape>[^\]]*)\]
+                  \ data\(row-major\)=\[(?P<data>[^\]]*)\])
+      | (?P<str>"(?:[^"\\]|\\.)*")
+      | (?P<num>-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)
+      | (?P<word>nil|true|false)
+      | (?P<punct>[{}\[\]:,])
+    )""",
+    re.VERBOSE,
+)
+
+
+def _tokens(text):
+    pos = 0
+    out = []
+    text = text.rstrip()
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if not m:
+            raise ValueError(f"cannot tokenize README at {text[pos : pos + 40]!r}")
+        pos = m.end()
+        out.append(m)
+    return out
+
+
+def _parse(tokens, i=0):
+    """Recursive descent over the README notation (commas optional, newlines separate)."""
+    m = tokens[i]
+    if m.group("array"):
+        shape = [int(s) for s in m.group("shape").split(",") if s.strip()]
+        data = [float(s) for s in m.group("data").split(",") if s.strip()]
+        return _Array(m.group("dt"), shape, data), i + 1
+    if m.group("str"):
+        return json.loads(m.group("str")), i + 1
+    if m.group("num"):
+        s = m.group("num")
+        return (float(s) if ("." in s or "e" in s.lower()) else int(s)), i + 1
+    if m.group("word"):
+        return {"nil": None, "true": True, "false": False}[m.group("word")], i + 1
+    p = m.group("punct")
+    if p == "{":
+        out = {}
+        i += 1
+        while tokens[i].group("punct") != "}":
+            if tokens[i].group("punct") == ",":
+                i += 1
+                continue
+            key, i = _parse(tokens, i)
+            assert tokens[i].group("punct") == ":"
+            out[key], i = _parse(tokens, i + 1)
+        return out, i + 1
+    if p == "[":
+        out = []
+        i += 1
+        while tokens[i].group("punct") != "]":
+            if tokens[i].group("punct") == ",":
+                i += 1
+                continue
+            v, i = _parse(tokens, i)
+            out.append(v)
+        return out, i + 1
+    raise ValueError(f"unexpected token {m.group(0)!r}")
+
+
+def readme_samples() -> dict[str, tuple[int, object]]:
+    text = (GOLDEN / "README.md").read_text()
+    samples = {}
+    for m in re.finditer(
+        r"^## `(?P<name>[a-z_0-9]+\.msgpack)`.*?(?P<size>\d+) bytes.*?```text\n(?P<body>.*?)```",
+        text,
+        re.S | re.M,
+    ):
+        value, end = _parse(_tokens(m.group("body")))
+        samples[m.group("name")] = (int(m.group("size")), value)
+    return samples
+
+
+SAMPLES = readme_samples()
+
+
+def _assert_matches(decoded, documented, path="$"):
+    if isinstance(documented, _Array):
+        assert isinstance(decoded, np.ndarray), f"{path}: expected an array"
+        assert decoded.dtype.str == documented.dtype, path
+        assert list(decoded.shape) == documented.shape, path
+        want = np.array(documented.data, dtype=np.float64)
+        if decoded.dtype == np.float32:
+            want = want.astype(np.float32)  # the README prints the shortest f32 round trip
+        np.testing.assert_array_equal(decoded.reshape(-1), want.astype(decoded.dtype), err_msg=path)
+    elif isinstance(documented, dict):
+        assert isinstance(decoded, dict), path
+        assert list(decoded.keys()) == list(documented.keys()), f"{path}: key order"
+        for k in documented:
+            _assert_matches(decoded[k], documented[k], f"{path}.{k}")
+    elif isinstance(documented, list):
+        assert isinstance(decoded, list) and len(decoded) == len(documented), path
+        for k, (a, b) in enumerate(zip(decoded, documented, strict=True)):
+            _assert_matches(a, b, f"{path}[{k}]")
+    elif isinstance(documented, float):
+        assert isinstance(decoded, float) and decoded == documented, f"{path}: {decoded!r}"
+    else:
+        assert type(decoded) is type(documented) and decoded == documented, f"{path}: {decoded!r}"
+
+
+def test_readme_documents_every_file():
+    assert FILES and sorted(SAMPLES) == FILES
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_golden_decodes_to_documented_values(name):
+    payload = (GOLDEN / name).read_bytes()
+    size, documented = SAMPLES[name]
+    assert len(payload) == size
+    _assert_matches(codec.decode(payload), documented)
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_golden_reencodes_byte_identically(name):
+    payload = (GOLDEN / name).read_bytes()
+    assert codec.encode(codec.decode(payload)) == payload
+
+
+def test_arrays_are_zero_copy_views():
+    payload = (GOLDEN / "states.msgpack").read_bytes()
+    m = codec.decode(payload)
+    pos = m["positions"]
+    assert not pos.flags.owndata and not pos.flags.writeable
+    raw = msgpack.unpackb(payload)["positions"]["data"]
+    assert pos.tobytes() == raw
+    assert pos.dtype == np.float64 and pos.shape == (3, 2)
+    assert m["kinds"].dtype == np.uint8 and m["ids"].dtype == np.uint32
+
+
+def _golden(name):
+    return (GOLDEN / name).read_bytes()
+
+
+def test_request_builders_reproduce_golden_bytes():
+    assert codec.encode_info_request() == _golden("info_request.msgpack")
+    assert codec.encode_create_env(
+        "trainer-a",
+        count=2,
+        pool="hbs_3ped",
+        seed=42,
+        pedestrian_params={"lambda1": 1.5, "tau": 0.5},
+        reward_weights={"collision": -25.0},
+        max_agents=4,
+        autoreset=True,
+    ) == _golden("create_env.msgpack")
+    assert codec.encode_reset(seed=7) == _golden("reset.msgpack")
+    act = np.array([[0.5, -1.25]], dtype=np.float32)
+    assert codec.encode_step(act, n_ext=1) == _golden("step.msgpack")
+    assert codec.encode_step(act.astype(np.float64)) == _golden("step_f64.msgpack")
+    assert codec.encode_step([0.5, -1.25]) == _golden("step_f64.msgpack")  # [2] -> [1, 2]
+    batch = np.array([[[0.5, -1.25]], [[-0.25, 0.0]]], dtype=np.float32)
+    assert codec.encode_batch_step(["s1-0", "s1-1"], batch) == _golden("batch_step.msgpack")
+    assert codec.encode_close() == _golden("close.msgpack")
+    assert codec.encode_action_msg(np.float32([0.25, 0.0]), seq=17) == _golden("action.msgpack")
+
+
+def test_wrong_action_shapes_raise_wrong_shape():
+    with pytest.raises(WrongShape):
+        codec.step(np.zeros((2, 3)))
+    with pytest.raises(WrongShape):
+        codec.step(np.zeros((2, 2)), n_ext=1)
+    with pytest.raises(WrongShape):
+        codec.batch_step(["a", "b"], np.zeros((3, 1, 2), dtype=np.float32))
+    with pytest.raises(WrongShape):
+        codec.action_msg([1.0, 2.0, 3.0])
+    # Integer actions are sent as float64 (the server refuses integer dtypes).
+    assert codec.step([[1, 0]])["actions"].dtype == np.float64
+
+
+def test_reply_envelope():
+    info = codec.decode_reply(_golden("reply_server_info.msgpack"))
+    assert info["server_id"] == "s1" and info["pools"][0]["name"] == "hbs_3ped"
+    step = codec.decode_reply(_golden("reply_step.msgpack"))
+    assert step["obs"]["features"].shape == (1, 4, 11)
+    assert step["reward"].dtype == np.float32 and step["reward"][0] == np.float32(-1.125)
+    with pytest.raises(NonFiniteAction) as e:
+        codec.decode_reply(_golden("reply_error.msgpack"))
+    assert isinstance(e.value, ServerError) and isinstance(e.value, SharedspaceError)
+    assert e.value.code == "non_finite_action" and e.value.env_id == "s1-1"
+    assert "component 1 is NaN" in e.value.message
+
+
+@pytest.mark.parametrize(
+    ("code", "cls"),
+    [
+        ("version_mismatch", VersionMismatch),
+        ("env_closed", EnvClosed),
+        ("wrong_shape", WrongShape),
+        ("something_new", ServerError),
+    ],
+)
+def test_error_codes_map_to_exceptions(code, cls):
+    payload = codec.encode(codec.error(code, "msg"))
+    with pytest.raises(cls) as e:
+        codec.decode_reply(payload)
+    assert type(e.value) is cls and e.value.code == code and e.value.env_id is None
+
+
+def test_bad_payloads_raise_protocol_error():
+    with pytest.raises(ProtocolError):
+        codec.decode_reply(codec.encode({"ok": 1, "error": {"code": "x", "message": "y"}}))
+    with pytest.raises(ProtocolError):
+        codec.decode_reply(codec.encode({"neither": 1}))
+    with pytest.raises(ProtocolError):
+        codec.decode(_golden("close.msgpack") + b"\x00")  # trailing bytes
+    bad_len = {"dtype": "<f4", "shape": [3], "data": b"\x00" * 8}
+    with pytest.raises(ProtocolError):
+        codec.decode(msgpack.packb({"a": bad_len}, use_bin_type=True))
+    bad_dtype = {"dtype": "<i8", "shape": [1], "data": b"\x00" * 8}
+    with pytest.raises(ProtocolError):
+        codec.decode(msgpack.packb({"a": bad_dtype}, use_bin_type=True))
+    assert codec.decode(b"") == {}
+
+
+def test_no_server_error():
+    e = NoServer("sharedspace/server/*/info", 5.0)
+    assert e.endpoint == "sharedspace/server/*/info" and e.timeout == 5.0
+    assert "5 s" in str(e) and isinstance(e, SharedspaceError)
