@@ -692,6 +692,80 @@ class ReferenceWorld:
             "a": a[ii, jj],
         }
 
+    #: Node features of :meth:`observation`, in order (``sim_core::observation::FEATURE_NAMES``).
+    FEATURE_NAMES = (
+        "rel_x",
+        "rel_y",
+        "rel_vx",
+        "rel_vy",
+        "speed",
+        "heading_diff",
+        "radius",
+        "is_vehicle",
+        "goal_dx",
+        "goal_dy",
+        "goal_dist",
+    )
+
+    def observation(self, agent_id: int, max_agents: int) -> dict[str, np.ndarray]:
+        """Agent ``agent_id``'s observation as ``World::fill_observation`` of the Rust core.
+
+        Returns ``features`` float32 ``[M, 11]`` (ego frame, x forward; :attr:`FEATURE_NAMES`),
+        ``adjacency`` float32 ``[M, M]`` (``A`` between the nodes, zero diagonal and padding),
+        ``mask`` bool ``[M]`` and ``node_ids`` int64 ``[M]`` (-1 for padding), with
+        ``M = max_agents``. Node 0 is the ego; the others are the agents inside its perception
+        radius sorted by (clearance, id), the first ``M - 1`` of them. Everything is zero (and
+        ``mask`` all false) when the agent is not present.
+        """
+        m = int(max_agents)
+        if m < 1:
+            raise ValueError("max_agents must be at least 1")
+        nf = len(self.FEATURE_NAMES)
+        features = np.zeros((m, nf), dtype=np.float32)
+        adjacency = np.zeros((m, m), dtype=np.float32)
+        mask = np.zeros(m, dtype=bool)
+        node_ids = np.full(m, -1, dtype=np.int64)
+        out = {"features": features, "adjacency": adjacency, "mask": mask, "node_ids": node_ids}
+        g = self.slot_of(agent_id)
+        if g is None:
+            return out
+        targets = np.flatnonzero(self.edge[g])
+        near = sorted(
+            ((float(self.clearance[g, j]), int(self.ids[j]), int(j)) for j in targets),
+            key=lambda t: (t[0], t[1]),
+        )[: m - 1]
+        slots = [g] + [t[2] for t in near]
+        s, c = math.sin(float(self.heading[g])), math.cos(float(self.heading[g]))
+
+        def to_ego(x: float, y: float) -> tuple[float, float]:
+            return c * x + s * y, -s * x + c * y
+
+        gx, gy = float(self.pos[g, 0]), float(self.pos[g, 1])
+        gvx, gvy = float(self.vel[g, 0]), float(self.vel[g, 1])
+        for node, j in enumerate(slots):
+            row = features[node]
+            rx, ry = to_ego(float(self.pos[j, 0]) - gx, float(self.pos[j, 1]) - gy)
+            rvx, rvy = to_ego(float(self.vel[j, 0]) - gvx, float(self.vel[j, 1]) - gvy)
+            vx, vy = float(self.vel[j, 0]), float(self.vel[j, 1])
+            row[0], row[1], row[2], row[3] = rx, ry, rvx, rvy
+            row[4] = math.sqrt(vx * vx + vy * vy)
+            row[5] = wrap_angle(float(self.heading[j]) - float(self.heading[g]))
+            if self.is_rect[j]:
+                row[6] = 0.5 * math.hypot(float(self.length[j]), float(self.width[j]))
+            else:
+                row[6] = float(self.radius[j])
+            row[7] = 1.0 if self.is_vehicle[j] else 0.0
+            if node == 0:
+                dx, dy = to_ego(float(self.goal[g, 0]) - gx, float(self.goal[g, 1]) - gy)
+                row[8], row[9] = dx, dy
+                row[10] = math.sqrt(dx * dx + dy * dy)
+            mask[node] = True
+            node_ids[node] = int(self.ids[j])
+        idx = np.asarray(slots)
+        a = self.A[np.ix_(idx, idx)]
+        adjacency[: len(slots), : len(slots)] = np.where(self.edge[np.ix_(idx, idx)], a, 0.0)
+        return out
+
     def active_externals(self) -> list[int]:
         return [e for e in self.external if self._ext[e]["active"]]
 

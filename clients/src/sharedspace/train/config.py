@@ -1,0 +1,121 @@
+"""Training configuration: one dataclass, loadable from TOML/JSON plus ``key=value`` overrides."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
+
+#: Network variants (paper Section V.B): G-SAC-Cog, G-SAC-NoCog, S-SAC.
+VARIANTS = ("g_sac_cog", "g_sac_nocog", "s_sac")
+
+
+@dataclass
+class TrainConfig:
+    """Every knob of a SAC(-GCN) run. One line of doc per field."""
+
+    # --- run
+    seed: int = 0  # seed of torch, numpy and the env's scenario sequence
+    variant: str = (
+        "g_sac_cog"  # g_sac_cog (A = env risk graph) | g_sac_nocog (uniform) | s_sac (MLP)
+    )
+    total_frames: int = 200_000  # env transitions to collect (summed over the K sub-envs)
+    device: str = "cpu"  # torch device of the networks and the updates ("cpu", "cuda")
+    num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
+    # --- env
+    env_backend: str = "local"  # "local" (in-process LocalBatchedEnv) | "remote" (Zenoh server)
+    num_envs: int = 8  # K, sub-envs stepped together (env batch size)
+    max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
+    pedestrian_model: str = "cr_sfm"  # pedestrian model of the simulated crowd
+    scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
+    server_endpoint: str = "tcp/127.0.0.1:7447"  # Zenoh endpoint of the server (remote only)
+    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server (remote only)
+    # --- SAC
+    frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
+    init_random_frames: int = 5_000  # frames collected by a uniform random policy first
+    utd_ratio: float = 0.5  # gradient updates per collected frame
+    batch_size: int = 256  # replay minibatch size
+    buffer_size: int = 200_000  # replay buffer capacity (transitions)
+    lr: float = 3e-4  # Adam learning rate of actor, critics and temperature
+    gamma: float = 0.99  # discount factor
+    tau: float = 0.005  # soft target update coefficient (theta' <- tau theta + (1-tau) theta')
+    alpha_init: float = 1.0  # initial entropy temperature (learned, target entropy = -|A|)
+    loss_function: str = "l2"  # critic loss: l2 | smooth_l1
+    # --- networks
+    hidden_sizes: list[int] = field(default_factory=lambda: [256, 256])  # MLP head widths
+    gcn_hidden: int = 64  # width of each GCN layer's output
+    gcn_layers: int = 2  # number of GCN layers (ignored by s_sac)
+    readout: str = "ego_mean"  # graph readout: "ego" (node 0) | "ego_mean" (node 0 ++ mean)
+    # --- evaluation, logging, checkpoints
+    eval_interval: int = 20_000  # frames between evaluations on the test split (0 = never)
+    eval_split: str = "test"  # split evaluated during training
+    eval_envs: int = 18  # sub-envs of the evaluation env (18 = every test scenario at once)
+    checkpoint_interval: int = 50_000  # frames between checkpoints (0 = only at the end)
+    save_buffer: bool = False  # include the replay buffer in checkpoints
+    log_dir: str = "runs/default"  # run directory: metrics.csv, TensorBoard events, checkpoints
+    progress: bool = True  # show a tqdm progress bar
+
+    def __post_init__(self):
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {VARIANTS}, not {self.variant!r}")
+        if self.env_backend not in ("local", "remote"):
+            raise ValueError(f"env_backend must be local or remote, not {self.env_backend!r}")
+        if self.readout not in ("ego", "ego_mean"):
+            raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
+
+    @property
+    def batch_frames(self) -> int:
+        """Frames per collector batch."""
+        return self.frames_per_batch or self.num_envs * 8
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _parse_value(text: str, like: Any) -> Any:
+    if isinstance(like, bool):
+        if text.lower() in ("1", "true", "yes", "on"):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"not a boolean: {text!r}")
+    if isinstance(like, int):
+        return int(float(text)) if "e" in text.lower() else int(text)
+    if isinstance(like, float):
+        return float(text)
+    if isinstance(like, list):
+        return [int(x) for x in text.strip("[]").split(",") if x.strip()]
+    return text
+
+
+def apply_overrides(cfg: TrainConfig, overrides: list[str] | dict[str, Any]) -> TrainConfig:
+    """A copy of ``cfg`` with ``key=value`` strings (or a dict) applied; values are parsed by
+    the field's type (lists as ``256,256``)."""
+    data = cfg.to_dict()
+    items = (
+        overrides.items() if isinstance(overrides, dict) else (o.split("=", 1) for o in overrides)
+    )
+    for key, value in items:
+        key = key.strip()
+        if key not in data:
+            raise KeyError(f"unknown config key {key!r}")
+        data[key] = _parse_value(value, data[key]) if isinstance(value, str) else value
+    return TrainConfig(**data)
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> TrainConfig:
+    """Defaults, then the TOML/JSON file at ``path`` (flat table of fields), then overrides."""
+    cfg = TrainConfig()
+    if path:
+        cfg = apply_overrides(cfg, _read_table(path))
+    return apply_overrides(cfg, overrides or [])
+
+
+def _read_table(path: str | Path) -> dict[str, Any]:
+    p = Path(path)
+    return tomllib.loads(p.read_text()) if p.suffix == ".toml" else json.loads(p.read_text())

@@ -1,0 +1,213 @@
+"""Scores a checkpoint on a split: the paper's Table II columns, plus the recorded human driver.
+
+    python -m sharedspace.train.evaluate --checkpoint runs/x/checkpoints/last.pt --split test
+        [--json out.json] [--traces traces.json] [--set key=value ...]
+
+Every scenario of the split is played once with the deterministic policy (the TanhNormal's
+mode) in a batched env with one sub-env per scenario (``scenario_order="sequential"``). The human
+row scores the scenario's recorded ego speeds with the same metric definitions
+(``EpisodeMetrics::from_speeds``; every recorded episode counts as a success).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from sharedspace.local_env import load_pool, split_indices
+from sharedspace.reference import _recorded_headings, episode_metrics
+from sharedspace.train.config import TrainConfig, apply_overrides
+from sharedspace.train.sac import make_actor, make_env
+
+__all__ = [
+    "COLUMNS",
+    "human_episodes",
+    "run_episodes",
+    "summarize",
+    "format_table",
+    "load_checkpoint_actor",
+    "main",
+]
+
+#: Table II columns: (key, header).
+COLUMNS = (
+    ("success", "Success"),
+    ("collision", "Collision"),
+    ("timeout", "Timeout"),
+    ("avg_speed", "Avg speed (m/s)"),
+    ("avg_abs_jerk", "Avg |jerk| (m/s^3)"),
+    ("max_abs_acc", "Avg max |acc| (m/s^2)"),
+)
+
+
+def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
+    """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and
+    returns one record per sub-env: scenario index, status, metrics, return, and the ego's
+    speed / normalised action trace (``speeds[0]`` at the start)."""
+    k = env.batch_size[0]
+    records: list[dict[str, Any] | None] = [None] * k
+    traces = [{"speeds": [], "actions": [], "return": 0.0} for _ in range(k)]
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        scen = td["scenario_index"].reshape(-1).tolist()
+        for i in range(k):
+            traces[i]["speeds"].append(float(td["features"][i, 0, 4]))
+        for _ in range(max_steps):
+            td = policy(td)
+            td = env.step(td)
+            nxt = td["next"]
+            done = nxt["done"].reshape(-1)
+            for i in range(k):
+                if records[i] is not None:
+                    continue
+                traces[i]["speeds"].append(float(nxt["features"][i, 0, 4]))
+                traces[i]["actions"].append(td["action"][i].tolist())
+                traces[i]["return"] += float(nxt["reward"][i])
+                if done[i]:
+                    status = next(
+                        (
+                            s
+                            for s in ("success", "collision", "timeout")
+                            if bool(nxt[f"episode_{s}"][i])
+                        ),
+                        "timeout",
+                    )
+                    records[i] = {
+                        "scenario_index": int(scen[i]),
+                        "status": status,
+                        "avg_speed": float(nxt["episode_avg_speed"][i]),
+                        "avg_abs_jerk": float(nxt["episode_avg_abs_jerk"][i]),
+                        "max_abs_acc": float(nxt["episode_max_abs_acc"][i]),
+                        "steps": len(traces[i]["actions"]),
+                        **traces[i],
+                    }
+            if all(r is not None for r in records):
+                break
+            td = env.maybe_reset(step_mdp(td))
+    return [r for r in records if r is not None]
+
+
+def human_episodes(pool: Sequence[dict], indices: Sequence[int]) -> list[dict[str, Any]]:
+    """The recorded ego of each scenario scored like an episode (status ``success``), with its
+    speed and heading traces."""
+    out = []
+    for idx in indices:
+        sc = pool[idx]
+        ego = sc["agents"][int(sc["ego"])]
+        vel = np.asarray(ego["velocities"], dtype=float).reshape(-1, 2)
+        speeds = [math.sqrt(v[0] * v[0] + v[1] * v[1]) for v in vel]
+        m = episode_metrics("success", speeds, float(sc["dt"]))
+        out.append(
+            {
+                "scenario_index": int(idx),
+                **m,
+                "speeds": speeds,
+                "headings": _recorded_headings(vel).tolist(),
+                "positions": np.asarray(ego["positions"], dtype=float).tolist(),
+            }
+        )
+    return out
+
+
+def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """Means over episodes (``MetricsSummary::of``): status shares and metric means."""
+    n = len(episodes)
+    if n == 0:
+        return {"episodes": 0, **{c: 0.0 for c, _ in COLUMNS}}
+    row: dict[str, float] = {"episodes": n}
+    for s in ("success", "collision", "timeout"):
+        row[s] = sum(e["status"] == s for e in episodes) / n
+    for key in ("avg_speed", "avg_abs_jerk", "max_abs_acc"):
+        row[key] = float(np.mean([e[key] for e in episodes]))
+    return row
+
+
+def format_table(rows: dict[str, dict[str, float]]) -> str:
+    """Table II as text: one row per model."""
+    head = f"{'Model':<16}" + "".join(f"{h:>22}" for _, h in COLUMNS) + f"{'episodes':>10}"
+    lines = [head, "-" * len(head)]
+    for name, row in rows.items():
+        lines.append(
+            f"{name:<16}"
+            + "".join(f"{row[c]:>22.3f}" for c, _ in COLUMNS)
+            + f"{int(row['episodes']):>10}"
+        )
+    return "\n".join(lines)
+
+
+def load_checkpoint_actor(path: str, overrides: Sequence[str] = (), device: str = "cpu"):
+    """(config, actor) from a checkpoint written by the trainer."""
+    ckpt = torch.load(path, map_location=device, weights_only=False)
+    cfg = apply_overrides(TrainConfig(**ckpt["config"]), list(overrides))
+    cfg = apply_overrides(cfg, {"device": device})
+    probe = make_env(cfg, split=cfg.eval_split, num_envs=1)
+    actor = make_actor(cfg, probe.action_spec_unbatched)
+    with torch.no_grad():
+        actor(probe.reset())  # materialise lazy shapes, if any
+    actor.load_state_dict(ckpt["actor"])
+    probe.close()
+    return cfg, actor
+
+
+def evaluate_policy(cfg: TrainConfig, actor, split: str = "test") -> dict[str, Any]:
+    """Plays every scenario of ``split`` once; returns per-episode records and the summary."""
+    pool = load_pool(cfg.scenario_pool or None)
+    n = len(split_indices(pool, split))
+    env = make_env(cfg, split=split, num_envs=n, seed=cfg.seed, scenario_order="sequential")
+    try:
+        episodes = run_episodes(env, actor)
+    finally:
+        env.close()
+    return {"episodes": episodes, "summary": summarize(episodes)}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m sharedspace.train.evaluate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--checkpoint", required=True, help="checkpoint .pt written by the trainer")
+    ap.add_argument("--split", default="test", help="train | test | all")
+    ap.add_argument("--json", default="", help="write the table and episodes to this JSON file")
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config overrides (e.g. env_backend=remote)",
+    )
+    ap.add_argument("--device", default="cpu")
+    args = ap.parse_args(argv)
+
+    cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
+    result = evaluate_policy(cfg, actor, args.split)
+    pool = load_pool(cfg.scenario_pool or None)
+    human = human_episodes(pool, split_indices(pool, args.split))
+    rows = {cfg.variant: result["summary"], "human": summarize(human)}
+    print(format_table(rows))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(
+                {
+                    "checkpoint": args.checkpoint,
+                    "split": args.split,
+                    "table": rows,
+                    "episodes": result["episodes"],
+                    "human": human,
+                },
+                f,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,149 @@
+"""Graph encoders of the actor and the critics (paper Section IV.C).
+
+A GCN layer is ``H' = sigma(D^-1/2 (A + I) D^-1/2 H W)`` (Kipf & Welling) on a batch of padded
+graphs ``[B, M, M]``: padding rows and columns of ``A`` are zeroed, self-loops are added on present
+nodes only and ``D`` is the row degree of ``A + I`` (``A[i][j]`` is the influence of ``j`` on ``i``,
+so node ``i`` aggregates its row). Padding nodes get zero embeddings.
+
+Variants (paper Table II):
+
+- ``g_sac_cog``: ``A`` = the env's risk graph ``psi (1 + lambda u)``;
+- ``g_sac_nocog``: uniform ``A``: 1 between every pair of distinct present nodes, 0 elsewhere;
+- ``s_sac``: no graph, an MLP on the padded, masked node features flattened.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+__all__ = [
+    "FEATURE_SCALE",
+    "GCNLayer",
+    "GraphEncoder",
+    "normalized_adjacency",
+    "uniform_adjacency",
+    "mlp",
+]
+
+#: Fixed scale of the node features (FEATURE_NAMES order), so that inputs are O(1).
+FEATURE_SCALE = (10.0, 10.0, 5.0, 5.0, 5.0, 3.14159, 1.0, 1.0, 20.0, 20.0, 20.0)
+
+
+def uniform_adjacency(mask: torch.Tensor) -> torch.Tensor:
+    """``[..., M, M]``: 1 between distinct present nodes, 0 on the diagonal and for padding."""
+    m = mask.to(torch.float32)
+    eye = torch.eye(mask.shape[-1], dtype=m.dtype, device=m.device)
+    return m.unsqueeze(-1) * m.unsqueeze(-2) * (1.0 - eye)
+
+
+def normalized_adjacency(adjacency: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``D^-1/2 (A + I) D^-1/2`` with ``A`` masked to present nodes and self-loops on present
+    nodes only; rows/columns of padding nodes are 0."""
+    m = mask.to(adjacency.dtype)
+    eye = torch.eye(adjacency.shape[-1], dtype=adjacency.dtype, device=adjacency.device)
+    a = adjacency * m.unsqueeze(-1) * m.unsqueeze(-2) * (1.0 - eye) + eye * m.unsqueeze(-1)
+    deg = a.sum(-1)
+    inv_sqrt = torch.where(deg > 0, deg.clamp_min(1e-12).rsqrt(), torch.zeros_like(deg))
+    return inv_sqrt.unsqueeze(-1) * a * inv_sqrt.unsqueeze(-2)
+
+
+class GCNLayer(nn.Module):
+    """One graph convolution ``sigma(A_hat H W)`` (``A_hat`` already normalised)."""
+
+    def __init__(self, in_features: int, out_features: int, activation: bool = True):
+        super().__init__()
+        self.linear = nn.Linear(in_features, out_features, bias=False)  # W
+        self.bias = nn.Parameter(torch.zeros(out_features))  # added after aggregation
+        self.activation = nn.ReLU() if activation else nn.Identity()
+
+    def forward(self, h: torch.Tensor, a_hat: torch.Tensor) -> torch.Tensor:
+        return self.activation(a_hat @ self.linear(h) + self.bias)
+
+
+def mlp(
+    sizes: Sequence[int], out: int | None = None, final_activation: bool = False
+) -> nn.Sequential:
+    """Linear + ReLU stack through ``sizes`` (then a plain ``Linear`` to ``out`` if given)."""
+    layers: list[nn.Module] = []
+    for a, b in zip(sizes[:-1], sizes[1:], strict=True):
+        layers += [nn.Linear(a, b), nn.ReLU()]
+    if out is not None:
+        layers.append(nn.Linear(sizes[-1], out))
+    elif not final_activation and layers:
+        layers.pop()
+    return nn.Sequential(*layers)
+
+
+class GraphEncoder(nn.Module):
+    """Embeds one observation ``(features [*, M, F], adjacency [*, M, M], mask [*, M])`` into
+    ``[*, out_features]`` according to ``variant``."""
+
+    def __init__(
+        self,
+        variant: str,
+        max_agents: int,
+        num_features: int = 11,
+        gcn_hidden: int = 64,
+        gcn_layers: int = 2,
+        readout: str = "ego_mean",
+    ):
+        super().__init__()
+        self.variant = variant
+        self.readout = readout
+        self.register_buffer("scale", torch.tensor(FEATURE_SCALE[:num_features]))
+        if variant == "s_sac":
+            self.layers = nn.ModuleList()
+            self.flat = nn.Sequential(
+                nn.Linear(max_agents * (num_features + 1), gcn_hidden * 2), nn.ReLU()
+            )
+            self.out_features = gcn_hidden * 2
+        elif variant in ("g_sac_cog", "g_sac_nocog"):
+            dims = [num_features] + [gcn_hidden] * gcn_layers
+            self.layers = nn.ModuleList(
+                GCNLayer(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True)
+            )
+            self.out_features = gcn_hidden * (2 if readout == "ego_mean" else 1)
+        else:
+            raise ValueError(f"unknown variant {variant!r}")
+
+    def forward(self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor):
+        m = mask.to(features.dtype).unsqueeze(-1)
+        h = features / self.scale * m
+        if self.variant == "s_sac":
+            return self.flat(torch.cat([h, m], -1).flatten(-2))
+        adj = adjacency if self.variant == "g_sac_cog" else uniform_adjacency(mask)
+        a_hat = normalized_adjacency(adj.to(h.dtype), mask)
+        for layer in self.layers:
+            h = layer(h, a_hat) * m
+        ego = h[..., 0, :]
+        if self.readout == "ego":
+            return ego
+        mean = h.sum(-2) / m.sum(-2).clamp_min(1.0)
+        return torch.cat([ego, mean], -1)
+
+
+class ActorNet(nn.Module):
+    """Encoder + MLP to the Gaussian parameters ``[*, 2 * action_dim]`` (loc ++ raw scale)."""
+
+    def __init__(self, encoder: GraphEncoder, hidden_sizes: Sequence[int], action_dim: int = 2):
+        super().__init__()
+        self.encoder = encoder
+        self.head = mlp([encoder.out_features, *hidden_sizes], out=2 * action_dim)
+
+    def forward(self, features, adjacency, mask):
+        return self.head(self.encoder(features, adjacency, mask))
+
+
+class QNet(nn.Module):
+    """Encoder + MLP on (embedding ++ action) to ``Q [*, 1]``."""
+
+    def __init__(self, encoder: GraphEncoder, hidden_sizes: Sequence[int], action_dim: int = 2):
+        super().__init__()
+        self.encoder = encoder
+        self.head = mlp([encoder.out_features + action_dim, *hidden_sizes], out=1)
+
+    def forward(self, features, adjacency, mask, action):
+        return self.head(torch.cat([self.encoder(features, adjacency, mask), action], -1))
