@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve test lint fmt bench bench-rust bench-pysf table1 venv clean
+.PHONY: help run build serve test lint fmt bench bench-rust bench-pysf calibrate table1 lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -41,6 +41,9 @@ lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 
+lint-py: $(VENV)/.installed ## ruff on the Python tooling (calibration/)
+	$(PY) -m ruff check calibration
+
 fmt: ## format the Rust code
 	$(CARGO) fmt --all
 
@@ -52,8 +55,20 @@ bench-rust: ## criterion benchmarks
 bench-pysf: $(SERVER) $(VENV)/.installed ## world step vs pysocialforce, side by side, same N
 	$(PY) bench/step_vs_pysocialforce.py --server $(SERVER)
 
-table1: $(SERVER) ## paper Table I: pedestrian models on the test split (docs/RESULTS.md)
-	$(SERVER) eval-peds --split test --out docs/table1.json
+CALIBRATED := params/calibrated.json5
+CALIBRATE ?= 0
+
+calibrate: $(SERVER) $(VENV)/.installed ## Bayesian-optimise the pedestrian models on the TRAIN split -> params/calibrated.json5
+	$(PY) -m calibration.calibrate --server $(SERVER) --out $(CALIBRATED)
+
+table1: $(SERVER) $(VENV)/.installed ## paper Table I on the test split (calibrates first if needed or CALIBRATE=1; docs/RESULTS.md)
+	@if [ "$(CALIBRATE)" = 1 ] || [ ! -f $(CALIBRATED) ]; then \
+		echo "calibrating (train split only) -> $(CALIBRATED)"; \
+		$(PY) -m calibration.calibrate --server $(SERVER) --out $(CALIBRATED); \
+	fi
+	rm -rf out/table1-trajectories
+	$(SERVER) eval-peds --split test --params $(CALIBRATED) --out docs/table1.json --trajectories out/table1-trajectories
+	$(PY) -m calibration.plot_trajectories --trajectories out/table1-trajectories --out docs/figures
 
 clean:
 	$(CARGO) clean
