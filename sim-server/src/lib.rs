@@ -4,4 +4,5 @@
 pub mod params_file;
 pub mod pedeval_cmd;
 pub mod rollout;
+pub mod server;
 pub mod step_timing;

@@ -30,6 +30,34 @@ enum Command {
     BenchStep(BenchStepArgs),
     /// Evaluate pedestrian models against the record (paper Table I; docs/RESULTS.md).
     EvalPeds(sim_server::pedeval_cmd::EvalPedsArgs),
+    /// Serve simulation envs over zenoh (protocol/SPEC.md); stops on SIGINT or SIGTERM.
+    Serve(ServeArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct ServeArgs {
+    /// Server configuration (JSON5, see deploy/server.json5); defaults when absent.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Override one configuration value: `KEY:VALUE` with a `/`-separated KEY and a JSON5 VALUE,
+    /// e.g. `--cfg capacity:64 --cfg 'zenoh/mode:"client"'`. Repeatable.
+    #[arg(long = "cfg", value_name = "KEY:VALUE")]
+    cfg: Vec<String>,
+}
+
+fn run_serve(args: ServeArgs) -> Result<(), String> {
+    let config = sim_server::server::ServerConfig::load(args.config.as_deref(), &args.cfg)
+        .map_err(|e| e.to_string())?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("starting the tokio runtime: {e}"))?;
+    runtime
+        .block_on(sim_server::server::run(
+            config,
+            sim_server::server::shutdown_signal(),
+        ))
+        .map_err(|e| e.to_string())
 }
 
 #[derive(clap::Args, Debug)]
@@ -152,6 +180,7 @@ fn main() -> ExitCode {
     let result = match args.command {
         Command::Rollout(a) => run_rollout(a),
         Command::EvalPeds(a) => sim_server::pedeval_cmd::run(&a),
+        Command::Serve(a) => run_serve(a),
         Command::BenchStep(a) => {
             let (ns, edges, steps) =
                 sim_server::step_timing::time_steps(a.n, a.seed, a.seconds, 10);

@@ -6,8 +6,8 @@ use std::sync::Arc;
 use protocol::{
     encode, AgentDesc, AgentKind as WireKind, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply,
     Event, EventKind, EventsMsg, F32Array, F64Array, KeySpace, Mode, ObsBatch, Outcome,
-    ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StatesMsg, StepInfo, StepResult,
-    U32Array, U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
+    ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StatesMsg, StepInfo, StepResult, U32Array,
+    U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
 };
 use sim_core::geometry::Shape;
 use sim_core::metrics::EpisodeStatus;
@@ -135,6 +135,21 @@ impl Buffers {
             terminated: vec![0; e],
             truncated: vec![0; e],
         }
+    }
+
+    /// Appends the envs of `other` (same `n_ext` and `m`) after those of `self`'s buffers;
+    /// `self.k` is left to the caller.
+    pub fn append(&mut self, other: Buffers) {
+        self.features.extend(other.features);
+        self.adjacency.extend(other.adjacency);
+        self.mask.extend(other.mask);
+        self.node_ids.extend(other.node_ids);
+        self.reward.extend(other.reward);
+        for (a, b) in self.terms.iter_mut().zip(other.terms) {
+            a.extend(b);
+        }
+        self.terminated.extend(other.terminated);
+        self.truncated.extend(other.truncated);
     }
 
     /// The slots of env `i`.
@@ -324,7 +339,10 @@ impl Env {
     }
 
     fn scenario_name(&self) -> String {
-        self.spec.pool.scenarios[self.scenario].scenario.name.clone()
+        self.spec.pool.scenarios[self.scenario]
+            .scenario
+            .name
+            .clone()
     }
 
     /// Starts a new episode (`Reset`). Publications of the first state go to `pubs`.
@@ -462,7 +480,10 @@ impl Env {
             );
         }
         match &self.world {
-            None => err(ErrorCode::NeedsReset, "env was never reset; send Reset first"),
+            None => err(
+                ErrorCode::NeedsReset,
+                "env was never reset; send Reset first",
+            ),
             Some(w) if w.is_over() => err(
                 ErrorCode::NeedsReset,
                 "the episode is over (autoreset off); send Reset",
@@ -624,7 +645,10 @@ impl Env {
     /// one applied. Returns whether it was taken.
     pub fn hold_action(&mut self, agent: &str, action: [f64; 2], seq: u64) -> Result<bool, String> {
         let Some(k) = self.spec.external_names.iter().position(|a| a == agent) else {
-            return Err(format!("{agent:?} is not an external agent of env {}", self.id));
+            return Err(format!(
+                "{agent:?} is not an external agent of env {}",
+                self.id
+            ));
         };
         if self.held_seq[k].is_some_and(|last| seq < last) {
             return Ok(false);

@@ -75,8 +75,11 @@ pub struct ServedPool {
 
 impl ServedPool {
     pub fn new(pool: ScenarioPool) -> Self {
-        let scenarios: Vec<ServedScenario> =
-            pool.scenarios.into_iter().map(ServedScenario::new).collect();
+        let scenarios: Vec<ServedScenario> = pool
+            .scenarios
+            .into_iter()
+            .map(ServedScenario::new)
+            .collect();
         let by_name = scenarios
             .iter()
             .enumerate()

@@ -1,0 +1,294 @@
+//! Server configuration: a JSON5 file (see `deploy/server.json5`) plus `--cfg KEY:VALUE`
+//! overrides in the style of the zenoh examples. `KEY` is a `/`-separated path into the
+//! configuration (`capacity`, `zenoh/mode`, `zenoh/connect/endpoints`), `VALUE` is JSON5
+//! (`64`, `"client"`, `["tcp/10.0.0.1:7447"]`); a value that is not valid JSON5 is taken as a
+//! string (`--cfg prefix:lab/run3`).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+use serde_json::{json, Map, Value};
+
+use super::core::Limits;
+
+/// Default zenoh listen endpoint of a peer or router server.
+pub const DEFAULT_LISTEN: &str = "tcp/127.0.0.1:7447";
+
+/// Everything the server needs to start.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServerConfig {
+    /// Key-expression prefix (default `sharedspace`).
+    pub prefix: String,
+    /// Server id (a key segment); default `{hostname}-{pid}-{random}`.
+    pub server_id: Option<String>,
+    /// Maximum simultaneously open envs.
+    pub capacity: u32,
+    /// Maximum `CreateEnv.count` and `BatchStep` K.
+    pub max_batch: u32,
+    /// Maximum `CreateEnv.max_agents` (observation nodes).
+    pub max_agents: u32,
+    /// Seconds the envs of a trainer without a liveliness token survive.
+    pub trainer_grace_s: f64,
+    /// Scenario pool files (scenarios/FORMAT.md); empty = the embedded `hbs-paper` pool.
+    /// The first pool is the default.
+    pub pools: Vec<PathBuf>,
+    /// World-parameter file (JSON5, docs/PARAMETERS.md); absent = defaults.
+    pub params: Option<PathBuf>,
+    /// Passed to `zenoh::Config::from_json5` after filling defaults: mode `peer`, listening on
+    /// `tcp/127.0.0.1:7447` (peer and router), multicast scouting off.
+    pub zenoh: Value,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        let l = Limits::default();
+        Self {
+            prefix: protocol::DEFAULT_PREFIX.to_string(),
+            server_id: None,
+            capacity: l.capacity,
+            max_batch: l.max_batch,
+            max_agents: l.max_agents,
+            trainer_grace_s: l.trainer_grace.as_secs_f64(),
+            pools: Vec::new(),
+            params: None,
+            zenoh: Value::Object(Map::new()),
+        }
+    }
+}
+
+/// A configuration problem.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("reading config {path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("config {origin}: {message}")]
+    Parse { origin: String, message: String },
+    #[error("--cfg {arg:?}: {message}")]
+    Override { arg: String, message: String },
+    #[error("config: {0}")]
+    Invalid(String),
+}
+
+fn set_path(root: &mut Value, path: &str, value: Value) -> Result<(), String> {
+    let parts: Vec<&str> = path.split('/').collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err("empty key segment".into());
+    }
+    let mut cur = root;
+    for (i, p) in parts.iter().enumerate() {
+        if !cur.is_object() {
+            *cur = Value::Object(Map::new());
+        }
+        let obj = cur.as_object_mut().expect("object");
+        if i + 1 == parts.len() {
+            obj.insert((*p).to_string(), value);
+            return Ok(());
+        }
+        cur = obj
+            .entry((*p).to_string())
+            .or_insert_with(|| Value::Object(Map::new()));
+    }
+    Ok(())
+}
+
+impl ServerConfig {
+    /// Parses JSON5 text and applies `KEY:VALUE` overrides.
+    pub fn from_json5_with(
+        text: &str,
+        origin: &str,
+        overrides: &[String],
+    ) -> Result<Self, ConfigError> {
+        let mut root: Value = if text.trim().is_empty() {
+            Value::Object(Map::new())
+        } else {
+            json5::from_str(text).map_err(|e| ConfigError::Parse {
+                origin: origin.to_string(),
+                message: e.to_string(),
+            })?
+        };
+        if !root.is_object() {
+            return Err(ConfigError::Parse {
+                origin: origin.to_string(),
+                message: "the top level must be an object".into(),
+            });
+        }
+        for arg in overrides {
+            let (key, raw) = arg.split_once(':').ok_or_else(|| ConfigError::Override {
+                arg: arg.clone(),
+                message: "expected KEY:VALUE".into(),
+            })?;
+            let value: Value =
+                json5::from_str(raw).unwrap_or_else(|_| Value::String(raw.to_string()));
+            set_path(&mut root, key.trim(), value).map_err(|message| ConfigError::Override {
+                arg: arg.clone(),
+                message,
+            })?;
+        }
+        let cfg: ServerConfig = serde_json::from_value(root).map_err(|e| ConfigError::Parse {
+            origin: origin.to_string(),
+            message: e.to_string(),
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Reads a config file (or the defaults when `path` is `None`) and applies overrides.
+    pub fn load(path: Option<&Path>, overrides: &[String]) -> Result<Self, ConfigError> {
+        match path {
+            None => Self::from_json5_with("", "(defaults)", overrides),
+            Some(p) => {
+                let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
+                    path: p.display().to_string(),
+                    source,
+                })?;
+                Self::from_json5_with(&text, &p.display().to_string(), overrides)
+            }
+        }
+    }
+
+    fn validate(&self) -> Result<(), ConfigError> {
+        protocol::KeySpace::new(self.prefix.clone())
+            .map_err(|e| ConfigError::Invalid(format!("prefix: {e}")))?;
+        if let Some(id) = &self.server_id {
+            protocol::keys::validate_server_id(id)
+                .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        }
+        if self.capacity == 0 || self.max_batch == 0 || self.max_agents == 0 {
+            return Err(ConfigError::Invalid(
+                "capacity, max_batch and max_agents must be >= 1".into(),
+            ));
+        }
+        if !(self.trainer_grace_s.is_finite() && self.trainer_grace_s >= 0.0) {
+            return Err(ConfigError::Invalid(
+                "trainer_grace_s must be finite and >= 0".into(),
+            ));
+        }
+        if !self.zenoh.is_object() {
+            return Err(ConfigError::Invalid("zenoh must be an object".into()));
+        }
+        Ok(())
+    }
+
+    /// The server limits.
+    pub fn limits(&self) -> Limits {
+        Limits {
+            capacity: self.capacity,
+            max_batch: self.max_batch,
+            max_agents: self.max_agents,
+            trainer_grace: Duration::from_secs_f64(self.trainer_grace_s),
+        }
+    }
+
+    /// The zenoh section with defaults filled in, as JSON text for `zenoh::Config::from_json5`.
+    pub fn zenoh_json(&self) -> String {
+        let mut z = self.zenoh.clone();
+        let obj = z.as_object_mut().expect("validated object");
+        let mode = obj
+            .entry("mode")
+            .or_insert_with(|| json!("peer"))
+            .as_str()
+            .unwrap_or("peer")
+            .to_string();
+        if mode != "client" && !obj.contains_key("listen") {
+            obj.insert("listen".into(), json!({"endpoints": [DEFAULT_LISTEN]}));
+        }
+        let scouting = obj
+            .entry("scouting")
+            .or_insert_with(|| Value::Object(Map::new()));
+        if let Some(s) = scouting.as_object_mut() {
+            let mc = s
+                .entry("multicast")
+                .or_insert_with(|| Value::Object(Map::new()));
+            if let Some(m) = mc.as_object_mut() {
+                m.entry("enabled").or_insert(json!(false));
+            }
+        }
+        z.to_string()
+    }
+
+    /// The configured server id or a fresh `{host}-{pid}-{random}` one.
+    pub fn server_id_or_random(&self) -> String {
+        if let Some(id) = &self.server_id {
+            return id.clone();
+        }
+        let host = std::env::var("HOSTNAME").unwrap_or_else(|_| "sim".into());
+        let host: String = host
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '_')
+            .take(32)
+            .collect();
+        let host = if host.is_empty() { "sim".into() } else { host };
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        let mut rng = scenarios::synthetic::SplitMix64::new(nanos ^ u64::from(std::process::id()));
+        format!(
+            "{host}-{}-{:06x}",
+            std::process::id(),
+            rng.next_u64() & 0xff_ffff
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_overrides() {
+        let c = ServerConfig::load(None, &[]).unwrap();
+        assert_eq!(c, ServerConfig::default());
+        let z: Value = serde_json::from_str(&c.zenoh_json()).unwrap();
+        assert_eq!(z["mode"], "peer");
+        assert_eq!(z["listen"]["endpoints"][0], DEFAULT_LISTEN);
+        assert_eq!(z["scouting"]["multicast"]["enabled"], false);
+
+        let c = ServerConfig::from_json5_with(
+            "{capacity: 8, // comment\n zenoh: {mode: 'client'}}",
+            "t",
+            &[
+                "max_batch:4".into(),
+                "zenoh/connect/endpoints:[\"tcp/127.0.0.1:7000\"]".into(),
+                "prefix:lab/run3".into(),
+            ],
+        )
+        .unwrap();
+        assert_eq!(c.capacity, 8);
+        assert_eq!(c.max_batch, 4);
+        assert_eq!(c.prefix, "lab/run3");
+        let z: Value = serde_json::from_str(&c.zenoh_json()).unwrap();
+        assert_eq!(z["mode"], "client");
+        assert!(z.get("listen").is_none());
+        assert_eq!(z["connect"]["endpoints"][0], "tcp/127.0.0.1:7000");
+        zenoh::Config::from_json5(&c.zenoh_json()).unwrap();
+    }
+
+    #[test]
+    fn deploy_file_is_the_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/server.json5");
+        let c = ServerConfig::load(Some(&path), &[]).unwrap();
+        let d = ServerConfig::default();
+        assert_eq!(
+            (c.capacity, c.max_batch, c.max_agents),
+            (d.capacity, d.max_batch, d.max_agents)
+        );
+        assert_eq!(c.zenoh_json(), d.zenoh_json());
+    }
+
+    #[test]
+    fn errors_are_named() {
+        let e = ServerConfig::from_json5_with("{capcity: 3}", "f.json5", &[]).unwrap_err();
+        assert!(e.to_string().contains("capcity"), "{e}");
+        let e = ServerConfig::load(None, &["capacity".into()]).unwrap_err();
+        assert!(e.to_string().contains("KEY:VALUE"), "{e}");
+        let e = ServerConfig::load(None, &["capacity:0".into()]).unwrap_err();
+        assert!(e.to_string().contains("capacity"), "{e}");
+        let e = ServerConfig::load(None, &["prefix:a//b".into()]).unwrap_err();
+        assert!(e.to_string().contains("prefix"), "{e}");
+    }
+}

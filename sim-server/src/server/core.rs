@@ -1,0 +1,986 @@
+//! The server's pure request handling: env registry, trainers and reaping, limits, and every
+//! request from payload bytes to reply bytes. Synchronous and free of zenoh, so it is unit-tested
+//! directly; the network layer (`net.rs`) only moves bytes and publications.
+//!
+//! Locking: the registry mutex is never held while an env mutex is being acquired by a request
+//! that already holds another env (batches lock their envs in id order), and no env lock is held
+//! while taking the registry lock, so there is no lock-order cycle.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use protocol::keys::{make_env_id, validate_env_id};
+use protocol::{
+    decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchEnvInfo, BatchStep,
+    BatchStepResult, Close, Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest,
+    KeySpace, Mode, ObsLayout, PedestrianModel as WireModel, Reply, Reset, ServerInfo,
+    Split as WireSplit, Step, PROTOCOL_VERSION,
+};
+use serde::Serialize;
+use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::scenario::Split;
+
+use super::env::{Buffers, Env, EnvSpec, Gates, Publication};
+use super::pools::ServedPool;
+
+/// Batches of at least this many envs are stepped on several threads.
+pub const PARALLEL_MIN_BATCH: usize = 64;
+
+/// Server limits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limits {
+    /// Maximum simultaneously open envs.
+    pub capacity: u32,
+    /// Maximum `CreateEnv.count` and `BatchStep` K.
+    pub max_batch: u32,
+    /// Maximum `CreateEnv.max_agents`.
+    pub max_agents: u32,
+    /// How long envs of a client without liveliness token survive.
+    pub trainer_grace: Duration,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            capacity: 4096,
+            max_batch: 1024,
+            max_agents: 64,
+            trainer_grace: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Names accepted in `CreateEnv.pedestrian_params` (model.md names). The social-force ones apply
+/// to the parameter sets of `sfm`, `ra_sfm` and `cr_sfm` alike.
+pub const PEDESTRIAN_PARAM_NAMES: [&str; 17] = [
+    "tau",
+    "a_ped",
+    "b_ped",
+    "a_veh",
+    "b_veh",
+    "lambda1",
+    "lambda2",
+    "lambda3",
+    "gamma1",
+    "gamma2",
+    "lambda",
+    "s0",
+    "q",
+    "s_o",
+    "v_ped_max",
+    "ped_radius",
+    "ped_goal_radius",
+];
+
+fn apply_pedestrian_params(
+    base: WorldParams,
+    overrides: &BTreeMap<String, f64>,
+) -> Result<WorldParams, ErrorReply> {
+    let mut p = base;
+    for (name, &v) in overrides {
+        let sets = [
+            &mut p.pedestrians.sfm,
+            &mut p.pedestrians.ra_sfm,
+            &mut p.pedestrians.cr_sfm,
+        ];
+        match name.as_str() {
+            "tau" | "a_ped" | "b_ped" | "a_veh" | "b_veh" | "lambda1" | "lambda2" | "lambda3" => {
+                for s in sets {
+                    match name.as_str() {
+                        "tau" => s.tau = v,
+                        "a_ped" => s.a_ped = v,
+                        "b_ped" => s.b_ped = v,
+                        "a_veh" => s.a_veh = v,
+                        "b_veh" => s.b_veh = v,
+                        "lambda1" => s.lambda1 = v,
+                        "lambda2" => s.lambda2 = v,
+                        _ => s.lambda3 = v,
+                    }
+                }
+            }
+            "gamma1" => p.risk.gamma1 = v,
+            "gamma2" => p.risk.gamma2 = v,
+            "lambda" => p.risk.lambda = v,
+            "s0" => p.cognition.s0 = v,
+            "q" => p.cognition.q = v,
+            "s_o" => p.cognition.s_o = v,
+            "v_ped_max" => p.ped_speed_max = v,
+            "ped_radius" => p.ped_radius = v,
+            "ped_goal_radius" => p.ped_goal_radius = v,
+            _ => {
+                return Err(ErrorReply::new(
+                    ErrorCode::BadRequest,
+                    format!(
+                        "unknown pedestrian parameter {name:?}; known: {}",
+                        PEDESTRIAN_PARAM_NAMES.join(", ")
+                    ),
+                ))
+            }
+        }
+    }
+    p.validate()
+        .map_err(|e| ErrorReply::new(ErrorCode::BadRequest, format!("pedestrian_params: {e}")))?;
+    Ok(p)
+}
+
+fn apply_reward_weights(
+    mut p: WorldParams,
+    weights: &BTreeMap<String, f64>,
+) -> Result<WorldParams, ErrorReply> {
+    for (name, &v) in weights {
+        let w = &mut p.reward;
+        match name.as_str() {
+            "progress" => w.progress = v,
+            "success" => w.success = v,
+            "collision" => w.collision = v,
+            "danger" => w.danger = v,
+            "danger_clearance" => w.danger_clearance = v,
+            "comfort_jerk" => w.jerk_penalty = v,
+            "comfort_omega" => w.yaw_rate_penalty = v,
+            _ => {
+                return Err(ErrorReply::new(
+                    ErrorCode::BadRequest,
+                    format!("unknown reward weight {name:?}"),
+                ))
+            }
+        }
+    }
+    Ok(p)
+}
+
+fn model_of(m: WireModel) -> PedestrianModel {
+    match m {
+        WireModel::Cv => PedestrianModel::Cv,
+        WireModel::Sfm => PedestrianModel::Sfm,
+        WireModel::RaSfm => PedestrianModel::RaSfm,
+        WireModel::CrSfm => PedestrianModel::CrSfm,
+        WireModel::Replay => PedestrianModel::Replay,
+    }
+}
+
+fn split_of(s: WireSplit) -> Split {
+    match s {
+        WireSplit::Train => Split::Train,
+        WireSplit::Test => Split::Test,
+    }
+}
+
+fn parse_vehicle(name: &str) -> Option<usize> {
+    let k = name.strip_prefix("vehicle_")?;
+    if k.is_empty() || (k.len() > 1 && k.starts_with('0')) || !k.bytes().all(|b| b.is_ascii_digit())
+    {
+        return None;
+    }
+    k.parse().ok()
+}
+
+/// Encodes a reply envelope.
+pub fn reply_bytes<T: Serialize>(r: Result<T, ErrorReply>) -> Vec<u8> {
+    encode(&Reply::from(r))
+}
+
+fn bad(e: impl std::fmt::Display) -> ErrorReply {
+    ErrorReply::new(ErrorCode::BadRequest, e.to_string())
+}
+
+/// What a handler produced: the reply payload and the publications to send before it.
+#[derive(Debug, Default)]
+pub struct Response {
+    pub reply: Vec<u8>,
+    pub pubs: Vec<Publication>,
+    /// Realtime envs created by this request (the network layer starts their clocks).
+    pub realtime_envs: Vec<(String, Duration)>,
+}
+
+impl Response {
+    fn of<T: Serialize>(r: Result<T, ErrorReply>, pubs: Vec<Publication>) -> Self {
+        Self {
+            reply: reply_bytes(r),
+            pubs,
+            realtime_envs: Vec::new(),
+        }
+    }
+}
+
+#[derive(Debug, Default)]
+struct Client {
+    alive: bool,
+    envs: BTreeSet<String>,
+    /// Without a live token, the envs are reaped at this instant.
+    deadline: Option<Instant>,
+}
+
+#[derive(Debug, Default)]
+struct Registry {
+    envs: HashMap<String, Arc<Mutex<Env>>>,
+    /// Client id of every open env.
+    owner: HashMap<String, String>,
+    counter: u64,
+    clients: HashMap<String, Client>,
+}
+
+/// The server state and request handlers.
+#[derive(Debug)]
+pub struct ServerCore {
+    server_id: String,
+    keys: KeySpace,
+    limits: Limits,
+    pools: Vec<Arc<ServedPool>>,
+    params: WorldParams,
+    reg: Mutex<Registry>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding a lock cannot leave an env half-stepped in a way later requests
+    // could observe inconsistently more than the panic itself; keep serving.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl ServerCore {
+    /// A server with `pools` (the first is the default) and base world parameters.
+    pub fn new(
+        server_id: String,
+        keys: KeySpace,
+        limits: Limits,
+        pools: Vec<ServedPool>,
+        params: WorldParams,
+    ) -> Self {
+        Self {
+            server_id,
+            keys,
+            limits,
+            pools: pools.into_iter().map(Arc::new).collect(),
+            params,
+            reg: Mutex::new(Registry::default()),
+        }
+    }
+
+    pub fn server_id(&self) -> &str {
+        &self.server_id
+    }
+
+    pub fn keys(&self) -> &KeySpace {
+        &self.keys
+    }
+
+    pub fn limits(&self) -> Limits {
+        self.limits
+    }
+
+    /// Number of open envs.
+    pub fn load(&self) -> usize {
+        lock(&self.reg).envs.len()
+    }
+
+    /// Ids of the open envs (sorted).
+    pub fn open_envs(&self) -> Vec<String> {
+        let mut v: Vec<String> = lock(&self.reg).envs.keys().cloned().collect();
+        v.sort();
+        v
+    }
+
+    pub fn info(&self) -> ServerInfo {
+        ServerInfo {
+            protocol_version: PROTOCOL_VERSION,
+            server_id: self.server_id.clone(),
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            capacity: self.limits.capacity,
+            load: self.load() as u32,
+            max_batch: self.limits.max_batch,
+            max_agents: self.limits.max_agents,
+            dt: self.params.dt,
+            pedestrian_models: vec![
+                WireModel::Cv,
+                WireModel::Sfm,
+                WireModel::RaSfm,
+                WireModel::CrSfm,
+                WireModel::Replay,
+            ],
+            pools: self.pools.iter().map(|p| p.summary()).collect(),
+        }
+    }
+
+    /// `InfoRequest` → `Reply<ServerInfo>`.
+    pub fn handle_info(&self, payload: &[u8]) -> Response {
+        let r = decode_or_default::<InfoRequest>(payload)
+            .map_err(bad)
+            .map(|_| self.info());
+        Response::of(r, Vec::new())
+    }
+
+    fn lookup(&self, env_id: &str) -> Result<Arc<Mutex<Env>>, ErrorReply> {
+        let reg = lock(&self.reg);
+        if let Some(e) = reg.envs.get(env_id) {
+            return Ok(e.clone());
+        }
+        let issued = env_id
+            .strip_prefix(self.server_id.as_str())
+            .and_then(|r| r.strip_prefix('-'))
+            .filter(|n| {
+                n.bytes().all(|b| b.is_ascii_digit()) && (n.len() == 1 || !n.starts_with('0'))
+            })
+            .and_then(|n| n.parse::<u64>().ok())
+            .is_some_and(|n| n < reg.counter);
+        Err(if issued {
+            ErrorReply::new(ErrorCode::EnvClosed, format!("env {env_id} is closed"))
+        } else {
+            ErrorReply::new(
+                ErrorCode::UnknownEnv,
+                format!(
+                    "env {env_id:?} was never issued by server {}",
+                    self.server_id
+                ),
+            )
+        }
+        .with_env(env_id.to_string()))
+    }
+
+    /// `CreateEnv` → `Reply<EnvCreated>`.
+    pub fn handle_create(&self, payload: &[u8], now: Instant) -> Response {
+        match self.create(payload, now) {
+            Ok((created, realtime)) => {
+                let mut r = Response::of(Ok::<_, ErrorReply>(created), Vec::new());
+                r.realtime_envs = realtime;
+                r
+            }
+            Err(e) => Response::of(Err::<EnvCreated, _>(e), Vec::new()),
+        }
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn create(
+        &self,
+        payload: &[u8],
+        now: Instant,
+    ) -> Result<(EnvCreated, Vec<(String, Duration)>), ErrorReply> {
+        let req: CreateEnv = decode(payload).map_err(bad)?;
+        req.validate()?;
+        let lim = self.limits;
+        if req.count > lim.max_batch {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!("count {} exceeds max_batch {}", req.count, lim.max_batch),
+            ));
+        }
+        if req.max_agents > lim.max_agents {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!(
+                    "max_agents {} exceeds the server's maximum {}",
+                    req.max_agents, lim.max_agents
+                ),
+            ));
+        }
+        let pool = match &req.pool {
+            None => self.pools.first().cloned(),
+            Some(name) => self.pools.iter().find(|p| &p.name == name).cloned(),
+        }
+        .ok_or_else(|| {
+            let names: Vec<&str> = self.pools.iter().map(|p| p.name.as_str()).collect();
+            bad(format!(
+                "unknown pool {:?}; this server has: {}",
+                req.pool.as_deref().unwrap_or("(default)"),
+                names.join(", ")
+            ))
+        })?;
+        let params = apply_pedestrian_params(self.params, &req.pedestrian_params)?;
+        let params = apply_reward_weights(params, &req.reward_weights)?;
+        let mut vehicles = Vec::with_capacity(req.external_agents.len());
+        for name in &req.external_agents {
+            let k = parse_vehicle(name).ok_or_else(|| {
+                bad(format!(
+                    "external agent {name:?}: expected a vehicle name vehicle_{{k}} (vehicle_0 is the scenario's ego)"
+                ))
+            })?;
+            vehicles.push(k);
+        }
+        let need = vehicles.iter().max().map_or(0, |k| k + 1);
+        let split = split_of(req.split);
+        let candidates = pool.candidates(split, need);
+        let pinned = match &req.scenario {
+            None => None,
+            Some(name) => {
+                let i = pool
+                    .find(name)
+                    .ok_or_else(|| bad(format!("no scenario {name:?} in pool {:?}", pool.name)))?;
+                if !candidates.contains(&i) {
+                    return Err(bad(format!(
+                        "scenario {name:?} is not in split {:?} of pool {:?} or has fewer than {need} vehicles",
+                        split, pool.name
+                    )));
+                }
+                Some(i)
+            }
+        };
+        if candidates.is_empty() {
+            return Err(bad(format!(
+                "split {split:?} of pool {:?} has no scenario with {need} vehicle(s)",
+                pool.name
+            )));
+        }
+        let spec = Arc::new(EnvSpec {
+            client_id: req.client_id.clone(),
+            pool: pool.clone(),
+            split,
+            candidates: Arc::new(candidates),
+            pinned,
+            model: model_of(req.pedestrian_model),
+            params,
+            external_names: req.external_agents.clone(),
+            external_vehicles: vehicles,
+            mode: req.mode,
+            max_agents: req.max_agents,
+            autoreset: req.autoreset,
+            realtime_factor: req.realtime_factor,
+            keys: self.keys.clone(),
+        });
+        let mut reg = lock(&self.reg);
+        let load = reg.envs.len() as u64;
+        if load + u64::from(req.count) > u64::from(lim.capacity) {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!(
+                    "capacity: {load} of {} envs open, {} more requested",
+                    lim.capacity, req.count
+                ),
+            ));
+        }
+        let mut ids = Vec::with_capacity(req.count as usize);
+        for k in 0..u64::from(req.count) {
+            let id = make_env_id(&self.server_id, reg.counter);
+            validate_env_id(&id)
+                .map_err(|e| ErrorReply::new(ErrorCode::Internal, e.to_string()))?;
+            reg.counter += 1;
+            let env = Env::new(id.clone(), spec.clone(), req.seed.wrapping_add(k));
+            reg.envs.insert(id.clone(), Arc::new(Mutex::new(env)));
+            reg.owner.insert(id.clone(), req.client_id.clone());
+            ids.push(id);
+        }
+        let grace = self.limits.trainer_grace;
+        let client = reg.clients.entry(req.client_id.clone()).or_default();
+        client.envs.extend(ids.iter().cloned());
+        if !client.alive && client.deadline.is_none() {
+            client.deadline = Some(now + grace);
+        }
+        drop(reg);
+        let realtime = if req.mode == Mode::Realtime {
+            let period =
+                Duration::from_secs_f64((params.dt / req.realtime_factor).clamp(1e-3, 3600.0));
+            ids.iter().map(|id| (id.clone(), period)).collect()
+        } else {
+            Vec::new()
+        };
+        let created = EnvCreated {
+            env_ids: ids,
+            external_agents: req.external_agents,
+            observation: ObsLayout::standard(req.max_agents),
+            action: ActionSpace::normalised(params.vehicle.acc_max, params.vehicle.omega_max),
+            dt: params.dt,
+            mode: req.mode,
+            split: req.split,
+            pedestrian_model: req.pedestrian_model,
+            autoreset: req.autoreset,
+        };
+        Ok((created, realtime))
+    }
+
+    /// `Reset` on `env_id`.
+    pub fn handle_reset(&self, env_id: &str, payload: &[u8], gates: Gates) -> Response {
+        let mut pubs = Vec::new();
+        let r = (|| {
+            let req: Reset = decode_or_default(payload).map_err(bad)?;
+            let env = self.lookup(env_id)?;
+            let mut env = lock(&env);
+            if env.closed {
+                return Err(ErrorReply::new(ErrorCode::EnvClosed, "env is closed")
+                    .with_env(env_id.to_string()));
+            }
+            env.reset(req.seed, req.scenario.as_deref(), gates, &mut pubs)
+        })();
+        Response::of(r, pubs)
+    }
+
+    /// `Step` on `env_id`.
+    pub fn handle_step(&self, env_id: &str, payload: &[u8], gates: Gates) -> Response {
+        let mut pubs = Vec::new();
+        let r = (|| {
+            let req: Step = decode(payload).map_err(bad)?;
+            let env = self.lookup(env_id)?;
+            let mut env = lock(&env);
+            env.check_steppable(true)?;
+            let actions = req
+                .checked_actions(env.spec.n_ext() as u32)
+                .map_err(|e| e.with_env(env_id.to_string()))?;
+            env.step_single(&actions, gates, &mut pubs)
+        })();
+        Response::of(r, pubs)
+    }
+
+    /// `Close` on `env_id`.
+    pub fn handle_close(&self, env_id: &str, payload: &[u8]) -> Response {
+        let r = (|| {
+            decode_or_default::<Close>(payload).map_err(bad)?;
+            // Lookup first so that unknown/closed envs get their codes.
+            self.lookup(env_id)?;
+            let closed = self.close_envs(&[env_id.to_string()]);
+            if closed.is_empty() {
+                // Closed concurrently.
+                return Err(ErrorReply::new(ErrorCode::EnvClosed, "env is closed")
+                    .with_env(env_id.to_string()));
+            }
+            Ok(Closed { env_ids: closed })
+        })();
+        Response::of(r, Vec::new())
+    }
+
+    /// Removes the given envs; returns those that were open.
+    fn close_envs(&self, ids: &[String]) -> Vec<String> {
+        let mut removed = Vec::new();
+        {
+            let mut reg = lock(&self.reg);
+            for id in ids {
+                if let Some(env) = reg.envs.remove(id) {
+                    removed.push((id.clone(), env));
+                }
+            }
+            for (id, _) in &removed {
+                let Some(client) = reg.owner.remove(id) else {
+                    continue;
+                };
+                if let Some(c) = reg.clients.get_mut(&client) {
+                    c.envs.remove(id);
+                    if c.envs.is_empty() && !c.alive {
+                        reg.clients.remove(&client);
+                    }
+                }
+            }
+        }
+        for (_, env) in &removed {
+            lock(env).closed = true;
+        }
+        removed.into_iter().map(|(id, _)| id).collect()
+    }
+
+    /// `BatchStep`.
+    pub fn handle_batch(&self, payload: &[u8], gates: Gates) -> Response {
+        let mut pubs = Vec::new();
+        let r = self.batch(payload, gates, &mut pubs);
+        Response::of(r, pubs)
+    }
+
+    fn batch(
+        &self,
+        payload: &[u8],
+        gates: Gates,
+        pubs: &mut Vec<Publication>,
+    ) -> Result<BatchStepResult, ErrorReply> {
+        let req: BatchStep = decode(payload).map_err(bad)?;
+        let k = req.env_ids.len();
+        if k == 0 {
+            return Err(bad("env_ids is empty"));
+        }
+        if k > self.limits.max_batch as usize {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!(
+                    "batch of {k} envs exceeds max_batch {}",
+                    self.limits.max_batch
+                ),
+            ));
+        }
+        // Duplicates first (they would otherwise deadlock the locking below).
+        let mut order: Vec<usize> = (0..k).collect();
+        order.sort_by(|&a, &b| req.env_ids[a].cmp(&req.env_ids[b]));
+        for w in order.windows(2) {
+            if req.env_ids[w[0]] == req.env_ids[w[1]] {
+                let id = &req.env_ids[w[0]];
+                return Err(
+                    bad(format!("env id {id:?} listed twice in batch")).with_env(id.clone())
+                );
+            }
+        }
+        let mut handles = Vec::with_capacity(k);
+        for id in &req.env_ids {
+            handles.push(self.lookup(id)?);
+        }
+        // Lock in id order.
+        let mut guards: Vec<Option<MutexGuard<'_, Env>>> = (0..k).map(|_| None).collect();
+        for &i in &order {
+            guards[i] = Some(lock(&handles[i]));
+        }
+        let mut envs: Vec<MutexGuard<'_, Env>> =
+            guards.into_iter().map(|g| g.expect("locked")).collect();
+        let (n_ext, m) = (envs[0].spec.n_ext(), envs[0].spec.max_agents);
+        for env in &envs {
+            if env.closed {
+                return Err(
+                    ErrorReply::new(ErrorCode::EnvClosed, "env is closed").with_env(env.id.clone())
+                );
+            }
+            if env.spec.mode != Mode::Lockstep {
+                return Err(ErrorReply::new(
+                    ErrorCode::WrongMode,
+                    "env is in realtime mode; batch step needs lockstep envs",
+                )
+                .with_env(env.id.clone()));
+            }
+            if env.spec.n_ext() != n_ext || env.spec.max_agents != m {
+                return Err(ErrorReply::new(
+                    ErrorCode::WrongShape,
+                    format!(
+                        "batch mixes envs: {} has n_ext {} and max_agents {}, {} has {} and {}",
+                        envs[0].id,
+                        n_ext,
+                        m,
+                        env.id,
+                        env.spec.n_ext(),
+                        env.spec.max_agents
+                    ),
+                )
+                .with_env(env.id.clone()));
+            }
+        }
+        let actions = req.checked_actions(n_ext as u32)?;
+        for env in &envs {
+            env.check_steppable(true)?;
+        }
+        // Large batches are stepped on several threads (chunks of envs, each into its own
+        // buffers, concatenated in order afterwards).
+        let threads = if k >= PARALLEL_MIN_BATCH {
+            std::thread::available_parallelism()
+                .map_or(1, |n| n.get())
+                .min(k / (PARALLEL_MIN_BATCH / 2))
+        } else {
+            1
+        };
+        let chunk = k.div_ceil(threads.max(1));
+        let mut refs: Vec<&mut Env> = envs.iter_mut().map(|g| &mut **g).collect();
+        type Part = (
+            Buffers,
+            Vec<BatchEnvInfo>,
+            Vec<Publication>,
+            Result<(), ErrorReply>,
+        );
+        let run = |envs: &mut [&mut Env], actions: &[Vec<[f64; 2]>]| -> Part {
+            let mut buf = Buffers::new(envs.len(), n_ext, m as usize);
+            let mut infos = Vec::with_capacity(envs.len());
+            let mut pubs = Vec::new();
+            for (i, env) in envs.iter_mut().enumerate() {
+                match env.step_into(&actions[i], &mut buf.slots(i), gates, &mut pubs) {
+                    Ok(meta) => infos.push(BatchEnvInfo {
+                        episode: meta.episode,
+                        scenario: meta.scenario,
+                        step: meta.step,
+                        t: meta.t,
+                        info: meta.info,
+                        reset: meta.reset,
+                    }),
+                    Err(e) => return (buf, infos, pubs, Err(e)),
+                }
+            }
+            (buf, infos, pubs, Ok(()))
+        };
+        let parts: Vec<Part> = if threads <= 1 {
+            vec![run(&mut refs, &actions)]
+        } else {
+            std::thread::scope(|sc| {
+                let handles: Vec<_> = refs
+                    .chunks_mut(chunk)
+                    .zip(actions.chunks(chunk))
+                    .map(|(e, a)| sc.spawn(move || run(e, a)))
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| {
+                        h.join().unwrap_or_else(|_| {
+                            (
+                                Buffers::default(),
+                                Vec::new(),
+                                Vec::new(),
+                                Err(ErrorReply::new(
+                                    ErrorCode::Internal,
+                                    "batch worker panicked",
+                                )),
+                            )
+                        })
+                    })
+                    .collect()
+            })
+        };
+        drop(refs);
+        let mut buf = Buffers::new(0, n_ext, m as usize);
+        buf.k = k;
+        let mut infos = Vec::with_capacity(k);
+        for (b, inf, p, r) in parts {
+            r?;
+            buf.append(b);
+            infos.extend(inf);
+            pubs.extend(p);
+        }
+        drop(envs);
+        let (reward, reward_terms, terminated, truncated) = buf.rewards(true)?;
+        Ok(BatchStepResult {
+            env_ids: req.env_ids,
+            obs: buf.obs(true)?,
+            reward,
+            reward_terms,
+            terminated,
+            truncated,
+            envs: infos,
+        })
+    }
+
+    /// Realtime action published on `{p}/env/{env_id}/action/{agent}`. Errors are for logging.
+    pub fn handle_action(&self, env_id: &str, agent: &str, payload: &[u8]) -> Result<bool, String> {
+        let msg: ActionMsg = decode(payload).map_err(|e| e.to_string())?;
+        let action = msg.checked_action().map_err(|e| e.to_string())?;
+        let env = self.lookup(env_id).map_err(|e| e.to_string())?;
+        let mut env = lock(&env);
+        if env.spec.mode != Mode::Realtime {
+            return Err(format!("env {env_id} is not a realtime env"));
+        }
+        env.hold_action(agent, action, msg.seq)
+    }
+
+    /// One realtime tick of `env_id`: `None` once the env is gone (stop its clock), else the
+    /// publications to send.
+    pub fn realtime_tick(&self, env_id: &str, gates: Gates) -> Option<Vec<Publication>> {
+        let env = self.lookup(env_id).ok()?;
+        let mut env = lock(&env);
+        if env.closed {
+            return None;
+        }
+        let mut pubs = Vec::new();
+        if let Some(Err(e)) = env.realtime_tick(gates, &mut pubs) {
+            tracing::warn!(env = env_id, error = %e, "realtime step failed");
+        }
+        Some(pubs)
+    }
+
+    /// The liveliness token of `client_id` is present.
+    pub fn trainer_alive(&self, client_id: &str) {
+        let mut reg = lock(&self.reg);
+        let c = reg.clients.entry(client_id.to_string()).or_default();
+        c.alive = true;
+        c.deadline = None;
+    }
+
+    /// The liveliness token of `client_id` disappeared: its envs are reaped. Returns them.
+    pub fn trainer_gone(&self, client_id: &str) -> Vec<String> {
+        let ids: Vec<String> = {
+            let mut reg = lock(&self.reg);
+            match reg.clients.remove(client_id) {
+                Some(c) => c.envs.into_iter().collect(),
+                None => Vec::new(),
+            }
+        };
+        self.close_envs(&ids)
+    }
+
+    /// Reaps the envs of clients whose grace period ran out without a token. Returns them.
+    pub fn sweep(&self, now: Instant) -> Vec<String> {
+        let expired: Vec<String> = {
+            let reg = lock(&self.reg);
+            reg.clients
+                .iter()
+                .filter(|(_, c)| !c.alive && c.deadline.is_some_and(|d| d <= now))
+                .map(|(id, _)| id.clone())
+                .collect()
+        };
+        let mut reaped = Vec::new();
+        for c in expired {
+            reaped.extend(self.trainer_gone(&c));
+        }
+        reaped
+    }
+
+    /// Closes everything (shutdown).
+    pub fn close_all(&self) -> Vec<String> {
+        let ids = self.open_envs();
+        self.close_envs(&ids)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{decode, F64Array, Reply, ResetResult, StepResult};
+
+    fn core(limits: Limits) -> ServerCore {
+        ServerCore::new(
+            "s".into(),
+            KeySpace::default(),
+            limits,
+            vec![ServedPool::new(scenarios::embedded::default_pool())],
+            WorldParams::default(),
+        )
+    }
+
+    fn err_of(bytes: &[u8]) -> ErrorReply {
+        match decode::<Reply<serde::de::IgnoredAny>>(bytes).unwrap() {
+            Reply::Err(e) => e,
+            Reply::Ok(_) => panic!("expected an error reply"),
+        }
+    }
+
+    fn create(c: &ServerCore, req: &CreateEnv) -> EnvCreated {
+        let r = c.handle_create(&encode(req), Instant::now());
+        decode::<Reply<EnvCreated>>(&r.reply)
+            .unwrap()
+            .into_result()
+            .unwrap()
+    }
+
+    #[test]
+    fn lifecycle_and_errors_without_zenoh() {
+        let c = core(Limits::default());
+        let mut req = CreateEnv::new("t");
+        req.count = 2;
+        let created = create(&c, &req);
+        assert_eq!(created.env_ids, vec!["s-0", "s-1"]);
+        let id = &created.env_ids[0];
+        let step = encode(&Step::from_rows(&[[0.5, 0.0]]));
+        assert_eq!(
+            err_of(&c.handle_step(id, &step, Gates::NONE).reply).code,
+            ErrorCode::NeedsReset
+        );
+        let r = c.handle_reset(id, &[], Gates::NONE);
+        assert!(r.pubs.is_empty());
+        let reset: ResetResult = decode::<Reply<ResetResult>>(&r.reply)
+            .unwrap()
+            .into_result()
+            .unwrap();
+        assert_eq!(reset.episode, 1);
+        assert_eq!(
+            reset.obs.node_ids.get(&[0, 0]),
+            Some(reset.agents.iter().find(|a| a.external).unwrap().id)
+        );
+        // NaN leaves the env untouched.
+        let nan = encode(&Step {
+            actions: F64Array::new(vec![1, 2], &[f64::NAN, 0.0]).unwrap().into(),
+        });
+        let e = err_of(&c.handle_step(id, &nan, Gates::NONE).reply);
+        assert_eq!(e.code, ErrorCode::NonFiniteAction);
+        assert_eq!(e.env_id.as_deref(), Some(id.as_str()));
+        let r = c.handle_step(id, &step, Gates::ALL);
+        let s: StepResult = decode::<Reply<StepResult>>(&r.reply)
+            .unwrap()
+            .into_result()
+            .unwrap();
+        assert_eq!(s.step, 1);
+        // With every gate open the three state topics are published.
+        let topics: Vec<_> = r.pubs.iter().map(|p| p.topic).collect();
+        assert!(topics.contains(&protocol::EnvTopic::States));
+        assert!(topics.contains(&protocol::EnvTopic::RiskGraph));
+        assert!(topics.contains(&protocol::EnvTopic::Uncertainty));
+        // Codes for unknown / closed envs.
+        assert_eq!(
+            err_of(&c.handle_step("s-9", &step, Gates::NONE).reply).code,
+            ErrorCode::UnknownEnv
+        );
+        assert_eq!(
+            err_of(&c.handle_step("other-0", &step, Gates::NONE).reply).code,
+            ErrorCode::UnknownEnv
+        );
+        assert!(decode::<Reply<Closed>>(&c.handle_close(id, &[]).reply)
+            .unwrap()
+            .into_result()
+            .is_ok());
+        assert_eq!(
+            err_of(&c.handle_close(id, &[]).reply).code,
+            ErrorCode::EnvClosed
+        );
+        assert_eq!(c.load(), 1);
+    }
+
+    #[test]
+    fn reaping_by_token_and_grace() {
+        let c = core(Limits {
+            trainer_grace: Duration::from_secs(10),
+            ..Limits::default()
+        });
+        let t0 = Instant::now();
+        c.trainer_alive("a");
+        create(&c, &CreateEnv::new("a"));
+        create(&c, &CreateEnv::new("b"));
+        assert_eq!(c.load(), 2);
+        assert!(c.sweep(t0 + Duration::from_secs(5)).is_empty());
+        assert_eq!(
+            c.sweep(t0 + Duration::from_secs(11)),
+            vec!["s-1".to_string()]
+        );
+        assert_eq!(c.trainer_gone("a"), vec!["s-0".to_string()]);
+        assert_eq!(c.load(), 0);
+    }
+
+    #[test]
+    fn limits() {
+        let c = core(Limits {
+            capacity: 3,
+            max_batch: 2,
+            max_agents: 8,
+            ..Limits::default()
+        });
+        let mut req = CreateEnv::new("a");
+        req.count = 3;
+        let e = err_of(&c.handle_create(&encode(&req), Instant::now()).reply);
+        assert_eq!(e.code, ErrorCode::LimitExceeded);
+        req.count = 2;
+        create(&c, &req);
+        let e = err_of(&c.handle_create(&encode(&req), Instant::now()).reply);
+        assert_eq!(e.code, ErrorCode::LimitExceeded, "{e}");
+        assert!(e.message.contains("capacity"), "{e}");
+        req.count = 1;
+        req.max_agents = 9;
+        let e = err_of(&c.handle_create(&encode(&req), Instant::now()).reply);
+        assert_eq!(e.code, ErrorCode::LimitExceeded);
+    }
+
+    #[test]
+    fn threaded_batch_equals_single_steps() {
+        let c = core(Limits::default());
+        let k = 2 * PARALLEL_MIN_BATCH + 3;
+        let mut req = CreateEnv::new("a");
+        req.count = k as u32;
+        req.autoreset = true;
+        let a = create(&c, &req).env_ids;
+        let b = create(&c, &req).env_ids;
+        for id in a.iter().chain(&b) {
+            c.handle_reset(id, &[], Gates::NONE);
+        }
+        for round in 0..3 {
+            let vals: Vec<f32> = (0..k)
+                .flat_map(|i| [((i + round) as f32 * 0.1).sin(), 0.05])
+                .collect();
+            let batch = encode(&BatchStep {
+                env_ids: a.clone(),
+                actions: protocol::F32Array::new(vec![k as u32, 1, 2], &vals)
+                    .unwrap()
+                    .into(),
+            });
+            let r: BatchStepResult =
+                decode::<Reply<BatchStepResult>>(&c.handle_batch(&batch, Gates::NONE).reply)
+                    .unwrap()
+                    .into_result()
+                    .unwrap();
+            let per = 8 * 11;
+            for (i, id) in b.iter().enumerate() {
+                let step = encode(&Step::from_rows(&[[vals[2 * i], vals[2 * i + 1]]]));
+                let s: StepResult =
+                    decode::<Reply<StepResult>>(&c.handle_step(id, &step, Gates::NONE).reply)
+                        .unwrap()
+                        .into_result()
+                        .unwrap();
+                let f = r.obs.features.to_vec();
+                assert_eq!(
+                    &f[i * per..(i + 1) * per],
+                    &s.obs.features.to_vec()[..],
+                    "env {i}"
+                );
+                assert_eq!(r.reward.get(&[i as u32, 0]), s.reward.get(&[0]));
+                assert_eq!(r.envs[i].step, s.step);
+            }
+        }
+    }
+}

@@ -1,0 +1,466 @@
+//! The thin zenoh/tokio layer: declares the queryables, liveliness token and subscribers, moves
+//! payload bytes to [`ServerCore`] and its replies and publications back onto the network.
+
+use std::future::Future;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use protocol::{EnvTopic, ErrorCode, ErrorReply, KeySpace};
+use sim_core::params::WorldParams;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+use zenoh::bytes::Encoding;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::query::{Query, Queryable};
+use zenoh::sample::SampleKind;
+use zenoh::Session;
+
+use super::config::{ConfigError, ServerConfig};
+use super::core::{reply_bytes, Response, ServerCore};
+use super::env::{Gates, Publication};
+use super::pools::ServedPool;
+
+/// Why the server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("scenario pool: {0}")]
+    Pool(String),
+    #[error("world parameters: {0}")]
+    Params(String),
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
+
+fn zerr(e: impl std::fmt::Display) -> ServerError {
+    ServerError::Zenoh(e.to_string())
+}
+
+/// The MessagePack encoding set on every reply and publication.
+pub fn msgpack() -> Encoding {
+    Encoding::from("application/msgpack")
+}
+
+const TOPICS: [EnvTopic; 5] = [
+    EnvTopic::States,
+    EnvTopic::Uncertainty,
+    EnvTopic::RiskGraph,
+    EnvTopic::Events,
+    EnvTopic::Result,
+];
+
+#[derive(Debug, Clone, Copy)]
+enum Kind {
+    Info,
+    Create,
+    EnvOp,
+    Batch,
+}
+
+struct Ctx {
+    core: Arc<ServerCore>,
+    session: Session,
+    keys: KeySpace,
+    /// One flag per topic of [`TOPICS`]: does any subscriber match `{p}/env/*/{topic}`?
+    gates: [Arc<AtomicBool>; 5],
+    stop: watch::Receiver<bool>,
+}
+
+impl Ctx {
+    fn gates(&self) -> Gates {
+        let g = |i: usize| self.gates[i].load(Ordering::Relaxed);
+        Gates {
+            states: g(0),
+            uncertainty: g(1),
+            risk_graph: g(2),
+            events: g(3),
+            result: g(4),
+        }
+    }
+
+    async fn publish(&self, pubs: Vec<Publication>) {
+        for p in pubs {
+            if let Err(e) = self
+                .session
+                .put(p.key.as_str(), p.payload)
+                .encoding(msgpack())
+                .await
+            {
+                tracing::debug!(key = %p.key, error = %e, "publication failed");
+            }
+        }
+    }
+
+    async fn handle(self: Arc<Self>, kind: Kind, query: Query) {
+        let payload: Vec<u8> = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let key = query.key_expr().as_str().to_string();
+        let core = &self.core;
+        let gates = self.gates();
+        let resp: Response = match kind {
+            Kind::Info => core.handle_info(&payload),
+            Kind::Create => core.handle_create(&payload, Instant::now()),
+            Kind::Batch => core.handle_batch(&payload, gates),
+            Kind::EnvOp => match self.keys.parse_env_op(core.server_id(), &key) {
+                Some((env_id, protocol::EnvOp::Reset)) => core.handle_reset(env_id, &payload, gates),
+                Some((env_id, protocol::EnvOp::Step)) => core.handle_step(env_id, &payload, gates),
+                Some((env_id, protocol::EnvOp::Close)) => core.handle_close(env_id, &payload),
+                None => Response {
+                    reply: reply_bytes::<()>(Err(ErrorReply::new(
+                        ErrorCode::BadRequest,
+                        format!(
+                            "key {key:?} is not {}/server/{}/env/{{env_id}}/{{reset|step|close}} with a valid env id",
+                            self.keys.prefix(),
+                            core.server_id()
+                        ),
+                    ))),
+                    ..Response::default()
+                },
+            },
+        };
+        self.publish(resp.pubs).await;
+        for (env_id, period) in resp.realtime_envs {
+            let ctx = self.clone();
+            tokio::spawn(ctx.realtime_clock(env_id, period));
+        }
+        let reply_key = match kind {
+            Kind::Info => self.keys.server_info(core.server_id()).ok(),
+            Kind::Create => self.keys.env_create(core.server_id()).ok(),
+            Kind::Batch => self.keys.batch_step(core.server_id()).ok(),
+            Kind::EnvOp => None,
+        }
+        .unwrap_or(key);
+        if let Err(e) = query
+            .reply(reply_key.as_str(), resp.reply)
+            .encoding(msgpack())
+            .await
+        {
+            tracing::warn!(key = %reply_key, error = %e, "reply failed");
+        }
+    }
+
+    /// Steps a realtime env every `period` until it is closed or the server stops.
+    async fn realtime_clock(self: Arc<Self>, env_id: String, period: Duration) {
+        let mut stop = self.stop.clone();
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        tick.tick().await;
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {
+                    match self.core.realtime_tick(&env_id, self.gates()) {
+                        None => break,
+                        Some(pubs) => self.publish(pubs).await,
+                    }
+                }
+                _ = stop.changed() => break,
+            }
+        }
+        tracing::debug!(env = %env_id, "realtime clock stopped");
+    }
+}
+
+async fn serve_queryable(
+    ctx: Arc<Ctx>,
+    kind: Kind,
+    queryable: Queryable<FifoChannelHandler<Query>>,
+) {
+    let mut stop = ctx.stop.clone();
+    loop {
+        tokio::select! {
+            q = queryable.recv_async() => match q {
+                Ok(query) => {
+                    tokio::spawn(ctx.clone().handle(kind, query));
+                }
+                Err(_) => break,
+            },
+            _ = stop.changed() => break,
+        }
+    }
+    let _ = queryable.undeclare().await;
+}
+
+/// A running server (see [`run`]).
+pub struct Server {
+    core: Arc<ServerCore>,
+    session: Session,
+    stop_tx: watch::Sender<bool>,
+    tasks: Vec<JoinHandle<()>>,
+    token: Option<LivelinessToken>,
+    _gate_publishers: Vec<Publisher<'static>>,
+    _actions: Option<Subscriber<()>>,
+}
+
+fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool>, ServerError> {
+    let pools = if cfg.pools.is_empty() {
+        vec![scenarios::embedded::default_pool()]
+    } else {
+        cfg.pools
+            .iter()
+            .map(|p| {
+                scenarios::pool::load_pool_file(p).map_err(|e| ServerError::Pool(e.to_string()))
+            })
+            .collect::<Result<Vec<_>, _>>()?
+    };
+    for pool in &pools {
+        if pool.scenarios.is_empty() {
+            return Err(ServerError::Pool(format!(
+                "pool {:?} has no scenarios ({})",
+                pool.name, pool.provenance
+            )));
+        }
+        if let Some(s) = pool
+            .scenarios
+            .iter()
+            .find(|s| (s.dt - params.dt).abs() > 1e-9)
+        {
+            return Err(ServerError::Pool(format!(
+                "pool {:?}: scenario {:?} is sampled every {} s but the world steps {} s",
+                pool.name, s.name, s.dt, params.dt
+            )));
+        }
+    }
+    Ok(pools.into_iter().map(ServedPool::new).collect())
+}
+
+impl Server {
+    /// Opens the zenoh session and declares everything. Returns once the server serves.
+    pub async fn start(cfg: ServerConfig) -> Result<Self, ServerError> {
+        let params = match &cfg.params {
+            Some(p) => crate::params_file::load_params(p)
+                .map_err(|e| ServerError::Params(e.to_string()))?,
+            None => WorldParams::default(),
+        };
+        let pools = load_pools(&cfg, &params)?;
+        let keys =
+            KeySpace::new(cfg.prefix.clone()).map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        let server_id = cfg.server_id_or_random();
+        let zcfg = zenoh::Config::from_json5(&cfg.zenoh_json()).map_err(zerr)?;
+        let session = zenoh::open(zcfg).await.map_err(zerr)?;
+        let core = Arc::new(ServerCore::new(
+            server_id.clone(),
+            keys.clone(),
+            cfg.limits(),
+            pools,
+            params,
+        ));
+        let (stop_tx, stop_rx) = watch::channel(false);
+
+        // Publication gates: one wildcard publisher per topic, its matching status kept in a flag.
+        let mut gate_publishers = Vec::new();
+        let gates: [Arc<AtomicBool>; 5] = std::array::from_fn(|_| Arc::new(AtomicBool::new(false)));
+        for (topic, flag) in TOPICS.iter().zip(&gates) {
+            let publisher = session
+                .declare_publisher(keys.env_topic_all(*topic))
+                .await
+                .map_err(zerr)?;
+            let f = flag.clone();
+            publisher
+                .matching_listener()
+                .callback(move |s| f.store(s.matching(), Ordering::Relaxed))
+                .background()
+                .await
+                .map_err(zerr)?;
+            if publisher.matching_status().await.map_err(zerr)?.matching() {
+                flag.store(true, Ordering::Relaxed);
+            }
+            gate_publishers.push(publisher);
+        }
+
+        let ctx = Arc::new(Ctx {
+            core: core.clone(),
+            session: session.clone(),
+            keys: keys.clone(),
+            gates,
+            stop: stop_rx.clone(),
+        });
+        let mut tasks = Vec::new();
+        let sid = server_id.as_str();
+        let queryables = [
+            (keys.server_info(sid), Kind::Info),
+            (keys.env_create(sid), Kind::Create),
+            (
+                keys.env_op_wildcard(sid, protocol::EnvOp::Reset),
+                Kind::EnvOp,
+            ),
+            (
+                keys.env_op_wildcard(sid, protocol::EnvOp::Step),
+                Kind::EnvOp,
+            ),
+            (
+                keys.env_op_wildcard(sid, protocol::EnvOp::Close),
+                Kind::EnvOp,
+            ),
+            (keys.batch_step(sid), Kind::Batch),
+        ];
+        for (key, kind) in queryables {
+            let key = key.map_err(|e| ConfigError::Invalid(e.to_string()))?;
+            let q = session
+                .declare_queryable(key)
+                .complete(true)
+                .await
+                .map_err(zerr)?;
+            tasks.push(tokio::spawn(serve_queryable(ctx.clone(), kind, q)));
+        }
+
+        // Realtime actions.
+        let core_a = core.clone();
+        let keys_a = keys.clone();
+        let actions = session
+            .declare_subscriber(format!("{}/env/*/action/*", keys.prefix()))
+            .callback(move |sample| {
+                let key = sample.key_expr().as_str();
+                let Some((env_id, agent)) = keys_a.parse_env_action(key) else {
+                    return;
+                };
+                let bytes = sample.payload().to_bytes();
+                if let Err(e) = core_a.handle_action(env_id, agent, &bytes) {
+                    tracing::debug!(key, error = %e, "action dropped");
+                }
+            })
+            .await
+            .map_err(zerr)?;
+
+        // Trainers' liveliness and reaping.
+        let trainers = session
+            .liveliness()
+            .declare_subscriber(keys.trainer_all())
+            .history(true)
+            .await
+            .map_err(zerr)?;
+        {
+            let core = core.clone();
+            let keys = keys.clone();
+            let mut stop = stop_rx.clone();
+            tasks.push(tokio::spawn(async move {
+                loop {
+                    tokio::select! {
+                        s = trainers.recv_async() => {
+                            let Ok(sample) = s else { break };
+                            let Some(client) = keys.parse_trainer(sample.key_expr().as_str()) else {
+                                continue;
+                            };
+                            match sample.kind() {
+                                SampleKind::Put => {
+                                    tracing::debug!(client, "trainer alive");
+                                    core.trainer_alive(client);
+                                }
+                                SampleKind::Delete => {
+                                    let reaped = core.trainer_gone(client);
+                                    tracing::info!(client, envs = reaped.len(), "trainer gone, envs reaped");
+                                }
+                            }
+                        }
+                        _ = stop.changed() => break,
+                    }
+                }
+            }));
+        }
+        {
+            let core = core.clone();
+            let mut stop = stop_rx.clone();
+            tasks.push(tokio::spawn(async move {
+                let mut tick = tokio::time::interval(Duration::from_millis(250));
+                loop {
+                    tokio::select! {
+                        _ = tick.tick() => {
+                            let reaped = core.sweep(Instant::now());
+                            if !reaped.is_empty() {
+                                tracing::info!(envs = reaped.len(), "reaped envs of trainers without liveliness token");
+                            }
+                        }
+                        _ = stop.changed() => break,
+                    }
+                }
+            }));
+        }
+
+        let token = session
+            .liveliness()
+            .declare_token(
+                keys.server_alive(sid)
+                    .map_err(|e| ConfigError::Invalid(e.to_string()))?,
+            )
+            .await
+            .map_err(zerr)?;
+        tracing::info!(
+            server_id = %server_id,
+            prefix = keys.prefix(),
+            zid = %session.zid(),
+            "sharedspace server serving"
+        );
+        Ok(Self {
+            core,
+            session,
+            stop_tx,
+            tasks,
+            token: Some(token),
+            _gate_publishers: gate_publishers,
+            _actions: Some(actions),
+        })
+    }
+
+    pub fn core(&self) -> &Arc<ServerCore> {
+        &self.core
+    }
+
+    pub fn server_id(&self) -> &str {
+        self.core.server_id()
+    }
+
+    /// Stops serving: undeclares everything, closes every env and the session.
+    pub async fn stop(mut self) {
+        let _ = self.stop_tx.send(true);
+        if let Some(t) = self.token.take() {
+            let _ = t.undeclare().await;
+        }
+        for t in self.tasks.drain(..) {
+            let _ = tokio::time::timeout(Duration::from_secs(5), t).await;
+        }
+        if let Some(a) = self._actions.take() {
+            let _ = a.undeclare().await;
+        }
+        let closed = self.core.close_all();
+        if let Err(e) = self.session.close().await {
+            tracing::warn!(error = %e, "closing the zenoh session");
+        }
+        tracing::info!(envs_closed = closed.len(), "server stopped");
+    }
+}
+
+/// Runs a server until `shutdown` completes, then stops it gracefully.
+pub async fn run(cfg: ServerConfig, shutdown: impl Future<Output = ()>) -> Result<(), ServerError> {
+    let server = Server::start(cfg).await?;
+    shutdown.await;
+    tracing::info!("shutting down");
+    server.stop().await;
+    Ok(())
+}
+
+/// Completes on SIGINT (Ctrl-C) or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = term => {},
+    }
+}
