@@ -93,8 +93,9 @@ class BatchEvaluator:
         cmd = [str(server), "eval-peds", "--batch", "--split", split, "--models", ",".join(models)]
         if pool is not None:
             cmd += ["--pool", str(pool)]
-        if params is not None:
-            cmd += ["--params", str(params)]
+        # Calibration starts from model.md's values (`spec`), never from the shipped (calibrated)
+        # defaults the binary uses without --params.
+        cmd += ["--params", str(params) if params is not None else "spec"]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         self.evaluations = 0
 

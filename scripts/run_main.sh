@@ -8,12 +8,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 server=target/release/sim-server
-params=()
-[ -f params/calibrated.json5 ] && params=(--params params/calibrated.json5)
+
+
 mkdir -p out
 echo "== Table I: pedestrian models on the test split of the embedded HBS pool"
-"$server" eval-peds --split test --models cv,sfm,ra_sfm,cr_sfm "${params[@]}" --out out/table1.json
+"$server" eval-peds --split test --models cv,sfm,ra_sfm,cr_sfm --out out/table1.json
 echo
 echo "== rollout of one test scenario with CR-SFM pedestrians -> out/rollout.jsonl"
-"$server" rollout --scenario 2 --model cr_sfm --av replay "${params[@]}" --out out/rollout.jsonl
+"$server" rollout --scenario 2 --model cr_sfm --av replay --out out/rollout.jsonl
 echo "wrote out/table1.json and out/rollout.jsonl ($(wc -l < out/rollout.jsonl) lines; format in docs/ROLLOUT.md)"

@@ -4,5 +4,6 @@
 pub mod params_file;
 pub mod pedeval_cmd;
 pub mod rollout;
+pub mod router;
 pub mod server;
 pub mod step_timing;

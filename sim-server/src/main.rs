@@ -6,9 +6,9 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
-use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::params::PedestrianModel;
 use sim_core::scenario::ScenarioPool;
-use sim_server::params_file::load_params;
+use sim_server::params_file::ParamsDoc;
 use sim_server::rollout::{rollout, EgoDrive};
 
 #[derive(Parser, Debug)]
@@ -32,6 +32,9 @@ enum Command {
     EvalPeds(sim_server::pedeval_cmd::EvalPedsArgs),
     /// Serve simulation envs over zenoh (protocol/SPEC.md); stops on SIGINT or SIGTERM.
     Serve(ServeArgs),
+    /// Run a zenoh router (deploy/router.json5: auth, TLS, access control) until SIGINT or
+    /// SIGTERM, so a deployment needs no separately installed zenohd (deploy/README.md).
+    Router(RouterArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -61,6 +64,33 @@ fn run_serve(args: ServeArgs) -> Result<(), String> {
 }
 
 #[derive(clap::Args, Debug)]
+struct RouterArgs {
+    /// Zenoh router configuration (JSON5, zenoh's format; see deploy/router.json5). Absent:
+    /// zenoh's router defaults (listen on tcp/[::]:7447), multicast scouting off.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Override one configuration value: `KEY:VALUE` with a `/`-separated KEY and a JSON5 VALUE,
+    /// e.g. `--cfg 'listen/endpoints:["tcp/0.0.0.0:7447"]'`. Repeatable.
+    #[arg(long = "cfg", value_name = "KEY:VALUE")]
+    cfg: Vec<String>,
+}
+
+fn run_router(args: RouterArgs) -> Result<(), String> {
+    let config = sim_server::router::load_config(args.config.as_deref(), &args.cfg)
+        .map_err(|e| e.to_string())?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("starting the tokio runtime: {e}"))?;
+    runtime
+        .block_on(sim_server::router::run(
+            &config,
+            sim_server::server::shutdown_signal(),
+        ))
+        .map_err(|e| e.to_string())
+}
+
+#[derive(clap::Args, Debug)]
 struct BenchStepArgs {
     /// Number of pedestrians.
     #[arg(long)]
@@ -78,7 +108,8 @@ struct PoolArgs {
     /// Scenario pool file (JSON, scenarios/FORMAT.md); the embedded HBS pool when absent.
     #[arg(long)]
     pool: Option<PathBuf>,
-    /// World-parameter file (JSON5, any subset of the fields of docs/PARAMETERS.md).
+    /// World-parameter file (JSON5, any subset of the fields of docs/PARAMETERS.md); the shipped
+    /// calibrated parameters when absent, model.md's starting values with `spec`.
     #[arg(long)]
     params: Option<PathBuf>,
 }
@@ -108,13 +139,6 @@ fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
     }
 }
 
-fn load_world_params(args: &PoolArgs) -> Result<WorldParams, String> {
-    match &args.params {
-        Some(path) => load_params(path).map_err(|e| e.to_string()),
-        None => Ok(WorldParams::default()),
-    }
-}
-
 fn parse_model(name: &str) -> Result<PedestrianModel, String> {
     PedestrianModel::from_name(name).ok_or_else(|| {
         format!("unknown pedestrian model `{name}` (expected cv, sfm, ra_sfm, cr_sfm or replay)")
@@ -141,11 +165,9 @@ fn parse_ego(text: &str) -> Result<EgoDrive, String> {
 fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     let pool = load_pool(&args.pool)?;
     let model = parse_model(&args.model)?;
-    let params = match &args.pool.params {
-        Some(path) => sim_server::params_file::load_params_for_model(path, model)
-            .map_err(|e| e.to_string())?,
-        None => load_world_params(&args.pool)?,
-    };
+    let params = ParamsDoc::from_arg(args.pool.params.as_deref())
+        .and_then(|doc| doc.world_params(Some(model)))
+        .map_err(|e| e.to_string())?;
     let ego = parse_ego(&args.av)?;
     let scenario = pool
         .scenarios
@@ -181,6 +203,7 @@ fn main() -> ExitCode {
         Command::Rollout(a) => run_rollout(a),
         Command::EvalPeds(a) => sim_server::pedeval_cmd::run(&a),
         Command::Serve(a) => run_serve(a),
+        Command::Router(a) => run_router(a),
         Command::BenchStep(a) => {
             let (ns, edges, steps) =
                 sim_server::step_timing::time_steps(a.n, a.seed, a.seconds, 10);

@@ -15,6 +15,10 @@
 //!
 //! Overlays merge field by field (objects recursively; a `vehicle.shape` replaces whole). Errors
 //! name the offending field by its path (`pedestrians.sfm.tau: invalid type ...`).
+//!
+//! **Shipped defaults.** Without `--params`, every command uses the calibrated parameters
+//! (`params/calibrated.json5`, compiled into the binary: [`ParamsDoc::shipped`]); `--params spec`
+//! selects model.md's starting values ([`WorldParams::default`]) instead.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -34,6 +38,12 @@ pub enum ParamsFileError {
     #[error("parameter file {path}: {source}")]
     Invalid { path: String, source: ParamError },
 }
+
+/// The calibrated parameters shipped as defaults (paper Table I calibration, docs/RESULTS.md).
+pub const SHIPPED_PARAMS: &str = include_str!("../../params/calibrated.json5");
+const SHIPPED_ORIGIN: &str = "params/calibrated.json5 (shipped defaults)";
+/// The `--params` word that selects model.md's starting values instead of the shipped ones.
+pub const SPEC_DEFAULTS: &str = "spec";
 
 /// A parsed parameter document: the base fields and the per-model overlays (`models`).
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -149,6 +159,25 @@ impl ParamsDoc {
         Ok(())
     }
 
+    /// The shipped defaults: the calibrated parameter file compiled into the binary.
+    pub fn shipped() -> Self {
+        Self::parse_checked(SHIPPED_PARAMS, SHIPPED_ORIGIN)
+            .expect("the embedded calibrated parameter file is checked by a test")
+    }
+
+    /// The document a `--params` argument names: the shipped defaults when absent, model.md's
+    /// starting values for the word `spec`, else the file at that path.
+    pub fn from_arg(arg: Option<&Path>) -> Result<Self, ParamsFileError> {
+        match arg {
+            None => Ok(Self::shipped()),
+            Some(p) if p.as_os_str() == SPEC_DEFAULTS => Ok(Self {
+                origin: "model.md starting values".into(),
+                ..Self::default()
+            }),
+            Some(p) => Self::load(p),
+        }
+    }
+
     /// Reads and parses a parameter file.
     pub fn load(path: &Path) -> Result<Self, ParamsFileError> {
         let origin = path.display().to_string();
@@ -190,6 +219,51 @@ impl ParamsDoc {
     }
 }
 
+/// World parameters resolved once for each pedestrian model (a document's base with that model's
+/// overlay), so that a server applies the right ones at every env creation without re-parsing.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelParams {
+    base: WorldParams,
+    per_model: Vec<(PedestrianModel, WorldParams)>,
+}
+
+impl ModelParams {
+    /// Resolves `doc` for every pedestrian model.
+    pub fn from_doc(doc: &ParamsDoc) -> Result<Self, ParamsFileError> {
+        let per_model = PedestrianModel::ALL
+            .into_iter()
+            .map(|m| doc.world_params(Some(m)).map(|p| (m, p)))
+            .collect::<Result<_, _>>()?;
+        Ok(Self {
+            base: doc.world_params(None)?,
+            per_model,
+        })
+    }
+
+    /// The base parameters (no model overlay).
+    pub fn base(&self) -> &WorldParams {
+        &self.base
+    }
+
+    /// The parameters of a world whose pedestrians `model` drives.
+    pub fn for_model(&self, model: PedestrianModel) -> &WorldParams {
+        self.per_model
+            .iter()
+            .find(|(m, _)| *m == model)
+            .map_or(&self.base, |(_, p)| p)
+    }
+}
+
+impl From<WorldParams> for ModelParams {
+    /// The same parameters whatever the model.
+    fn from(p: WorldParams) -> Self {
+        Self {
+            base: p,
+            per_model: Vec::new(),
+        }
+    }
+}
+
 /// Parses parameters from JSON5 text; `origin` names the source in errors. A `models` section is
 /// checked but not applied (see [`parse_params_for_model`]).
 pub fn parse_params(text: &str, origin: &str) -> Result<WorldParams, ParamsFileError> {
@@ -223,6 +297,18 @@ pub fn load_params_for_model(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shipped_defaults_parse_and_differ_from_the_spec_values() {
+        let shipped = ParamsDoc::shipped();
+        let cr = shipped.world_params(Some(PedestrianModel::CrSfm)).unwrap();
+        assert_ne!(
+            cr.pedestrians.cr_sfm,
+            WorldParams::default().pedestrians.cr_sfm
+        );
+        let spec = ParamsDoc::from_arg(Some(Path::new("spec"))).unwrap();
+        assert_eq!(spec.world_params(None).unwrap(), WorldParams::default());
+    }
 
     #[test]
     fn overlay_applies_per_model() {

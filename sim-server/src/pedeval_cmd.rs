@@ -303,10 +303,7 @@ fn load_pool(path: Option<&Path>) -> Result<ScenarioPool, String> {
 
 /// The base parameter document: `--params` with `--params-json` over it.
 fn base_doc(args: &EvalPedsArgs) -> Result<ParamsDoc, String> {
-    let mut doc = match &args.params {
-        Some(path) => ParamsDoc::load(path).map_err(|e| e.to_string())?,
-        None => ParamsDoc::default(),
-    };
+    let mut doc = ParamsDoc::from_arg(args.params.as_deref()).map_err(|e| e.to_string())?;
     if let Some(text) = &args.params_json {
         let (text, origin) = if text == "-" {
             let mut s = String::new();

@@ -96,6 +96,58 @@ fn set_path(root: &mut Value, path: &str, value: Value) -> Result<(), String> {
     Ok(())
 }
 
+/// Parses JSON5 text (empty text = `{}`) into a JSON object and applies `KEY:VALUE` overrides
+/// (`KEY` a `/`-separated path, `VALUE` JSON5 or else a string). Shared by `serve` and `router`.
+pub fn json5_with_overrides(
+    text: &str,
+    origin: &str,
+    overrides: &[String],
+) -> Result<Value, ConfigError> {
+    let mut root: Value = if text.trim().is_empty() {
+        Value::Object(Map::new())
+    } else {
+        json5::from_str(text).map_err(|e| ConfigError::Parse {
+            origin: origin.to_string(),
+            message: e.to_string(),
+        })?
+    };
+    if !root.is_object() {
+        return Err(ConfigError::Parse {
+            origin: origin.to_string(),
+            message: "the top level must be an object".into(),
+        });
+    }
+    for arg in overrides {
+        let (key, raw) = arg.split_once(':').ok_or_else(|| ConfigError::Override {
+            arg: arg.clone(),
+            message: "expected KEY:VALUE".into(),
+        })?;
+        let value: Value = json5::from_str(raw).unwrap_or_else(|_| Value::String(raw.to_string()));
+        set_path(&mut root, key.trim(), value).map_err(|message| ConfigError::Override {
+            arg: arg.clone(),
+            message,
+        })?;
+    }
+    Ok(root)
+}
+
+/// Reads a JSON5 file (or `{}` when `path` is `None`) and applies `KEY:VALUE` overrides.
+pub fn load_json5_with_overrides(
+    path: Option<&Path>,
+    overrides: &[String],
+) -> Result<Value, ConfigError> {
+    match path {
+        None => json5_with_overrides("", "(defaults)", overrides),
+        Some(p) => {
+            let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
+                path: p.display().to_string(),
+                source,
+            })?;
+            json5_with_overrides(&text, &p.display().to_string(), overrides)
+        }
+    }
+}
+
 impl ServerConfig {
     /// Parses JSON5 text and applies `KEY:VALUE` overrides.
     pub fn from_json5_with(
@@ -103,32 +155,7 @@ impl ServerConfig {
         origin: &str,
         overrides: &[String],
     ) -> Result<Self, ConfigError> {
-        let mut root: Value = if text.trim().is_empty() {
-            Value::Object(Map::new())
-        } else {
-            json5::from_str(text).map_err(|e| ConfigError::Parse {
-                origin: origin.to_string(),
-                message: e.to_string(),
-            })?
-        };
-        if !root.is_object() {
-            return Err(ConfigError::Parse {
-                origin: origin.to_string(),
-                message: "the top level must be an object".into(),
-            });
-        }
-        for arg in overrides {
-            let (key, raw) = arg.split_once(':').ok_or_else(|| ConfigError::Override {
-                arg: arg.clone(),
-                message: "expected KEY:VALUE".into(),
-            })?;
-            let value: Value =
-                json5::from_str(raw).unwrap_or_else(|_| Value::String(raw.to_string()));
-            set_path(&mut root, key.trim(), value).map_err(|message| ConfigError::Override {
-                arg: arg.clone(),
-                message,
-            })?;
-        }
+        let root = json5_with_overrides(text, origin, overrides)?;
         let cfg: ServerConfig = serde_json::from_value(root).map_err(|e| ConfigError::Parse {
             origin: origin.to_string(),
             message: e.to_string(),

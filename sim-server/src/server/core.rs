@@ -19,6 +19,8 @@ use protocol::{
 };
 use serde::Serialize;
 use sim_core::params::{PedestrianModel, WorldParams};
+
+use crate::params_file::ModelParams;
 use sim_core::scenario::Split;
 
 use super::env::{Buffers, Env, EnvSpec, Gates, Publication};
@@ -227,7 +229,7 @@ pub struct ServerCore {
     keys: KeySpace,
     limits: Limits,
     pools: Vec<Arc<ServedPool>>,
-    params: WorldParams,
+    params: ModelParams,
     reg: Mutex<Registry>,
 }
 
@@ -244,14 +246,14 @@ impl ServerCore {
         keys: KeySpace,
         limits: Limits,
         pools: Vec<ServedPool>,
-        params: WorldParams,
+        params: impl Into<ModelParams>,
     ) -> Self {
         Self {
             server_id,
             keys,
             limits,
             pools: pools.into_iter().map(Arc::new).collect(),
-            params,
+            params: params.into(),
             reg: Mutex::new(Registry::default()),
         }
     }
@@ -289,7 +291,7 @@ impl ServerCore {
             load: self.load() as u32,
             max_batch: self.limits.max_batch,
             max_agents: self.limits.max_agents,
-            dt: self.params.dt,
+            dt: self.params.base().dt,
             pedestrian_models: vec![
                 WireModel::Cv,
                 WireModel::Sfm,
@@ -384,7 +386,10 @@ impl ServerCore {
                 names.join(", ")
             ))
         })?;
-        let params = apply_pedestrian_params(self.params, &req.pedestrian_params)?;
+        let params = apply_pedestrian_params(
+            *self.params.for_model(model_of(req.pedestrian_model)),
+            &req.pedestrian_params,
+        )?;
         let params = apply_reward_weights(params, &req.reward_weights)?;
         let mut vehicles = Vec::with_capacity(req.external_agents.len());
         for name in &req.external_agents {

@@ -232,12 +232,10 @@ fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool
 impl Server {
     /// Opens the zenoh session and declares everything. Returns once the server serves.
     pub async fn start(cfg: ServerConfig) -> Result<Self, ServerError> {
-        let params = match &cfg.params {
-            Some(p) => crate::params_file::load_params(p)
-                .map_err(|e| ServerError::Params(e.to_string()))?,
-            None => WorldParams::default(),
-        };
-        let pools = load_pools(&cfg, &params)?;
+        let params = crate::params_file::ParamsDoc::from_arg(cfg.params.as_deref())
+            .and_then(|doc| crate::params_file::ModelParams::from_doc(&doc))
+            .map_err(|e| ServerError::Params(e.to_string()))?;
+        let pools = load_pools(&cfg, params.base())?;
         let keys =
             KeySpace::new(cfg.prefix.clone()).map_err(|e| ConfigError::Invalid(e.to_string()))?;
         let server_id = cfg.server_id_or_random();

@@ -1,0 +1,116 @@
+//! `sim-server router`: a zenoh router in the `sim-server` binary, so a deployment needs no
+//! separately installed `zenohd`.
+//!
+//! The configuration file is a plain zenoh 1.x configuration (the format of zenoh's
+//! `DEFAULT_CONFIG.json5`; see `deploy/router.json5`), with the same `--cfg KEY:VALUE` overrides
+//! as `sim-server serve` (`KEY` a `/`-separated path, `VALUE` JSON5). Filled in when absent:
+//! `mode: "router"` and multicast scouting off; zenoh's own defaults apply otherwise (a router
+//! listens on `tcp/[::]:7447`). A mode other than `"router"` is refused. Authentication
+//! (`transport/auth/usrpwd`), TLS listeners and `access_control` are zenoh's and configured there.
+
+use std::future::Future;
+use std::path::Path;
+
+use serde_json::{json, Map, Value};
+
+use crate::server::config::{load_json5_with_overrides, ConfigError};
+
+/// Why the router could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum RouterError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
+
+/// Loads the router's zenoh configuration: a JSON5 file (or `{}`) plus overrides, with
+/// `mode: "router"` and multicast scouting off filled in when absent.
+pub fn load_config(path: Option<&Path>, overrides: &[String]) -> Result<Value, RouterError> {
+    let mut root = load_json5_with_overrides(path, overrides)?;
+    fill_defaults(&mut root)?;
+    Ok(root)
+}
+
+/// Fills `mode` and `scouting/multicast/enabled` when absent; refuses another mode.
+pub fn fill_defaults(root: &mut Value) -> Result<(), RouterError> {
+    let obj = root
+        .as_object_mut()
+        .ok_or_else(|| ConfigError::Invalid("the top level must be an object".into()))?;
+    let mode = obj.entry("mode").or_insert_with(|| json!("router"));
+    if mode.as_str() != Some("router") {
+        return Err(ConfigError::Invalid(format!(
+            "`sim-server router` runs a zenoh router: mode must be \"router\", not {mode}"
+        ))
+        .into());
+    }
+    let scouting = obj
+        .entry("scouting")
+        .or_insert_with(|| Value::Object(Map::new()));
+    if let Some(s) = scouting.as_object_mut() {
+        let mc = s
+            .entry("multicast")
+            .or_insert_with(|| Value::Object(Map::new()));
+        if let Some(m) = mc.as_object_mut() {
+            m.entry("enabled").or_insert(json!(false));
+        }
+    }
+    Ok(())
+}
+
+/// Opens a zenoh session in router mode from `config`, routes until `shutdown` completes, then
+/// closes the session.
+pub async fn run(config: &Value, shutdown: impl Future<Output = ()>) -> Result<(), RouterError> {
+    let zcfg = zenoh::Config::from_json5(&config.to_string())
+        .map_err(|e| RouterError::Zenoh(format!("configuration: {e}")))?;
+    let session = zenoh::open(zcfg)
+        .await
+        .map_err(|e| RouterError::Zenoh(e.to_string()))?;
+    let listen = config.pointer("/listen/endpoints").cloned();
+    tracing::info!(zid = %session.zid(), listen = ?listen, "sharedspace zenoh router running");
+    shutdown.await;
+    tracing::info!("router shutting down");
+    session
+        .close()
+        .await
+        .map_err(|e| RouterError::Zenoh(e.to_string()))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_mode() {
+        let c = load_config(None, &[]).unwrap();
+        assert_eq!(c["mode"], "router");
+        assert_eq!(c["scouting"]["multicast"]["enabled"], false);
+        zenoh::Config::from_json5(&c.to_string()).unwrap();
+        let e = load_config(None, &["mode:peer".into()]).unwrap_err();
+        assert!(e.to_string().contains("router"), "{e}");
+    }
+
+    #[test]
+    fn deploy_router_file_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/router.json5");
+        let c = load_config(Some(&path), &[]).unwrap();
+        assert_eq!(c["mode"], "router");
+        zenoh::Config::from_json5(&c.to_string()).unwrap();
+    }
+
+    #[test]
+    fn deploy_client_files_parse_as_zenoh_configs() {
+        for f in ["trainer.json5"] {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy").join(f);
+            let v = load_json5_with_overrides(Some(&path), &[]).unwrap();
+            zenoh::Config::from_json5(&v.to_string()).unwrap_or_else(|e| panic!("{f}: {e}"));
+        }
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/server-routed.json5");
+        let c = crate::server::ServerConfig::load(Some(&path), &[]).unwrap();
+        let z: Value = serde_json::from_str(&c.zenoh_json()).unwrap();
+        assert_eq!(z["mode"], "client");
+        assert!(z.get("listen").is_none());
+        zenoh::Config::from_json5(&c.zenoh_json()).unwrap();
+    }
+}
