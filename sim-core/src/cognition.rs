@@ -35,13 +35,20 @@ pub struct VarianceSchedule {
     prior: Vec<f64>,
     /// Posterior variance after `n` updates.
     post: Vec<f64>,
-    /// The part of the KL that does not depend on the means, for update `n`.
-    kl_const: Vec<f64>,
-    /// `s2_post / s2_p` and `s2_post / s2_o` of update `n`: the weights of the posterior mean.
-    w_prior: Vec<f64>,
-    w_obs: Vec<f64>,
+    /// The constants of update `n` (one record: one lookup per update).
+    update: Vec<UpdateConsts>,
     /// `0.5 / s2_o`: the KL's factor on the squared mean difference.
     half_inv_s2o: f64,
+}
+
+/// What update `n` needs besides the means.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct UpdateConsts {
+    /// The part of the KL that does not depend on the means.
+    kl_const: f64,
+    /// `s2_post / s2_p` and `s2_post / s2_o`: the weights of the posterior mean.
+    w_prior: f64,
+    w_obs: f64,
 }
 
 /// Bound on the tabulated length; the recurrence converges long before it for any sane parameters.
@@ -54,9 +61,11 @@ impl VarianceSchedule {
         let mut s = Self {
             prior: vec![f64::NAN],
             post: vec![p.s0 * p.s0],
-            kl_const: vec![0.0],
-            w_prior: vec![0.0],
-            w_obs: vec![0.0],
+            update: vec![UpdateConsts {
+                kl_const: 0.0,
+                w_prior: 0.0,
+                w_obs: 0.0,
+            }],
             half_inv_s2o: 0.5 / s2_o,
         };
         loop {
@@ -65,10 +74,11 @@ impl VarianceSchedule {
             let s2_post = 1.0 / (1.0 / s2_p + 1.0 / s2_o);
             s.prior.push(s2_p);
             s.post.push(s2_post);
-            s.kl_const
-                .push(kl_isotropic(Vec2::zeros(), s2_p, Vec2::zeros(), s2_o, DIM));
-            s.w_prior.push(s2_post / s2_p);
-            s.w_obs.push(s2_post / s2_o);
+            s.update.push(UpdateConsts {
+                kl_const: kl_isotropic(Vec2::zeros(), s2_p, Vec2::zeros(), s2_o, DIM),
+                w_prior: s2_post / s2_p,
+                w_obs: s2_post / s2_o,
+            });
             if s2_post == last || s.post.len() >= MAX_SCHEDULE {
                 break;
             }
@@ -126,10 +136,10 @@ impl Belief {
     /// posterior.
     #[inline]
     pub fn update(&mut self, mu_p: Vec2, v_obs: Vec2, s: &VarianceSchedule) -> f64 {
-        let n = s.index(self.updates.saturating_add(1));
+        let c = s.update[s.index(self.updates.saturating_add(1))];
         let diff = v_obs - mu_p;
-        let u = s.kl_const[n] + s.half_inv_s2o * diff.norm_squared();
-        self.mu = mu_p * s.w_prior[n] + v_obs * s.w_obs[n];
+        let u = c.kl_const + s.half_inv_s2o * diff.norm_squared();
+        self.mu = mu_p * c.w_prior + v_obs * c.w_obs;
         self.updates = self.updates.saturating_add(1);
         u
     }

@@ -16,6 +16,12 @@ pub struct Grid {
     /// `starts[c]..starts[c + 1]` indexes `sorted` for cell `c`.
     starts: Vec<u32>,
     sorted: Vec<u32>,
+    /// Positions in `sorted` order (structure of arrays): the candidates of one row of cells are
+    /// contiguous, so their distance test is a vectorisable loop.
+    sorted_x: Vec<f64>,
+    sorted_y: Vec<f64>,
+    /// Scratch of the counting sort.
+    fill: Vec<u32>,
 }
 
 impl Grid {
@@ -24,6 +30,8 @@ impl Grid {
         let n = positions.len();
         self.cell_of.clear();
         self.sorted.clear();
+        self.sorted_x.clear();
+        self.sorted_y.clear();
         if n == 0 {
             self.nx = 0;
             self.ny = 0;
@@ -61,12 +69,45 @@ impl Grid {
             self.starts[c + 1] += self.starts[c];
         }
         self.sorted.resize(n, 0);
-        let mut fill: Vec<u32> = self.starts[..ncell].to_vec();
-        for (i, &c) in self.cell_of.iter().enumerate() {
-            let slot = &mut fill[c as usize];
-            self.sorted[*slot as usize] = i as u32;
+        self.sorted_x.resize(n, 0.0);
+        self.sorted_y.resize(n, 0.0);
+        self.fill.clear();
+        self.fill.extend_from_slice(&self.starts[..ncell]);
+        for (i, (&c, p)) in self.cell_of.iter().zip(positions).enumerate() {
+            let slot = &mut self.fill[c as usize];
+            let k = *slot as usize;
+            self.sorted[k] = i as u32;
+            self.sorted_x[k] = p.x;
+            self.sorted_y[k] = p.y;
             *slot += 1;
         }
+    }
+
+    /// Agent slots in cell order, and their positions (`x`, `y`) in the same order.
+    #[inline]
+    pub(crate) fn sorted(&self) -> (&[u32], &[f64], &[f64]) {
+        (&self.sorted, &self.sorted_x, &self.sorted_y)
+    }
+
+    /// The ranges of [`Grid::sorted`] that hold the candidates of agent `i` (the 3x3 block of
+    /// cells around it, one range per row of cells, in the order [`Grid::for_each_candidate`]
+    /// visits them). Returns the ranges and how many of the three are used.
+    #[inline]
+    pub(crate) fn candidate_ranges(&self, i: usize) -> ([(usize, usize); 3], usize) {
+        let c = self.cell_of[i] as usize;
+        let (cx, cy) = (c % self.nx, c / self.nx);
+        let y0 = cy.saturating_sub(1);
+        let y1 = (cy + 1).min(self.ny - 1);
+        let x0 = cx.saturating_sub(1);
+        let x1 = (cx + 1).min(self.nx - 1);
+        let mut out = [(0, 0); 3];
+        for (k, y) in (y0..=y1).enumerate() {
+            out[k] = (
+                self.starts[y * self.nx + x0] as usize,
+                self.starts[y * self.nx + x1 + 1] as usize,
+            );
+        }
+        (out, y1 - y0 + 1)
     }
 
     fn cell_coords(&self, p: Vec2) -> (usize, usize) {

@@ -6,6 +6,7 @@
 //! module names the section it implements.
 
 pub mod cognition;
+pub mod fastmath;
 pub mod geometry;
 pub mod grid;
 pub mod metrics;

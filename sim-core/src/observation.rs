@@ -75,7 +75,6 @@ impl World {
         };
         let mut near: Vec<(f64, AgentId, usize)> = self
             .out_edges(ego_slot)
-            .iter()
             .map(|e| (e.clearance, e.target, e.target_slot as usize))
             .collect();
         near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));

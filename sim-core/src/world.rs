@@ -13,13 +13,15 @@
 //! 4. observe at `t + 1`: beliefs (`u_{t+1}`), clearances, `psi_{t+1}`, the graph;
 //! 5. events (collisions, arrivals) and every reward term of the transition.
 
+use std::ops::Range;
 use std::sync::Arc;
 
 use crate::cognition::{Belief, VarianceSchedule};
+use crate::fastmath;
 use crate::geometry::{clearance_and_normal, Placed, Shape, Vec2};
 use crate::grid::Grid;
 use crate::metrics::{EpisodeMetrics, EpisodeStatus};
-use crate::params::{ParamError, PedestrianModel, WorldParams};
+use crate::params::{ParamError, PedestrianModel, SocialForceParams, WorldParams};
 use crate::pedestrian::{self, Interaction};
 use crate::risk;
 use crate::scenario::{AgentKind, AgentRecord, Scenario};
@@ -169,7 +171,8 @@ pub struct StepOutcome {
     pub episode_over: bool,
 }
 
-/// One directed edge `i -> j` of the risk graph with `i`'s belief about `j`.
+/// One directed edge `i -> j` of the risk graph with `i`'s belief about `j` (a copy read out of
+/// the [`EdgeStore`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Edge {
     pub target: AgentId,
@@ -179,6 +182,95 @@ pub(crate) struct Edge {
     pub clearance: f64,
     pub psi: f64,
     pub u: f64,
+}
+
+/// Every edge of the risk graph, structure of arrays (one entry per edge in each), grouped by
+/// observer in slot order. The observe pass writes each field as one contiguous run.
+#[derive(Debug, Clone, Default)]
+struct EdgeStore {
+    target: Vec<AgentId>,
+    slot: Vec<u32>,
+    belief: Vec<Belief>,
+    clearance: Vec<f64>,
+    psi: Vec<f64>,
+    u: Vec<f64>,
+}
+
+impl EdgeStore {
+    fn len(&self) -> usize {
+        self.target.len()
+    }
+
+    fn clear(&mut self) {
+        self.truncate(0);
+    }
+
+    fn truncate(&mut self, len: usize) {
+        self.target.truncate(len);
+        self.slot.truncate(len);
+        self.belief.truncate(len);
+        self.clearance.truncate(len);
+        self.psi.truncate(len);
+        self.u.truncate(len);
+    }
+
+    /// Empties the store and makes room for `total` edges without reallocating (a fresh
+    /// allocation, not a copy, when the capacity is short: the old contents are dead).
+    fn clear_with_capacity(&mut self, total: usize) {
+        fn fresh<T>(v: &mut Vec<T>, total: usize) {
+            v.clear();
+            if v.capacity() < total {
+                *v = Vec::with_capacity(total);
+            }
+        }
+        fresh(&mut self.target, total);
+        fresh(&mut self.slot, total);
+        fresh(&mut self.belief, total);
+        fresh(&mut self.clearance, total);
+        fresh(&mut self.psi, total);
+        fresh(&mut self.u, total);
+    }
+
+    /// Appends `m` zeroed edges (filled in place by the caller).
+    fn grow(&mut self, m: usize) {
+        let len = self.len() + m;
+        self.target.resize(len, 0);
+        self.slot.resize(len, 0);
+        self.belief.resize(len, Belief::first_sight(Vec2::zeros()));
+        self.clearance.resize(len, 0.0);
+        self.psi.resize(len, 0.0);
+        self.u.resize(len, 0.0);
+    }
+
+    fn append(&mut self, other: &EdgeStore) {
+        self.target.extend_from_slice(&other.target);
+        self.slot.extend_from_slice(&other.slot);
+        self.belief.extend_from_slice(&other.belief);
+        self.clearance.extend_from_slice(&other.clearance);
+        self.psi.extend_from_slice(&other.psi);
+        self.u.extend_from_slice(&other.u);
+    }
+
+    fn push(&mut self, e: Edge) {
+        self.target.push(e.target);
+        self.slot.push(e.target_slot);
+        self.belief.push(e.belief);
+        self.clearance.push(e.clearance);
+        self.psi.push(e.psi);
+        self.u.push(e.u);
+    }
+
+    #[inline]
+    fn get(&self, k: usize) -> Edge {
+        Edge {
+            target: self.target[k],
+            target_slot: self.slot[k],
+            belief: self.belief[k],
+            clearance: self.clearance[k],
+            psi: self.psi[k],
+            u: self.u[k],
+        }
+    }
 }
 
 /// One edge of the risk graph as published: `A = psi (1 + lambda u)` is the influence of
@@ -312,7 +404,7 @@ pub struct World {
     horizon: u32,
     over: bool,
     agents: Agents,
-    edges: Vec<Edge>,
+    edges: EdgeStore,
     /// Agents not yet entered, by descending start step (the next to enter is last).
     pending: Vec<AgentId>,
     externals: Vec<ExternalTrack>,
@@ -321,13 +413,20 @@ pub struct World {
     // Scratch reused by every step.
     grid: Grid,
     next: Agents,
-    next_edges: Vec<Edge>,
-    stamp: Vec<u64>,
-    stamp_edge: Vec<u32>,
-    epoch: u64,
+    next_edges: EdgeStore,
     keep: Vec<bool>,
     slot_map: Vec<u32>,
-    acc_norm: Vec<f64>,
+    targets: Vec<TargetInfo>,
+    /// Per slot, the sum of the weighted social-force repulsions on a simulated pedestrian and its
+    /// largest repulsion weight, from the edges the last observe pass built (valid while
+    /// `forces_valid`: until agents are removed).
+    rep_force: Vec<Vec2>,
+    rep_max_w: Vec<f64>,
+    forces_valid: bool,
+    /// One scratch per observe worker (thread).
+    workers: Vec<ObserveWorker>,
+    /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
+    threads: usize,
 }
 
 const NO_SLOT: u32 = u32::MAX;
@@ -440,19 +539,21 @@ impl World {
             horizon: horizon.max(1),
             over: false,
             agents: Agents::default(),
-            edges: Vec::new(),
+            edges: EdgeStore::default(),
             pending,
             externals,
             departed: Vec::new(),
             grid: Grid::default(),
             next: Agents::default(),
-            next_edges: Vec::new(),
-            stamp: vec![0; n_total],
-            stamp_edge: vec![0; n_total],
-            epoch: 0,
+            next_edges: EdgeStore::default(),
             keep: Vec::new(),
             slot_map: Vec::new(),
-            acc_norm: Vec::new(),
+            targets: Vec::new(),
+            rep_force: Vec::new(),
+            rep_max_w: Vec::new(),
+            forces_valid: false,
+            workers: vec![ObserveWorker::new(n_total)],
+            threads: 1,
         };
         let mut events = Vec::new();
         w.enter_pending(&mut events);
@@ -465,6 +566,18 @@ impl World {
 
     pub fn params(&self) -> &WorldParams {
         &self.params
+    }
+
+    /// Sets how many threads a step may use (at least 1; default 1). Only large scenes (at least
+    /// [`PARALLEL_MIN_AGENTS`] agents) are split; results are bit-identical for every thread
+    /// count. Not part of the world's parameters: a server running many worlds keeps 1.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
+    }
+
+    /// The thread count set by [`World::set_threads`].
+    pub fn threads(&self) -> usize {
+        self.threads
     }
 
     pub fn scenario(&self) -> &Arc<Scenario> {
@@ -561,7 +674,7 @@ impl World {
         let lambda = self.params.risk.lambda;
         (0..self.agents.len()).flat_map(move |i| {
             let observer = self.agents.id[i];
-            self.out_edges(i).iter().map(move |e| GraphEdge {
+            self.out_edges(i).map(move |e| GraphEdge {
                 observer,
                 target: e.target,
                 clearance: e.clearance,
@@ -572,9 +685,14 @@ impl World {
         })
     }
 
-    pub(crate) fn out_edges(&self, slot: usize) -> &[Edge] {
+    pub(crate) fn out_edges(&self, slot: usize) -> impl Iterator<Item = Edge> + '_ {
+        self.out_range(slot).map(move |k| self.edges.get(k))
+    }
+
+    /// Indices of agent `slot`'s out-edges in the edge store.
+    fn out_range(&self, slot: usize) -> Range<usize> {
         let s = self.agents.edge_start[slot] as usize;
-        &self.edges[s..s + self.agents.edge_len[slot] as usize]
+        s..s + self.agents.edge_len[slot] as usize
     }
 
     /// Dense `n x n` adjacency over the present agents in slot order (for small scenes only: the
@@ -666,17 +784,19 @@ impl World {
                 self.departed.push((self.agents.id[i], self.agents.pos[i]));
             }
         }
+        self.forces_valid = false;
         self.next_edges.clear();
         for i in 0..n {
             let start = self.next_edges.len() as u32;
             if self.keep[i] {
                 let s = self.agents.edge_start[i] as usize;
-                for e in &self.edges[s..s + self.agents.edge_len[i] as usize] {
+                for k in s..s + self.agents.edge_len[i] as usize {
+                    let e = self.edges.get(k);
                     let t = self.slot_map[e.target_slot as usize];
                     if t != NO_SLOT {
                         self.next_edges.push(Edge {
                             target_slot: t,
-                            ..*e
+                            ..e
                         });
                     }
                 }
@@ -690,92 +810,84 @@ impl World {
         self.keep = keep;
     }
 
-    /// Builds beliefs, clearances, risk and the graph for the current state (model.md 5b 1–2).
+    /// Builds beliefs, clearances, risk and the graph for the current state (model.md 5b 1–2),
+    /// and the social-force repulsions the next move will use (they depend only on the graph).
     fn observe(&mut self) {
         let n = self.agents.len();
         let r = self.params.perception_radius;
-        let r2 = r * r;
         self.grid.rebuild(&self.agents.pos, r);
-        self.next_edges.clear();
         let a = &self.agents;
-        let model = self.params.cognition.prediction;
-        let risk_params = &self.params.risk;
         let dt = self.params.dt;
-        self.acc_norm.clear();
-        self.acc_norm.extend(a.acc.iter().map(|v| v.norm()));
-        let acc_norm = &self.acc_norm;
-        let mut new_start = Vec::with_capacity(n);
-        let mut new_len = Vec::with_capacity(n);
-        for i in 0..n {
-            // Mark this observer's existing beliefs so they can be found by target id in O(1).
-            self.epoch += 1;
-            let s = a.edge_start[i] as usize;
-            for (k, e) in self.edges[s..s + a.edge_len[i] as usize].iter().enumerate() {
-                self.stamp[e.target as usize] = self.epoch;
-                self.stamp_edge[e.target as usize] = (s + k) as u32;
-            }
-            let start = self.next_edges.len();
-            let xi = a.pos[i];
-            let placed_i = Placed {
-                shape: a.shape[i],
-                position: xi,
-                heading: a.heading[i],
-            };
-            let edges = &self.edges;
-            let stamp = &self.stamp;
-            let stamp_edge = &self.stamp_edge;
-            let epoch = self.epoch;
-            let schedule = &self.schedule;
-            let out = &mut self.next_edges;
-            self.grid.for_each_candidate(i, |j| {
-                if j == i {
-                    return;
-                }
-                let xj = a.pos[j];
-                let d = xi - xj;
-                if d.norm_squared() > r2 {
-                    return;
-                }
-                let target = a.id[j];
-                let vj = a.vel[j];
-                let (belief, u) = if stamp[target as usize] == epoch {
-                    let mut b = edges[stamp_edge[target as usize] as usize].belief;
-                    let mu_p = b.predict(model, a.prev_acc[j] * dt);
-                    let u = b.update(mu_p, vj, schedule);
-                    (b, u)
-                } else {
-                    (Belief::first_sight(vj), 0.0)
-                };
-                let dist = d.norm();
-                let clearance = match (a.shape[i], a.shape[j]) {
-                    (Shape::Disc { radius: ri }, Shape::Disc { radius: rj }) => {
-                        (dist - (ri + rj)).max(0.0)
-                    }
-                    _ => {
-                        let placed_j = Placed {
-                            shape: a.shape[j],
-                            position: xj,
-                            heading: a.heading[j],
-                        };
-                        clearance_and_normal(&placed_i, &placed_j).0
-                    }
-                };
-                let psi = risk::risk_with(clearance, d, dist, vj, acc_norm[j], risk_params);
-                out.push(Edge {
-                    target,
-                    target_slot: j as u32,
-                    belief,
-                    clearance,
-                    psi,
-                    u,
-                });
-            });
-            new_start.push(start as u32);
-            new_len.push((self.next_edges.len() - start) as u32);
+        self.targets.clear();
+        self.targets.extend((0..n).map(|j| TargetInfo {
+            pos: a.pos[j],
+            vel: a.vel[j],
+            last_change: a.prev_acc[j] * dt,
+            acc_norm: a.acc[j].norm(),
+            radius: match a.shape[j] {
+                Shape::Disc { radius } => radius,
+                Shape::Rect { .. } => f64::NAN,
+            },
+            id: a.id[j],
+            is_vehicle: a.kind[j] == AgentKind::Vehicle,
+        }));
+        let threads = if n >= PARALLEL_MIN_AGENTS {
+            self.threads.min(n)
+        } else {
+            1
+        };
+        let n_total = self.scenario.agents.len();
+        while self.workers.len() < threads {
+            self.workers.push(ObserveWorker::new(n_total));
         }
-        std::mem::swap(&mut self.edges, &mut self.next_edges);
-        self.agents.edge_start = new_start;
-        self.agents.edge_len = new_len;
+        let inputs = ObserveInputs {
+            targets: &self.targets,
+            agents: &self.agents,
+            old: &self.edges,
+            grid: &self.grid,
+            schedule: &self.schedule,
+            params: &self.params,
+            r2: r * r,
+        };
+        let workers = &mut self.workers[..threads];
+        if threads == 1 {
+            workers[0].run(&inputs, 0..n);
+        } else {
+            let chunk = n.div_ceil(threads);
+            std::thread::scope(|scope| {
+                let mut rest = workers.iter_mut().enumerate();
+                let (_, first) = rest.next().expect("at least one worker");
+                for (t, w) in rest {
+                    let range = (t * chunk).min(n)..((t + 1) * chunk).min(n);
+                    let inputs = &inputs;
+                    scope.spawn(move || w.run(inputs, range));
+                }
+                first.run(&inputs, 0..chunk.min(n));
+            });
+        }
+        // Concatenate the workers' outputs in observer order.
+        std::mem::swap(&mut self.edges, &mut self.workers[0].edges);
+        for w in &self.workers[1..threads] {
+            self.edges.append(&w.edges);
+        }
+        self.rep_force.clear();
+        self.rep_max_w.clear();
+        let a = &mut self.agents;
+        let mut start = 0u32;
+        let mut i = 0;
+        for w in &self.workers[..threads] {
+            for &len in &w.len {
+                a.edge_start[i] = start;
+                a.edge_len[i] = len;
+                start += len;
+                i += 1;
+            }
+            self.rep_force.extend_from_slice(&w.force);
+            self.rep_max_w.extend_from_slice(&w.max_w);
+        }
+        debug_assert_eq!(i, n);
+        debug_assert_eq!(start as usize, self.edges.len());
+        self.forces_valid = true;
     }
 
     /// Advances the world by one step with the actions of the active external agents.
@@ -879,12 +991,15 @@ impl World {
 
         // 5. Events and rewards.
         for i in 0..self.agents.len() {
-            for e in self.out_edges(i) {
-                if e.clearance <= 0.0 && self.agents.id[i] < e.target {
-                    events.push(Event::Collision {
-                        a: self.agents.id[i],
-                        b: e.target,
-                    });
+            let range = self.out_range(i);
+            let (targets, clearances) = (
+                &self.edges.target[range.clone()],
+                &self.edges.clearance[range],
+            );
+            let me = self.agents.id[i];
+            for (&target, &clearance) in targets.iter().zip(clearances) {
+                if clearance <= 0.0 && me < target {
+                    events.push(Event::Collision { a: me, b: target });
                 }
             }
         }
@@ -986,7 +1101,16 @@ impl World {
             Some(p) => {
                 let xi = a.pos[i];
                 let f_goal = pedestrian::goal_force(xi, a.vel[i], a.goal[i], a.v0[i], p.tau);
-                let interactions = self.out_edges(i).iter().map(|e| {
+                if self.forces_valid {
+                    // The repulsions were summed by the observe pass that built the edges.
+                    let force = f_goal * pedestrian::goal_weight(model, p, self.rep_max_w[i])
+                        + self.rep_force[i];
+                    return finish_move(
+                        pedestrian::integrate(xi, a.vel[i], force, dt, vmax),
+                        a.heading[i],
+                    );
+                }
+                let interactions = self.out_edges(i).map(|e| {
                     let j = e.target_slot as usize;
                     let normal = match a.shape[j] {
                         Shape::Disc { .. } => {
@@ -1024,13 +1148,7 @@ impl World {
                 pedestrian::integrate(xi, a.vel[i], force, dt, vmax)
             }
         };
-        let speed = vel.norm();
-        let heading = if speed > 0.0 {
-            vel.y.atan2(vel.x)
-        } else {
-            a.heading[i]
-        };
-        (pos, vel, speed, heading)
+        finish_move((pos, vel), a.heading[i])
     }
 
     fn external_outcome(
@@ -1122,4 +1240,383 @@ impl World {
             metrics,
         }
     }
+}
+
+/// Scenes with at least this many agents split the observe pass over the threads set by
+/// [`World::set_threads`]; smaller ones always run on the caller's thread.
+pub const PARALLEL_MIN_AGENTS: usize = 512;
+
+/// Speed and heading of a moved pedestrian (the heading is kept while it stands still).
+fn finish_move((pos, vel): (Vec2, Vec2), heading: f64) -> (Vec2, Vec2, f64, f64) {
+    let speed = vel.norm();
+    let heading = if speed > 0.0 {
+        vel.y.atan2(vel.x)
+    } else {
+        heading
+    };
+    (pos, vel, speed, heading)
+}
+
+/// What an observer reads of a target, gathered once per observe pass into one record per slot
+/// (one cache line and one bounds check per edge instead of one per field).
+#[derive(Debug, Clone, Copy, Default)]
+struct TargetInfo {
+    pos: Vec2,
+    vel: Vec2,
+    /// `prev_acc * dt`: the last observed change of velocity (constant-acceleration prediction).
+    last_change: Vec2,
+    acc_norm: f64,
+    /// Disc radius; NaN for a rectangle.
+    radius: f64,
+    id: AgentId,
+    is_vehicle: bool,
+}
+
+/// What every observe worker reads: the state, the previous edges (beliefs), the grid.
+struct ObserveInputs<'a> {
+    targets: &'a [TargetInfo],
+    agents: &'a Agents,
+    old: &'a EdgeStore,
+    grid: &'a Grid,
+    schedule: &'a VarianceSchedule,
+    params: &'a WorldParams,
+    r2: f64,
+}
+
+/// Social-force constants of one observing simulated pedestrian.
+#[derive(Clone, Copy)]
+struct ForceConsts {
+    /// `sfm`: every repulsion weight is 1.
+    unit_weight: bool,
+    a_veh: f64,
+    /// `-1 / B`: the repulsion is `A exp(-clearance / B)`.
+    neg_inv_b_veh: f64,
+    a_ped: f64,
+    neg_inv_b_ped: f64,
+    /// Uncertainty gains in the weight `psi (1 + lambda u)`: `lambda1`/`lambda2` for `cr_sfm`,
+    /// 0 for `ra_sfm` (whose weight is `psi`).
+    lam_veh: f64,
+    lam_ped: f64,
+}
+
+impl ForceConsts {
+    fn new(model: PedestrianModel, p: &SocialForceParams) -> Self {
+        let cr = model == PedestrianModel::CrSfm;
+        Self {
+            unit_weight: !matches!(model, PedestrianModel::RaSfm | PedestrianModel::CrSfm),
+            a_veh: p.a_veh,
+            neg_inv_b_veh: -1.0 / p.b_veh,
+            a_ped: p.a_ped,
+            neg_inv_b_ped: -1.0 / p.b_ped,
+            lam_veh: if cr { p.lambda1 } else { 0.0 },
+            lam_ped: if cr { p.lambda2 } else { 0.0 },
+        }
+    }
+}
+
+/// Scratch and output of one observe worker: it handles a contiguous range of observers.
+///
+/// Each observer is done in three passes over its edges: a gather of the candidates within the
+/// perception radius (branch-free compaction), a scalar pass that reads the targets' state and
+/// updates the beliefs (random access), and branch-free loops over structure-of-arrays scratch
+/// for the risk and the social forces, which the compiler vectorises (with [`fastmath::exp`]).
+#[derive(Debug, Clone, Default)]
+struct ObserveWorker {
+    /// `stamp[id].0 == epoch` when the current observer had a belief about agent `id`, held by
+    /// edge `stamp[id].1` of the previous graph.
+    stamp: Vec<(u32, u32)>,
+    epoch: u32,
+    /// Slots of the current observer's targets.
+    cand: Vec<u32>,
+    // Per edge of the current observer.
+    dx: Vec<f64>,
+    dy: Vec<f64>,
+    dist: Vec<f64>,
+    vx: Vec<f64>,
+    vy: Vec<f64>,
+    accn: Vec<f64>,
+    /// 1 when the target is a vehicle.
+    veh: Vec<f64>,
+    /// The unit vector from the target to the observer (the repulsion direction) is
+    /// `(nnx, nny) * (rect + (1 - rect) inv_dist)`: the centre offset over the centre distance
+    /// between two discs, the footprint normal (`rect` = 1) when either is a rectangle.
+    nnx: Vec<f64>,
+    nny: Vec<f64>,
+    rect: Vec<f64>,
+    /// `1 / dist` (1 for coincident centres), written by the risk loop.
+    inv_dist: Vec<f64>,
+    fx: Vec<f64>,
+    fy: Vec<f64>,
+    w: Vec<f64>,
+    // Output for the worker's observers, in order.
+    edges: EdgeStore,
+    len: Vec<u32>,
+    force: Vec<Vec2>,
+    max_w: Vec<f64>,
+}
+
+impl ObserveWorker {
+    fn new(n_total: usize) -> Self {
+        Self {
+            stamp: vec![(0, 0); n_total],
+            ..Self::default()
+        }
+    }
+
+    fn run(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        let n = inp.agents.len();
+        // Room for as many edges as these observers had last step, and some.
+        let a = inp.agents;
+        let last: usize = a.edge_len[observers.clone()]
+            .iter()
+            .map(|&l| l as usize)
+            .sum();
+        self.edges.clear_with_capacity(last + last / 8 + 64);
+        self.len.clear();
+        self.force.clear();
+        self.max_w.clear();
+        self.cand.resize(n, 0);
+        for v in [
+            &mut self.dx,
+            &mut self.dy,
+            &mut self.dist,
+            &mut self.vx,
+            &mut self.vy,
+            &mut self.accn,
+            &mut self.veh,
+            &mut self.nnx,
+            &mut self.nny,
+            &mut self.rect,
+            &mut self.inv_dist,
+            &mut self.fx,
+            &mut self.fy,
+            &mut self.w,
+        ] {
+            v.resize(n, 0.0);
+        }
+        for i in observers {
+            self.observer(inp, i);
+        }
+    }
+
+    fn observer(&mut self, inp: &ObserveInputs, i: usize) {
+        let a = inp.agents;
+        let old = inp.old;
+
+        // 1. Index the observer's existing beliefs by target id.
+        if self.epoch == u32::MAX {
+            self.stamp.fill((0, 0));
+            self.epoch = 0;
+        }
+        self.epoch += 1;
+        let epoch = self.epoch;
+        let s = a.edge_start[i] as usize;
+        for (k, &t) in old.target[s..s + a.edge_len[i] as usize].iter().enumerate() {
+            self.stamp[t as usize] = (epoch, (s + k) as u32);
+        }
+
+        // 2. Every agent within the radius, in grid order.
+        let (slots, gx, gy) = inp.grid.sorted();
+        let (ranges, rows) = inp.grid.candidate_ranges(i);
+        let xi = a.pos[i];
+        let r2 = inp.r2;
+        let cand = &mut self.cand[..];
+        let mut m = 0;
+        for &(lo, hi) in &ranges[..rows] {
+            for ((&x, &y), &j) in gx[lo..hi].iter().zip(&gy[lo..hi]).zip(&slots[lo..hi]) {
+                let (dx, dy) = (xi.x - x, xi.y - y);
+                let inside = (dx * dx + dy * dy <= r2) & (j as usize != i);
+                // Written unconditionally, kept by advancing `m` (m < candidates <= n).
+                cand[m] = j;
+                m += usize::from(inside);
+            }
+        }
+        let cand = &self.cand[..m];
+
+        // 3. Targets' state, beliefs, clearances.
+        let base = self.edges.len();
+        self.edges.grow(m);
+        let e = &mut self.edges;
+        let e_target = &mut e.target[base..base + m];
+        let e_slot = &mut e.slot[base..base + m];
+        let e_belief = &mut e.belief[base..base + m];
+        let e_clear = &mut e.clearance[base..base + m];
+        let e_u = &mut e.u[base..base + m];
+        let dxs = &mut self.dx[..m];
+        let dys = &mut self.dy[..m];
+        let dists = &mut self.dist[..m];
+        let vxs = &mut self.vx[..m];
+        let vys = &mut self.vy[..m];
+        let accns = &mut self.accn[..m];
+        let vehs = &mut self.veh[..m];
+        let nnxs = &mut self.nnx[..m];
+        let nnys = &mut self.nny[..m];
+        let rects = &mut self.rect[..m];
+        let model = inp.params.cognition.prediction;
+        let shape_i = a.shape[i];
+        let radius_i = inp.targets[i].radius;
+        let placed_i = Placed {
+            shape: shape_i,
+            position: xi,
+            heading: a.heading[i],
+        };
+        for c in 0..m {
+            let j = cand[c] as usize;
+            let t = &inp.targets[j];
+            let d = xi - t.pos;
+            let vj = t.vel;
+            let (stamp, k) = self.stamp[t.id as usize];
+            let (belief, u) = if stamp == epoch {
+                let mut b = old.belief[k as usize];
+                let mu_p = b.predict(model, t.last_change);
+                let u = b.update(mu_p, vj, inp.schedule);
+                (b, u)
+            } else {
+                (Belief::first_sight(vj), 0.0)
+            };
+            let dist = d.norm();
+            // `radius_i + radius_j` is NaN when either footprint is a rectangle.
+            let radii = radius_i + t.radius;
+            let (clearance, normal, rect) = if !radii.is_nan() {
+                ((dist - radii).max(0.0), d, 0.0)
+            } else {
+                let placed_j = Placed {
+                    shape: a.shape[j],
+                    position: t.pos,
+                    heading: a.heading[j],
+                };
+                let (c, n) = clearance_and_normal(&placed_i, &placed_j);
+                (c, n, 1.0)
+            };
+            e_target[c] = t.id;
+            e_slot[c] = j as u32;
+            e_belief[c] = belief;
+            e_clear[c] = clearance;
+            e_u[c] = u;
+            dxs[c] = d.x;
+            dys[c] = d.y;
+            dists[c] = dist;
+            vxs[c] = vj.x;
+            vys[c] = vj.y;
+            accns[c] = t.acc_norm;
+            vehs[c] = if t.is_vehicle { 1.0 } else { 0.0 };
+            nnxs[c] = normal.x;
+            nnys[c] = normal.y;
+            rects[c] = rect;
+        }
+
+        // 4. Physical risk (risk::risk_with, branch-free).
+        let e = &mut self.edges;
+        let psis = &mut e.psi[base..base + m];
+        let clears = &e.clearance[base..base + m];
+        let us = &e.u[base..base + m];
+        let (dxs, dys, dists) = (&self.dx[..m], &self.dy[..m], &self.dist[..m]);
+        let (vxs, vys, accns) = (&self.vx[..m], &self.vy[..m], &self.accn[..m]);
+        let inv_dists = &mut self.inv_dist[..m];
+        let gamma1 = inp.params.risk.gamma1;
+        let two_gamma2 = 2.0 * inp.params.risk.gamma2;
+        for c in 0..m {
+            let along = vxs[c] * dxs[c] + vys[c] * dys[c];
+            // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
+            // division keeps the loop vectorisable.
+            let inv_dist = 1.0 / if dists[c] > 0.0 { dists[c] } else { 1.0 };
+            inv_dists[c] = inv_dist;
+            let radial_speed = along.abs() * inv_dist;
+            let k = if along > 0.0 { -1.0 } else { 1.0 };
+            let z = gamma1 * k * (radial_speed + accns[c]);
+            let one_plus_e = 1.0 + fastmath::exp(-2.0 * z);
+            let psi = one_plus_e / (one_plus_e + two_gamma2 * clears[c]);
+            // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
+            psis[c] = if one_plus_e == f64::INFINITY {
+                1.0
+            } else {
+                psi
+            };
+        }
+
+        // 5. Social forces on a simulated pedestrian (pedestrian::total_force without the goal
+        // term, summed in four interleaved lanes).
+        let fc = match a.control[i] {
+            Control::Model(model) => inp
+                .params
+                .pedestrians
+                .for_model(model)
+                .map(|p| ForceConsts::new(model, p)),
+            _ => None,
+        };
+        let (force, max_w) = match fc {
+            None => (Vec2::zeros(), 0.0),
+            Some(fc) => {
+                let vehs = &self.veh[..m];
+                let (nnxs, nnys) = (&self.nnx[..m], &self.nny[..m]);
+                let (rects, inv_dists) = (&self.rect[..m], &self.inv_dist[..m]);
+                let fxs = &mut self.fx[..m];
+                let fys = &mut self.fy[..m];
+                let ws = &mut self.w[..m];
+                for c in 0..m {
+                    let veh = vehs[c] != 0.0;
+                    let strength = if veh { fc.a_veh } else { fc.a_ped };
+                    let neg_inv_range = if veh {
+                        fc.neg_inv_b_veh
+                    } else {
+                        fc.neg_inv_b_ped
+                    };
+                    let lambda = if veh { fc.lam_veh } else { fc.lam_ped };
+                    let weighted = psis[c] * (1.0 + lambda * us[c]);
+                    let w = if fc.unit_weight { 1.0 } else { weighted };
+                    // Exactly `inv_dist` (rect = 0) or 1 (rect = 1), without a select on loads.
+                    let scale = rects[c] + (1.0 - rects[c]) * inv_dists[c];
+                    let nx = nnxs[c] * scale;
+                    let ny = nnys[c] * scale;
+                    let rep = strength * fastmath::exp(clears[c] * neg_inv_range);
+                    fxs[c] = nx * rep * w;
+                    fys[c] = ny * rep * w;
+                    ws[c] = w;
+                }
+                (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
+            }
+        };
+        self.len.push(m as u32);
+        self.force.push(force);
+        self.max_w.push(max_w);
+    }
+}
+
+/// Sum in four interleaved lanes, then the lanes and the tail in a fixed order (vectorisable,
+/// deterministic).
+fn lane_sum(v: &[f64]) -> f64 {
+    let mut acc = [0.0; 4];
+    let chunks = v.chunks_exact(4);
+    let tail = chunks.remainder();
+    for ch in chunks {
+        for l in 0..4 {
+            acc[l] += ch[l];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for &x in tail {
+        s += x;
+    }
+    s
+}
+
+/// Largest of `v` and 0 (weights are non-negative), in four lanes.
+fn lane_max(v: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let chunks = v.chunks_exact(4);
+    let tail = chunks.remainder();
+    for ch in chunks {
+        for l in 0..4 {
+            if ch[l] > acc[l] {
+                acc[l] = ch[l];
+            }
+        }
+    }
+    let mut m = acc[0].max(acc[1]).max(acc[2].max(acc[3]));
+    for &x in tail {
+        if x > m {
+            m = x;
+        }
+    }
+    m
 }

@@ -2,7 +2,7 @@
 //! CR-SFM pedestrians at 0.25 pedestrians per square metre.
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
-use sim_server::step_timing::{bench_world, step_once};
+use sim_server::step_timing::{bench_world_threads, step_once};
 
 fn world_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("world_step");
@@ -10,11 +10,20 @@ fn world_step(c: &mut Criterion) {
         if n >= 1000 {
             group.sample_size(10);
         }
-        let base = bench_world(n, 0);
         group.throughput(Throughput::Elements(n as u64));
-        group.bench_function(format!("n={n}"), |b| {
-            b.iter_batched_ref(|| base.clone(), step_once, BatchSize::LargeInput)
-        });
+        // Large scenes also on two threads (smaller ones never split).
+        let threads: &[usize] = if n >= 1000 { &[1, 2] } else { &[1] };
+        for &t in threads {
+            let base = bench_world_threads(n, 0, t);
+            let name = if t == 1 {
+                format!("n={n}")
+            } else {
+                format!("n={n}/threads={t}")
+            };
+            group.bench_function(name, |b| {
+                b.iter_batched_ref(|| base.clone(), step_once, BatchSize::LargeInput)
+            });
+        }
     }
     group.finish();
 }

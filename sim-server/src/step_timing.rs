@@ -13,12 +13,28 @@ use sim_core::world::{EpisodeConfig, World};
 /// Steps taken before timing so that beliefs have a history (not all first sights).
 pub const WARM_UP_STEPS: u32 = 3;
 
+/// Threads a benchmark world may use: `SIM_STEP_THREADS` if set (default 1). Only scenes of at
+/// least [`sim_core::world::PARALLEL_MIN_AGENTS`] agents are split; results are identical for
+/// every thread count.
+pub fn bench_threads() -> usize {
+    std::env::var("SIM_STEP_THREADS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1)
+}
+
 /// A warmed-up world of 1 AV + `n` pedestrians (random layout, density 0.25 /m², `seed`).
 pub fn bench_world(n: usize, seed: u64) -> World {
+    bench_world_threads(n, seed, bench_threads())
+}
+
+/// [`bench_world`] stepping on `threads` threads.
+pub fn bench_world_threads(n: usize, seed: u64, threads: usize) -> World {
     let cfg = SyntheticConfig::new(Layout::Random, n, seed);
     let scenario = Arc::new(generate(&cfg).expect("benchmark scene is valid"));
     let config = EpisodeConfig::ego_external(&scenario, PedestrianModel::CrSfm);
     let mut world = World::new(scenario, WorldParams::default(), config).expect("benchmark world");
+    world.set_threads(threads);
     for _ in 0..WARM_UP_STEPS {
         if world.is_over() {
             break;
@@ -60,6 +76,7 @@ pub fn time_steps(
                 EpisodeConfig::replay_vehicles(PedestrianModel::CrSfm),
             )
             .expect("benchmark world");
+            w.set_threads(base.threads());
         }
         let t0 = Instant::now();
         for _ in 0..steps_per_clone {
