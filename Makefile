@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve test lint fmt bench bench-rust bench-pysf calibrate table1 lint-py venv clean
+.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf calibrate table1 lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -21,10 +21,11 @@ $(SERVER): $(shell find sim-core scenarios protocol sim-server -name '*.rs' -o -
 	$(CARGO) build --release -p sim-server
 	@touch $@
 
-$(VENV)/.installed: clients/requirements-dev.txt
+$(VENV)/.installed: clients/requirements-dev.txt clients/requirements-train.txt clients/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r clients/requirements-dev.txt
+	$(PY) -m pip install --quiet -r clients/requirements-dev.txt -r clients/requirements-train.txt
+	$(PY) -m pip install --quiet --no-deps -e clients
 	@touch $@
 
 venv: $(VENV)/.installed ## create the Python virtualenv in .venv
@@ -32,17 +33,27 @@ venv: $(VENV)/.installed ## create the Python virtualenv in .venv
 run: $(SERVER) ## the main job on the embedded pool (see README)
 	./scripts/run_main.sh
 
-test: ## every test: Rust (fmt, clippy, unit, integration, property)
+serve: $(SERVER) ## a simulation server on this machine (deploy/server.json5; ARGS='--cfg capacity:64')
+	$(SERVER) serve --config deploy/server.json5 $(ARGS)
+
+router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.json5, deploy/README.md)
+	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
+	$(SERVER) router --config deploy/router.json5 $(ARGS)
+
+test: $(VENV)/.installed ## every test: Rust (fmt, clippy, unit, integration, property), Python (pytest against a live server), ruff
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	$(CARGO) test --workspace
+	$(CARGO) build -p sim-server
+	SHAREDSPACE_SIM_SERVER=target/debug/sim-server $(PY) -m pytest clients/tests -q -p no:cacheprovider
+	$(PY) -m ruff check clients calibration bench
 
 lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 
-lint-py: $(VENV)/.installed ## ruff on the Python tooling (calibration/)
-	$(PY) -m ruff check calibration
+lint-py: $(VENV)/.installed ## ruff on the Python code
+	$(PY) -m ruff check clients calibration bench
 
 fmt: ## format the Rust code
 	$(CARGO) fmt --all
