@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf calibrate table1 lint-py venv clean
+.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf calibrate table1 table2 lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -30,7 +30,7 @@ $(VENV)/.installed: clients/requirements-dev.txt clients/requirements-train.txt 
 
 venv: $(VENV)/.installed ## create the Python virtualenv in .venv
 
-run: $(SERVER) ## the main job on the embedded pool (see README)
+run: $(SERVER) $(VENV)/.installed ## the main job: serve, train G-SAC-Cog remotely, evaluate, plot (embedded pool)
 	./scripts/run_main.sh
 
 serve: $(SERVER) ## a simulation server on this machine (deploy/server.json5; ARGS='--cfg capacity:64')
@@ -80,6 +80,9 @@ table1: $(SERVER) $(VENV)/.installed ## paper Table I on the test split (calibra
 	rm -rf out/table1-trajectories
 	$(SERVER) eval-peds --split test --params $(CALIBRATED) --out docs/table1.json --trajectories out/table1-trajectories
 	$(PY) -m calibration.plot_trajectories --trajectories out/table1-trajectories --out docs/figures
+
+table2: $(SERVER) $(VENV)/.installed ## paper Table II: three variants trained at once against one server, evaluated (docs/RESULTS.md)
+	./scripts/table2.sh
 
 clean:
 	$(CARGO) clean

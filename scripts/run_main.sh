@@ -1,19 +1,41 @@
 #!/usr/bin/env bash
-# `make run`: the main job on the embedded default scenario pool (no files needed).
+# `make run`: the main job end to end on the embedded default scenario pool (no data files needed).
 #
-# What it runs today: the pedestrian-model evaluation of the paper's Table I (cv, sfm, ra_sfm,
-# cr_sfm on the test split, the AV replaying its record), and one rollout of the first test
-# scenario with CR-SFM pedestrians written as JSON lines to out/. The remote SAC-GCN training
-# loop joins this script when the trainer lands (issues 5-7).
+# 1. starts `sim-server serve` on a free loopback port (multicast scouting off);
+# 2. trains a short G-SAC-Cog run against it over Zenoh (progress bar: steps/s, return, success);
+# 3. evaluates the checkpoint on the test split and prints the paper's Table II columns next to
+#    the recorded human driver;
+# 4. writes plots (learning curves, speed/acceleration/heading profiles, a scene with its risk
+#    graph) to out/main/plots; then stops the server.
+# Budget: RUN_FRAMES env transitions (default 12 000, a few minutes on 2 cores).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 server=target/release/sim-server
+py=.venv/bin/python
+frames=${RUN_FRAMES:-12000}
+out=out/main
+rm -rf "$out"
+mkdir -p "$out"
 
+port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+endpoint="tcp/127.0.0.1:$port"
+RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
+    --cfg server_id:main > "$out/server.log" 2>&1 &
+server_pid=$!
+trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
+echo "== sim-server serving on $endpoint (log: $out/server.log)"
 
-mkdir -p out
-echo "== Table I: pedestrian models on the test split of the embedded HBS pool"
-"$server" eval-peds --split test --models cv,sfm,ra_sfm,cr_sfm --out out/table1.json
+remote=(env_backend=remote "server_endpoint=$endpoint" server_prefix=sharedspace)
+echo "== training G-SAC-Cog for $frames frames against the server"
+"$py" -m sharedspace.train --set variant=g_sac_cog "total_frames=$frames" init_random_frames=2000 \
+    num_envs=8 eval_interval=0 "checkpoint_interval=$frames" "log_dir=$out" "${remote[@]}"
+
 echo
-echo "== rollout of one test scenario with CR-SFM pedestrians -> out/rollout.jsonl"
-"$server" rollout --scenario 2 --model cr_sfm --av replay --out out/rollout.jsonl
-echo "wrote out/table1.json and out/rollout.jsonl ($(wc -l < out/rollout.jsonl) lines; format in docs/ROLLOUT.md)"
+echo "== evaluation on the test split (paper Table II columns)"
+"$py" -m sharedspace.train.evaluate --checkpoint "$out/checkpoints/last.pt" --split test \
+    --json "$out/eval.json" --set "${remote[@]}"
+
+echo
+echo "== plots -> $out/plots"
+"$py" -m sharedspace.train.plots --run "$out" --eval-json "$out/eval.json" --scene 2 --out "$out/plots"
+ls "$out/plots"
