@@ -28,3 +28,146 @@ def pytest_terminal_summary(terminalreporter):
             f"{mx('pos'):9.1e} {mx('vel'):9.1e} {mx('psi'):9.1e} {mx('u'):9.1e} "
             f"{mx('a'):9.1e} {mx('reward'):9.1e}"
         )
+
+
+# --------------------------------------------------------------------------------------------
+# Live sim-server fixtures for the remote-client tests (tests/test_remote_*.py).
+
+import os  # noqa: E402
+import signal  # noqa: E402
+import socket  # noqa: E402
+import subprocess  # noqa: E402
+import time  # noqa: E402
+import uuid  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+def sim_server_binary() -> Path | None:
+    """``$SHAREDSPACE_SIM_SERVER``, else ``target/release/sim-server``, else the debug build."""
+    env = os.environ.get("SHAREDSPACE_SIM_SERVER")
+    candidates = (
+        [Path(env)]
+        if env
+        else [
+            REPO_ROOT / "target" / "release" / "sim-server",
+            REPO_ROOT / "target" / "debug" / "sim-server",
+        ]
+    )
+    for path in candidates:
+        if path.is_file() and os.access(path, os.X_OK):
+            return path
+    return None
+
+
+def free_port() -> int:
+    """A free TCP port on the loopback interface."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class SimServer:
+    """A ``sim-server serve`` subprocess on a loopback port, multicast scouting off."""
+
+    def __init__(self, binary: Path, prefix: str, server_id: str, *extra_cfg: str):
+        self.binary = binary
+        self.prefix = prefix
+        self.server_id = server_id
+        self.port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        cmd = [
+            str(binary),
+            "serve",
+            "--cfg",
+            f'zenoh/listen/endpoints:["{self.endpoint}"]',
+            "--cfg",
+            "zenoh/scouting/multicast/enabled:false",
+            "--cfg",
+            f"prefix:{prefix}",
+            "--cfg",
+            f"server_id:{server_id}",
+        ]
+        for c in extra_cfg:
+            cmd += ["--cfg", c]
+        self.log = open(os.devnull, "wb")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen(
+            cmd, stdout=self.log, stderr=subprocess.STDOUT, env={**os.environ, "RUST_LOG": "warn"}
+        )
+        self._wait_listening(20.0)
+
+    def _wait_listening(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"sim-server exited with {self.proc.returncode} at start-up")
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=0.2):
+                    return
+            except OSError:
+                time.sleep(0.05)
+        self.stop()
+        raise RuntimeError(f"sim-server did not listen on {self.endpoint} within {timeout} s")
+
+    def kill(self, sig: int = signal.SIGKILL) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
+
+    def stop(self) -> None:
+        self.kill(signal.SIGTERM)
+        self.log.close()
+
+
+def start_server(prefix: str, server_id: str, *extra_cfg: str) -> SimServer:
+    binary = sim_server_binary()
+    if binary is None:
+        pytest.skip(
+            "sim-server binary not found: build it with `cargo build --release -p sim-server` "
+            "or set SHAREDSPACE_SIM_SERVER"
+        )
+    return SimServer(binary, prefix, server_id, *extra_cfg)
+
+
+def unique_prefix() -> str:
+    return f"sstest{os.getpid()}x{uuid.uuid4().hex[:6]}"
+
+
+@pytest.fixture(scope="session")
+def sim_server():
+    """One live server for the session (its own random port and key prefix)."""
+    server = start_server(unique_prefix(), "srv0")
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="session")
+def sim_client(sim_server):
+    """A SimClient connected to :func:`sim_server` (shared by the session's tests)."""
+    from sharedspace.client import SimClient
+
+    client = SimClient(sim_server.endpoint, sim_server.prefix, timeout=5.0)
+    yield client
+    client.shutdown()
+
+
+@pytest.fixture
+def server_factory():
+    """Starts extra servers (function scope); all are stopped afterwards."""
+    started: list[SimServer] = []
+
+    def make(prefix: str, server_id: str, *extra_cfg: str) -> SimServer:
+        s = start_server(prefix, server_id, *extra_cfg)
+        started.append(s)
+        return s
+
+    yield make
+    for s in started:
+        s.stop()

@@ -2,7 +2,12 @@
 
 - :mod:`sharedspace.codec`: MessagePack wire codec (protocol/SPEC.md);
 - :mod:`sharedspace.errors`: the exceptions;
-- :mod:`sharedspace.reference`: a pure-numpy reference of the world step (shared/spec/model.md).
+- :mod:`sharedspace.reference`: a pure-numpy reference of the world step (shared/spec/model.md);
+- :mod:`sharedspace.transport`: the zenoh session, server discovery, liveliness;
+- :mod:`sharedspace.client`: :class:`SimClient` and the batched :class:`VectorClient` (failover);
+- :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``;
+- :mod:`sharedspace.torchrl_env`: ``RemoteBatchedEnv`` (imported lazily: needs torch/torchrl);
+- :mod:`sharedspace.observer`: :class:`Observer` of the envs' publications.
 """
 
 from .errors import (
@@ -17,6 +22,27 @@ from .errors import (
 
 __version__ = "0.1.0"
 
+_LAZY = {
+    "ServerLost": ("transport", "ServerLost"),
+    "Transport": ("transport", "Transport"),
+    "SimClient": ("client", "SimClient"),
+    "VectorClient": ("client", "VectorClient"),
+    "Observer": ("observer", "Observer"),
+    "parallel_env": ("pettingzoo_env", "parallel_env"),
+    "SharedSpaceParallelEnv": ("pettingzoo_env", "SharedSpaceParallelEnv"),
+    "RemoteBatchedEnv": ("torchrl_env", "RemoteBatchedEnv"),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(f".{module}", __name__), attr)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "SharedspaceError",
     "ServerError",
@@ -25,5 +51,13 @@ __all__ = [
     "EnvClosed",
     "WrongShape",
     "NoServer",
+    "ServerLost",
+    "Transport",
+    "SimClient",
+    "VectorClient",
+    "Observer",
+    "parallel_env",
+    "SharedSpaceParallelEnv",
+    "RemoteBatchedEnv",
     "__version__",
 ]

@@ -1,0 +1,662 @@
+"""Request/reply clients of the sharedspace server (protocol/SPEC.md section 5).
+
+- :class:`SimClient`: one trainer's connection (a :class:`~sharedspace.transport.Transport`
+  with its liveliness token). Creates envs (K in one ``CreateEnv``) on the least-loaded server
+  and remembers which server owns each env; ``reset``, ``step``, ``batch_step`` and ``close``
+  take and return numpy arrays (the decoded messages of the spec, arrays as numpy views).
+- :class:`VectorClient`: K envs of one ``CreateEnv`` stepped together, one ``BatchStep`` per
+  step (actions ``[K, n_ext, 2]`` float32), with failover.
+
+Failover
+--------
+When the server hosting a :class:`VectorClient`'s envs dies (its liveliness token
+``{p}/server/{id}/alive`` disappears, or a query to it gets no reply within the timeout), the
+next ``step``/``reset`` raises :class:`~sharedspace.transport.ServerLost`. The envs and the
+episodes in flight are gone with that server: nothing of them can be recovered.
+:meth:`VectorClient.recreate` creates the same number of envs with the same ``CreateEnv``
+parameters (same seed, so the scenario sequence restarts from the seed: the new server replays
+the sequence from its first episode, not from where the lost one was) on the least-loaded
+surviving server and resets them. With ``failover=True`` this happens inside ``step``: the
+step returns a synthetic transition in which every env is **truncated** (reward 0, ``obs`` = the
+last observation received before the loss), whose ``envs[k]["reset"]`` carries the new
+episode's ``ResetResult``, like an autoreset step, and ``result["failover"]`` is True. Each
+failover increments :attr:`VectorClient.failovers` and logs a warning on the ``sharedspace``
+logger.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from . import codec
+from .errors import EnvClosed, NoServer, ProtocolError, SharedspaceError, WrongShape
+from .transport import (
+    CREATE_TIMEOUT,
+    DEFAULT_ENDPOINT,
+    DEFAULT_PREFIX,
+    DEFAULT_TIMEOUT,
+    QueryFailed,
+    ServerLost,
+    Transport,
+)
+
+__all__ = ["SimClient", "VectorClient", "REWARD_TERMS"]
+
+log = logging.getLogger("sharedspace")
+
+REWARD_TERMS = ("progress", "success", "collision", "danger", "comfort")
+
+
+_OBS_KEYS = ("features", "adjacency", "mask", "node_ids")
+
+
+def _array(m: dict[str, Any]) -> np.ndarray:
+    """A binary-array map as a read-only numpy view (lean twin of ``codec.decode_array``)."""
+    dtype, shape, data = m.get("dtype"), m.get("shape"), m.get("data")
+    size = codec.ARRAY_DTYPES.get(dtype) if isinstance(dtype, str) else None
+    if size is None or not isinstance(shape, list) or not isinstance(data, bytes):
+        return codec.decode_array(m)  # the careful path raises the precise ProtocolError
+    count = 1
+    for d in shape:
+        count *= d
+    if len(data) != count * size:
+        return codec.decode_array(m)
+    return np.frombuffer(data, dtype=dtype).reshape(shape)
+
+
+def _arrays_in(d: dict[str, Any], keys) -> None:
+    for k in keys:
+        v = d.get(k)
+        if isinstance(v, dict) and "data" in v:
+            d[k] = _array(v)
+
+
+def _obs_in(r: Any) -> None:
+    if isinstance(r, dict):
+        obs = r.get("obs")
+        if isinstance(obs, dict):
+            _arrays_in(obs, _OBS_KEYS)
+
+
+def decode_result(payload: bytes) -> Any:
+    """Decodes a reply envelope like :func:`sharedspace.codec.decode_reply`, faster on the hot
+    path: MessagePack is unpacked without a per-map hook and only the binary arrays of
+    ``ResetResult``/``StepResult``/``BatchStepResult`` (``obs``, ``reward``, ``reward_terms``,
+    ``terminated``, ``truncated`` and the autoreset ``reset.obs``) become numpy views; any other
+    map is left as it is (``ServerInfo``, ``EnvCreated`` and ``Closed`` carry no arrays)."""
+    if len(payload) == 0:
+        raise ProtocolError("empty reply payload")
+    try:
+        msg = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as e:  # msgpack's ExtraData, FormatError, ...
+        raise ProtocolError(f"undecodable reply: {type(e).__name__}: {e}") from e
+    r = codec.unwrap_reply(msg)
+    if isinstance(r, dict) and "obs" in r:
+        _obs_in(r)
+        _arrays_in(r, ("reward", "terminated", "truncated"))
+        terms = r.get("reward_terms")
+        if isinstance(terms, dict):
+            _arrays_in(terms, list(terms))
+        _obs_in(r.get("reset"))
+        for env in r.get("envs") or ():
+            if isinstance(env, dict) and env.get("reset") is not None:
+                _obs_in(env["reset"])
+    return r
+
+
+class SimClient:
+    """A trainer's connection to the sharedspace servers under ``prefix``.
+
+    Args:
+        endpoint, prefix, mode, listen, multicast, timeout, client_id, config: see
+            :class:`~sharedspace.transport.Transport` (ignored when ``transport`` is given).
+        transport: an existing transport to share.
+        server_id: pin every ``create`` to this server (default: least loaded at each create).
+        discover_timeout: how long ``create`` waits for a server to answer (default: timeout).
+    """
+
+    def __init__(
+        self,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        *,
+        mode: str = "peer",
+        listen: str | Sequence[str] | None = None,
+        multicast: bool = False,
+        timeout: float = DEFAULT_TIMEOUT,
+        client_id: str | None = None,
+        config: dict[str, Any] | None = None,
+        transport: Transport | None = None,
+        server_id: str | None = None,
+        discover_timeout: float | None = None,
+        protocol_version: int = codec.PROTOCOL_VERSION,
+    ):
+        self._own_transport = transport is None
+        self.transport = transport or Transport(
+            endpoint,
+            prefix,
+            mode=mode,
+            listen=listen,
+            multicast=multicast,
+            timeout=timeout,
+            client_id=client_id,
+            config=config,
+            protocol_version=protocol_version,
+        )
+        self.server_id = server_id
+        self.discover_timeout = (
+            self.transport.timeout if discover_timeout is None else float(discover_timeout)
+        )
+        #: env id -> server id of every env created (and not closed) by this client.
+        self.env_server: dict[str, str] = {}
+        #: env id -> ``n_ext`` (number of external agents).
+        self.env_n_ext: dict[str, int] = {}
+        self._closed_envs: set[str] = set()
+        self._step_keys: dict[str, str] = {}
+
+    @property
+    def client_id(self) -> str:
+        return self.transport.client_id
+
+    @property
+    def timeout(self) -> float:
+        return self.transport.timeout
+
+    # ----------------------------------------------------------------------------------------
+
+    def servers(self, timeout: float | None = None) -> list[dict[str, Any]]:
+        """``ServerInfo`` of every live server, least loaded first."""
+        return self.transport.servers(timeout if timeout is not None else self.discover_timeout)
+
+    def info(self, server_id: str) -> dict[str, Any]:
+        """``ServerInfo`` of one server."""
+        return self._request(
+            server_id,
+            self.transport.key("server", server_id, "info"),
+            codec.encode_info_request(self.transport.protocol_version),
+        )
+
+    def pick_server(self, exclude: Sequence[str] = (), need: int = 1) -> dict[str, Any]:
+        return self.transport.pick_server(exclude, timeout=self.discover_timeout, need=need)
+
+    def _server_of(self, env_id: str) -> str:
+        sid = self.env_server.get(env_id)
+        if sid is None:
+            if env_id in self._closed_envs:
+                raise EnvClosed("env_closed", f"env {env_id!r} was closed by this client", env_id)
+            raise SharedspaceError(f"env {env_id!r} was not created by this client")
+        return sid
+
+    def _lost(self, server_id: str, reason: str) -> ServerLost:
+        envs = [e for e, s in self.env_server.items() if s == server_id]
+        return ServerLost(server_id, reason, envs)
+
+    def _check_alive(self, server_id: str) -> None:
+        if not self.transport.is_alive(server_id):
+            raise self._lost(server_id, "its liveliness token disappeared")
+
+    def _request(self, server_id: str, key: str, payload: bytes, timeout: float | None = None):
+        if self.transport.closed:
+            raise SharedspaceError("the client is closed")
+        self._check_alive(server_id)
+        try:
+            return decode_result(self.transport.query(key, payload, timeout))
+        except QueryFailed as e:
+            if not self.transport.is_alive(server_id):
+                raise self._lost(server_id, "its liveliness token disappeared") from e
+            raise self._lost(server_id, str(e)) from e
+
+    def _request_many(self, server_id: str, calls: Sequence[tuple[str, bytes]]) -> list[Any]:
+        """Several queries to one server in flight at once; replies in order."""
+        self._check_alive(server_id)
+        pending = [self.transport.get_async(k, p) for k, p in calls]
+        out = []
+        first_err: BaseException | None = None
+        for p in pending:
+            try:
+                out.append(decode_result(self.transport.wait(p)))
+            except QueryFailed as e:
+                reason = (
+                    "its liveliness token disappeared"
+                    if not self.transport.is_alive(server_id)
+                    else str(e)
+                )
+                first_err = first_err or self._lost(server_id, reason)
+            except SharedspaceError as e:
+                first_err = first_err or e
+        if first_err is not None:
+            raise first_err
+        return out
+
+    # ----------------------------------------------------------------------------------------
+    # Requests
+
+    def create(
+        self, count: int = 1, *, server_id: str | None = None, **params: Any
+    ) -> dict[str, Any]:
+        """``CreateEnv`` of ``count`` envs (SPEC 5.2; ``params`` are its fields: ``seed``,
+        ``split``, ``pool``, ``pedestrian_model``, ``external_agents``, ``max_agents``,
+        ``autoreset``, ...) on ``server_id`` or the least-loaded server. Returns ``EnvCreated``
+        with ``server_id`` added."""
+        params = dict(params)
+        version = int(params.pop("protocol_version", self.transport.protocol_version))
+        sid = server_id or self.server_id
+        if sid is None:
+            sid = str(self.pick_server(need=int(count))["server_id"])
+        msg = codec.create_env(self.client_id, count=count, protocol_version=version, **params)
+        try:
+            created = self._request(
+                sid,
+                self.transport.key("server", sid, "env", "create"),
+                codec.encode(msg),
+                max(self.timeout, CREATE_TIMEOUT),
+            )
+        except ServerLost as e:
+            if sid in self.transport.alive_servers():
+                raise
+            raise NoServer(
+                self.transport.endpoint,
+                max(self.timeout, CREATE_TIMEOUT),
+                f"server {sid!r} (prefix {self.transport.prefix!r}) did not answer env/create "
+                f"on {self.transport.endpoint!r}: {e.reason}",
+            ) from e
+        created["server_id"] = sid
+        n_ext = len(created.get("external_agents") or msg["external_agents"])
+        for env_id in created["env_ids"]:
+            self.env_server[env_id] = sid
+            self.env_n_ext[env_id] = n_ext
+        return created
+
+    def reset(
+        self, env_id: str, seed: int | None = None, scenario: str | None = None
+    ) -> dict[str, Any]:
+        """``Reset`` (SPEC 5.3) → ``ResetResult``."""
+        sid = self._server_of(env_id)
+        return self._request(
+            sid,
+            self.transport.key("server", sid, "env", env_id, "reset"),
+            codec.encode_reset(seed, scenario),
+        )
+
+    def reset_many(
+        self,
+        env_ids: Sequence[str],
+        seeds: Sequence[int | None] | None = None,
+        scenarios: Sequence[str | None] | None = None,
+    ) -> list[dict[str, Any]]:
+        """``Reset`` of several envs of one server, all queries in flight at once."""
+        if not env_ids:
+            return []
+        sid = self._server_of(env_ids[0])
+        calls = []
+        for i, env_id in enumerate(env_ids):
+            if self._server_of(env_id) != sid:
+                raise ValueError("reset_many: every env must live on the same server")
+            seed = None if seeds is None else seeds[i]
+            scen = None if scenarios is None else scenarios[i]
+            calls.append(
+                (
+                    self.transport.key("server", sid, "env", env_id, "reset"),
+                    codec.encode_reset(seed, scen),
+                )
+            )
+        return self._request_many(sid, calls)
+
+    def step(self, env_id: str, actions: Any) -> dict[str, Any]:
+        """``Step`` (SPEC 5.4): ``actions`` ``[n_ext, 2]`` (float32/64) → ``StepResult``."""
+        sid = self._server_of(env_id)
+        n_ext = self.env_n_ext.get(env_id)
+        arr = np.asarray(actions, dtype="<f4")
+        if arr.ndim == 1 and n_ext == 1:
+            arr = arr.reshape(1, -1)
+        if arr.shape != (n_ext, 2):
+            raise WrongShape(
+                message=f"step: actions of env {env_id} must have shape [{n_ext}, 2] "
+                f"(n_ext, [acc, omega]), got {list(arr.shape)}",
+                env_id=env_id,
+            )
+        key = self._step_keys.get(env_id)
+        if key is None:
+            key = self._step_keys[env_id] = self.transport.key("server", sid, "env", env_id, "step")
+        payload = msgpack.packb(
+            {"actions": {"dtype": "<f4", "shape": [n_ext, 2], "data": arr.tobytes()}},
+            use_bin_type=True,
+        )
+        return self._request(sid, key, payload)
+
+    def batch_step(
+        self, env_ids: Sequence[str], actions: Any, timeout: float | None = None
+    ) -> dict[str, Any]:
+        """``BatchStep`` (SPEC 5.5): ``actions`` ``[K, n_ext, 2]`` → ``BatchStepResult``."""
+        env_ids = list(env_ids)
+        if not env_ids:
+            raise ValueError("batch_step needs at least one env")
+        sid = self._server_of(env_ids[0])
+        n_ext = self.env_n_ext.get(env_ids[0])
+        arr = np.asarray(actions, dtype=np.float32)
+        want = (len(env_ids), n_ext, 2)
+        if arr.shape != want:
+            raise WrongShape(
+                message=f"batch_step: actions must have shape [K={want[0]}, n_ext={n_ext}, 2], "
+                f"got {list(arr.shape)}",
+            )
+        for env_id in env_ids:
+            if self._server_of(env_id) != sid:
+                raise ValueError("batch_step: every env must live on the same server")
+        return self._request(
+            sid,
+            self.transport.key("server", sid, "batch", "step"),
+            codec.encode({"env_ids": env_ids, "actions": arr}),
+            timeout,
+        )
+
+    def close(self, env_id: str) -> dict[str, Any]:
+        """``Close`` (SPEC 5.6)."""
+        sid = self._server_of(env_id)
+        try:
+            return self._request(
+                sid,
+                self.transport.key("server", sid, "env", env_id, "close"),
+                codec.encode_close(),
+            )
+        finally:
+            self.forget(env_id)
+
+    def close_many(self, env_ids: Sequence[str]) -> None:
+        """Closes envs, all queries in flight at once; errors (already closed, server gone) are
+        ignored."""
+        by_server: dict[str, list[str]] = {}
+        for e in env_ids:
+            sid = self.env_server.get(e)
+            if sid is not None:
+                by_server.setdefault(sid, []).append(e)
+        for sid, ids in by_server.items():
+            if self.transport.closed or not self.transport.is_alive(sid):
+                pass
+            else:
+                pending = [
+                    self.transport.get_async(
+                        self.transport.key("server", sid, "env", e, "close"),
+                        codec.encode_close(),
+                        min(self.timeout, 2.0),
+                    )
+                    for e in ids
+                ]
+                for p in pending:
+                    try:
+                        Transport.wait(p)
+                    except SharedspaceError:
+                        pass
+            for e in ids:
+                self.forget(e)
+
+    def forget(self, env_id: str) -> None:
+        """Drops an env from the client's books (it is closed or its server is gone)."""
+        self.env_server.pop(env_id, None)
+        self.env_n_ext.pop(env_id, None)
+        self._step_keys.pop(env_id, None)
+        self._closed_envs.add(env_id)
+
+    def vector(self, num_envs: int, **params: Any) -> VectorClient:
+        """A :class:`VectorClient` of ``num_envs`` envs on this connection."""
+        return VectorClient(num_envs, client=self, **params)
+
+    def shutdown(self) -> None:
+        """Closes every env of this client and the transport (if this client opened it)."""
+        if not self.transport.closed:
+            self.close_many(list(self.env_server))
+        if self._own_transport:
+            self.transport.close()
+
+    def __enter__(self) -> SimClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.shutdown()
+
+
+def _stack_reset_obs(results: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
+    return {
+        key: np.stack([r["obs"][key] for r in results])
+        for key in ("features", "adjacency", "mask", "node_ids")
+    }
+
+
+class VectorClient:
+    """K envs created by one ``CreateEnv``, stepped with one ``BatchStep`` per step.
+
+    Args:
+        num_envs: K.
+        client: the :class:`SimClient` to use (default: a new one from ``endpoint`` etc.).
+        failover: on :class:`ServerLost`, re-create the envs on a surviving server inside
+            ``step``/``reset`` (see the module docstring) instead of raising.
+        step_timeout: timeout of a ``BatchStep`` (default: the client's timeout).
+        **params: ``CreateEnv`` fields (``seed``, ``split``, ``pool``, ``pedestrian_model``,
+            ``external_agents``, ``max_agents``, ``autoreset``, ``scenario``, ...) and, when
+            ``client`` is None, the :class:`SimClient` arguments ``endpoint``, ``prefix``,
+            ``timeout``, ``mode``, ``listen``, ``multicast``, ``server_id``.
+    """
+
+    _CLIENT_KEYS = (
+        "endpoint",
+        "prefix",
+        "timeout",
+        "mode",
+        "listen",
+        "multicast",
+        "client_id",
+        "config",
+        "server_id",
+        "discover_timeout",
+    )
+
+    def __init__(
+        self,
+        num_envs: int,
+        *,
+        client: SimClient | None = None,
+        failover: bool = False,
+        step_timeout: float | None = None,
+        **params: Any,
+    ):
+        if num_envs < 1:
+            raise ValueError("num_envs must be at least 1")
+        client_kwargs = {k: params.pop(k) for k in self._CLIENT_KEYS if k in params}
+        self._own_client = client is None
+        self.client = client or SimClient(**client_kwargs)
+        self.num_envs = int(num_envs)
+        self.params = params
+        self.failover = bool(failover)
+        self.step_timeout = step_timeout
+        #: Number of failovers so far (re-creations after a lost server).
+        self.failovers = 0
+        self.env_ids: list[str] = []
+        self.server_id: str = ""
+        self.created: dict[str, Any] = {}
+        self._last_obs: dict[str, np.ndarray] | None = None
+        self._closed = False
+        try:
+            self._create()
+        except BaseException:
+            if self._own_client:
+                self.client.shutdown()
+            raise
+
+    # ----------------------------------------------------------------------------------------
+
+    def _create(self, exclude: Sequence[str] = ()) -> None:
+        sid = None
+        if exclude:
+            sid = str(self.client.pick_server(exclude=exclude, need=self.num_envs)["server_id"])
+        self.created = self.client.create(self.num_envs, server_id=sid, **self.params)
+        self.env_ids = list(self.created["env_ids"])
+        self.server_id = self.created["server_id"]
+        self.n_ext = len(self.created["external_agents"])
+        self.external_agents = list(self.created["external_agents"])
+        self.max_agents = int(self.created["observation"]["max_agents"])
+        self._batch_key = self.client.transport.key("server", self.server_id, "batch", "step")
+        self.n_features = int(self.created["observation"]["n_features"])
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise EnvClosed("env_closed", "this VectorClient is closed")
+
+    def recreate(self) -> list[dict[str, Any]]:
+        """Re-creates the K envs with the same ``CreateEnv`` parameters on the least-loaded
+        surviving server and resets them (the scenario sequence restarts from the seed; any
+        episode in flight is lost). Returns the K ``ResetResult``s."""
+        self._check_open()
+        old_server, old_ids = self.server_id, list(self.env_ids)
+        lost = [old_server] if not self.client.transport.is_alive(old_server) else []
+        for e in old_ids:
+            self.client.forget(e)
+        try:
+            self._create(exclude=lost or [old_server])
+        except SharedspaceError:
+            if lost:
+                raise
+            self._create()  # the old server is alive: it may host the new envs
+        self.failovers += 1
+        log.warning(
+            "sharedspace: failover #%d: %d env(s) of server %s re-created on %s (%s.. -> %s..); "
+            "episodes in flight are lost, scenario sequences restart from the seed",
+            self.failovers,
+            self.num_envs,
+            old_server,
+            self.server_id,
+            old_ids[0] if old_ids else "-",
+            self.env_ids[0],
+        )
+        return self._reset_all(None)
+
+    def _reset_all(self, seed: int | None) -> list[dict[str, Any]]:
+        seeds = None if seed is None else [int(seed) + k for k in range(self.num_envs)]
+        results = self.client.reset_many(self.env_ids, seeds=seeds)
+        self._last_obs = _stack_reset_obs(results)
+        return results
+
+    def reset(self, seed: int | None = None, env_index: Sequence[int] | None = None):
+        """Resets every env (``env_index``: only those) and returns their ``ResetResult``s.
+        ``seed`` re-seeds env k with ``seed + k``."""
+        self._check_open()
+        idx = list(range(self.num_envs)) if env_index is None else [int(i) for i in env_index]
+        ids = [self.env_ids[i] for i in idx]
+        seeds = None if seed is None else [int(seed) + i for i in idx]
+        try:
+            results = self.client.reset_many(ids, seeds=seeds)
+        except ServerLost:
+            if not self.failover:
+                raise
+            self.recreate()
+            results = self.client.reset_many([self.env_ids[i] for i in idx], seeds=seeds)
+        if env_index is None:
+            self._last_obs = _stack_reset_obs(results)
+        elif self._last_obs is not None:
+            for i, r in zip(idx, results, strict=True):
+                for key in self._last_obs:
+                    self._last_obs[key][i] = r["obs"][key]
+        return results
+
+    def step(self, actions: Any) -> dict[str, Any]:
+        """One ``BatchStep`` of the K envs: ``actions`` ``[K, n_ext, 2]`` (a ``[K, 2]`` array is
+        accepted when ``n_ext`` is 1). Returns the ``BatchStepResult`` (numpy arrays ``obs``
+        ``features [K, n_ext, M, 11]`` etc., ``reward [K, n_ext]``, ``terminated``,
+        ``truncated``, per-env ``envs``)."""
+        self._check_open()
+        arr = np.asarray(actions, dtype=np.float32)
+        if arr.ndim == 2 and self.n_ext == 1:
+            arr = arr[:, None, :]
+        want = (self.num_envs, self.n_ext, 2)
+        if arr.shape != want:
+            raise WrongShape(
+                message=f"step: actions must have shape [K={want[0]}, n_ext={want[1]}, 2] "
+                f"(float32 [acc, omega] in [-1, 1]), got {list(np.shape(actions))}",
+            )
+        payload = msgpack.packb(
+            {"env_ids": self.env_ids, "actions": codec.encode_array(arr)}, use_bin_type=True
+        )
+        try:
+            res = self.client._request(self.server_id, self._batch_key, payload, self.step_timeout)
+        except ServerLost:
+            if not self.failover:
+                raise
+            return self._failover_step()
+        obs = res["obs"]
+        self._last_obs = {k: obs[k] for k in ("features", "adjacency", "mask", "node_ids")}
+        for k, env in enumerate(res["envs"]):
+            reset = env.get("reset")
+            if reset is not None:
+                for key in self._last_obs:
+                    if not self._last_obs[key].flags.writeable:
+                        self._last_obs[key] = self._last_obs[key].copy()
+                    self._last_obs[key][k] = reset["obs"][key]
+        return res
+
+    def _failover_step(self) -> dict[str, Any]:
+        k, n = self.num_envs, self.n_ext
+        prev = self._last_obs
+        resets = self.recreate()
+        obs = prev if prev is not None else _stack_reset_obs(resets)
+        zeros = np.zeros((k, n), dtype=np.float32)
+        return {
+            "env_ids": list(self.env_ids),
+            "obs": obs,
+            "reward": zeros.copy(),
+            "reward_terms": {t: zeros.copy() for t in REWARD_TERMS},
+            "terminated": np.zeros((k, n), dtype=np.uint8),
+            "truncated": np.ones((k, n), dtype=np.uint8),
+            "envs": [
+                {
+                    "episode": 0,
+                    "scenario": "",
+                    "step": 0,
+                    "t": 0.0,
+                    "info": {
+                        "action_clipped": [False] * n,
+                        "events": [],
+                        "metrics": [],
+                        "failover": True,
+                    },
+                    "reset": r,
+                }
+                for r in resets
+            ],
+            "failover": True,
+        }
+
+    def close(self) -> None:
+        """Closes the K envs (and the client if this VectorClient opened it)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.client.close_many(self.env_ids)
+        finally:
+            if self._own_client:
+                self.client.shutdown()
+
+    def __enter__(self) -> VectorClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def wait_until(pred, timeout: float, interval: float = 0.02) -> bool:
+    """Polls ``pred`` until it is true or ``timeout`` passes (test and example helper)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(interval)
+    return bool(pred())

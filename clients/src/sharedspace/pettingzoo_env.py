@@ -1,0 +1,343 @@
+"""PettingZoo ``ParallelEnv`` over one server env (a thin adapter over the client).
+
+.. code-block:: python
+
+    import sharedspace
+    env = sharedspace.parallel_env(endpoint="tcp/127.0.0.1:7447", render_mode="rgb_array")
+    obs, infos = env.reset(seed=42)
+    while env.agents:
+        actions = {a: env.action_space(a).sample() for a in env.agents}
+        obs, rewards, terms, truncs, infos = env.step(actions)
+    frame = env.render()          # uint8 [H, W, 3]
+    env.close()
+
+Agents are the external agents (``vehicle_0`` by default; names ``vehicle_{k}``). Each
+observation is a dict ``features`` float32 ``[M, 11]``, ``adjacency`` float32 ``[M, M]`` and
+``mask`` int8 ``[M]`` (``MultiBinary``); actions are float32 ``[2]`` in ``[-1, 1]`` (normalised
+``[acc, omega]``). An agent leaves ``env.agents`` on the step it terminates or is truncated;
+the episode is over when ``env.agents`` is empty (then call ``reset``).
+
+``reset(seed=s)`` re-seeds the env's scenario sequence (same seed and actions → same episode);
+``reset()`` continues it; ``options={"scenario": name}`` picks the scenario.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from .client import SimClient, VectorClient
+from .errors import EnvClosed, WrongShape
+from .render import render_observation, render_scene
+from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+
+__all__ = ["SharedSpaceParallelEnv", "parallel_env", "ENV_NAME"]
+
+ENV_NAME = "sharedspace_v1"
+NODE_FEATURES = 11
+
+
+class SharedSpaceParallelEnv(ParallelEnv):
+    """One server env as a PettingZoo ``ParallelEnv`` (see the module docstring).
+
+    Args:
+        endpoint, prefix, timeout: where the server is.
+        external_agents: the learner's vehicles (``vehicle_0`` = the scenario's ego).
+        max_agents: M, nodes per observation.
+        split, pool, scenario, pedestrian_model, pedestrian_params, reward_weights: the
+            ``CreateEnv`` fields (SPEC 5.2).
+        seed: seed of the env at creation (``reset(seed=...)`` re-seeds).
+        render_mode: ``None`` or ``"rgb_array"``.
+        failover: re-create the env on a surviving server when its server dies (the step
+            returns every agent truncated).
+        client: an existing :class:`~sharedspace.client.SimClient` to share.
+    """
+
+    metadata = {
+        "name": ENV_NAME,
+        "render_modes": ["rgb_array"],
+        "render_fps": 2,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        *,
+        external_agents: Sequence[str] = ("vehicle_0",),
+        max_agents: int = 8,
+        split: str = "train",
+        pool: str | None = None,
+        scenario: str | None = None,
+        pedestrian_model: str = "cr_sfm",
+        pedestrian_params: Mapping[str, float] | None = None,
+        reward_weights: Mapping[str, float] | None = None,
+        seed: int = 0,
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = (480, 480),
+        timeout: float = DEFAULT_TIMEOUT,
+        failover: bool = False,
+        client: SimClient | None = None,
+    ):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.render_size = tuple(render_size)
+        create = dict(
+            seed=int(seed),
+            split=split,
+            pool=pool,
+            scenario=scenario,
+            pedestrian_model=pedestrian_model,
+            pedestrian_params=pedestrian_params,
+            external_agents=list(external_agents),
+            reward_weights=reward_weights,
+            max_agents=int(max_agents),
+            autoreset=False,
+        )
+        if client is None:
+            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
+        self._vec = VectorClient(1, client=client, failover=failover, **create)
+        self.max_agents = int(max_agents)
+        self.possible_agents = list(self._vec.external_agents)
+        self.agents: list[str] = []
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        self._closed = False
+        self._obs: dict[str, np.ndarray] | None = None
+        self._episode = 0
+        self._step = 0
+        self._agents_desc: dict[int, dict[str, Any]] = {}
+        self._latest: dict[str, dict[str, Any]] = {}
+        self._latest_lock = threading.Lock()
+        self._subs: list[Any] = []
+        self._sub_env = None
+        #: What the last ``render()`` drew from: ``"publications"`` or ``"observation"``.
+        self.render_source: str | None = None
+        if render_mode == "rgb_array":
+            self._subscribe()
+
+    # ----------------------------------------------------------------------------------------
+    # Spaces
+
+    @functools.cache  # noqa: B019 - PettingZoo style: one object per agent
+    def observation_space(self, agent: str) -> spaces.Dict:
+        m = self.max_agents
+        return spaces.Dict(
+            {
+                "features": spaces.Box(-np.inf, np.inf, (m, NODE_FEATURES), np.float32),
+                "adjacency": spaces.Box(0.0, np.inf, (m, m), np.float32),
+                "mask": spaces.MultiBinary(m),
+            }
+        )
+
+    @functools.cache  # noqa: B019
+    def action_space(self, agent: str) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    # ----------------------------------------------------------------------------------------
+
+    @property
+    def env_id(self) -> str:
+        return self._vec.env_ids[0]
+
+    @property
+    def server_id(self) -> str:
+        return self._vec.server_id
+
+    @property
+    def failovers(self) -> int:
+        return self._vec.failovers
+
+    @property
+    def client(self) -> SimClient:
+        return self._vec.client
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise EnvClosed("env_closed", "this sharedspace ParallelEnv is closed")
+
+    def _agent_obs(self, obs: Mapping[str, np.ndarray], e: int) -> dict[str, np.ndarray]:
+        return {
+            "features": np.array(obs["features"][e], dtype=np.float32),
+            "adjacency": np.array(obs["adjacency"][e], dtype=np.float32),
+            "mask": np.array(obs["mask"][e], dtype=np.int8),
+        }
+
+    def _take_reset(self, r: Mapping[str, Any]) -> tuple[dict, dict]:
+        self._obs = {k: np.asarray(r["obs"][k]) for k in ("features", "adjacency", "mask")}
+        self._episode = int(r["episode"])
+        self._step = int(r["step"])
+        self._agents_desc = {int(a["id"]): a for a in r.get("agents", ())}
+        self.agents = list(self.possible_agents)
+        info = {
+            "scenario": r["scenario"],
+            "episode": self._episode,
+            "env_id": r["env_id"],
+            "horizon_steps": r.get("horizon_steps"),
+        }
+        obs = {a: self._agent_obs(self._obs, self._index[a]) for a in self.agents}
+        return obs, {a: dict(info) for a in self.agents}
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        self._check_open()
+        scenario = (options or {}).get("scenario")
+        if scenario is not None:
+            r = self._vec.client.reset(self.env_id, seed=seed, scenario=scenario)
+        else:
+            r = self._vec.reset(seed=seed)[0]
+        if self._sub_env != self.env_id and self.render_mode == "rgb_array":
+            self._subscribe()
+        return self._take_reset(r)
+
+    def step(self, actions: Mapping[str, Any]):
+        self._check_open()
+        if not self.agents:
+            raise RuntimeError("the episode is over (env.agents is empty): call reset()")
+        n = len(self.possible_agents)
+        arr = np.zeros((1, n, 2), dtype=np.float32)
+        for agent, act in actions.items():
+            if agent not in self._index:
+                raise KeyError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
+            a = np.asarray(act, dtype=np.float32)
+            if a.shape != (2,):
+                raise WrongShape(
+                    message=f"action of {agent} must have shape [2] ([acc, omega]), "
+                    f"got {list(a.shape)}",
+                    env_id=self.env_id,
+                )
+            arr[0, self._index[agent]] = a
+        res = self._vec.step(arr)
+        live = list(self.agents)
+        if res.get("failover"):
+            obs = {a: self._agent_obs(self._obs, self._index[a]) for a in live}
+            zero = dict.fromkeys(live, 0.0)
+            self.agents = []
+            if self.render_mode == "rgb_array":
+                self._subscribe()
+            info = {"failover": True, "server_id": self.server_id}
+            return (
+                obs,
+                zero,
+                dict.fromkeys(live, False),
+                dict.fromkeys(live, True),
+                {a: dict(info) for a in live},
+            )
+        env = res["envs"][0]
+        o = res["obs"]
+        self._obs = {k: o[k][0] for k in ("features", "adjacency", "mask")}
+        self._step = int(env["step"])
+        self._episode = int(env["episode"])
+        reward = res["reward"][0]
+        term = res["terminated"][0]
+        trunc = res["truncated"][0]
+        info_all = env.get("info") or {}
+        metrics = {m["agent"]: m for m in info_all.get("metrics") or ()}
+        obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
+        for a in live:
+            e = self._index[a]
+            obs[a] = self._agent_obs(self._obs, e)
+            rewards[a] = float(reward[e])
+            terms[a] = bool(term[e])
+            truncs[a] = bool(trunc[e])
+            infos[a] = {
+                "step": self._step,
+                "t": float(env["t"]),
+                "scenario": env["scenario"],
+                "action_clipped": bool((info_all.get("action_clipped") or [False] * n)[e]),
+                "reward_terms": {k: float(v[0][e]) for k, v in res["reward_terms"].items()},
+            }
+            if a in metrics:
+                infos[a]["metrics"] = metrics[a]
+        self.agents = [a for a in live if not (terms[a] or truncs[a])]
+        return obs, rewards, terms, truncs, infos
+
+    # ----------------------------------------------------------------------------------------
+    # Rendering
+
+    def _subscribe(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        t = self._vec.client.transport
+        env_id = self.env_id
+        self._subs = [
+            t.declare_subscriber(t.key("env", env_id, topic), self._on_pub)
+            for topic in ("states", "risk_graph")
+        ]
+        self._sub_env = env_id
+
+    def _on_pub(self, sample) -> None:
+        from . import codec
+
+        topic = str(sample.key_expr).rsplit("/", 1)[-1]
+        try:
+            msg = codec.decode(sample.payload.to_bytes())
+        except Exception:  # noqa: BLE001 - best effort
+            return
+        with self._latest_lock:
+            self._latest[topic] = msg
+
+    def _current(self, topic: str) -> dict[str, Any] | None:
+        with self._latest_lock:
+            msg = self._latest.get(topic)
+        if (
+            msg is not None
+            and msg.get("env_id") == self.env_id
+            and int(msg.get("episode", -1)) == self._episode
+            and int(msg.get("step", -1)) == self._step
+        ):
+            return msg
+        return None
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: a top-down picture of the scene (uint8 ``[H, W, 3]``) with the risk
+        graph's edges, from the env's ``states`` / ``risk_graph`` publications; when they have
+        not arrived (best effort, 0.5 s) the ego observation graph of the first agent."""
+        if self.render_mode is None:
+            return None
+        self._check_open()
+        if self._obs is None:
+            raise RuntimeError("call reset() before render()")
+        deadline = time.monotonic() + 0.5
+        states = graph = None
+        while time.monotonic() < deadline:
+            states, graph = self._current("states"), self._current("risk_graph")
+            if states is not None and graph is not None:
+                break
+            time.sleep(0.005)
+        if states is not None:
+            self.render_source = "publications"
+            return render_scene(states, graph, self._agents_desc, size=self.render_size)
+        self.render_source = "observation"
+        return render_observation(
+            self._obs["features"][0],
+            self._obs["adjacency"][0],
+            self._obs["mask"][0],
+            size=self.render_size,
+        )
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        self._vec.close()
+
+
+def parallel_env(**kwargs: Any) -> SharedSpaceParallelEnv:
+    """A :class:`SharedSpaceParallelEnv` (PettingZoo's ``parallel_env`` convention)."""
+    return SharedSpaceParallelEnv(**kwargs)

@@ -1,0 +1,336 @@
+"""Batched TorchRL env over the sharedspace server (clients/ENV_CONTRACT.md).
+
+:class:`RemoteBatchedEnv` is the remote twin of :class:`~sharedspace.local_env.LocalBatchedEnv`:
+same constructor keywords (plus ``endpoint`` and ``prefix``), same keys and specs, batch size
+``[K]``. Its K sub-envs are created by one ``CreateEnv`` on the least-loaded server and stepped
+with one ``BatchStep`` per step.
+
+Scenario order:
+
+- ``"random"``: the envs are created with the server's **autoreset**; sub-env ``k`` is seeded
+  with ``seed + k`` and runs through the server's seeded permutations of the split (SPEC 5.2,
+  "Scenario sequence": without replacement inside a permutation, unlike the local env's draws
+  with replacement; the same seed gives the same sequence). The step that ends an episode
+  carries the next episode's ``ResetResult``, so the partial ``_reset`` that follows needs no
+  round trip.
+- ``"sequential"``: sub-env ``k`` plays the split's scenarios (pool order) ``k, k+K, ...``:
+  created without autoreset, and each reset names its scenario (one ``Reset`` query per reset
+  sub-env, all in flight at once).
+
+``split="all"`` is not served remotely (a server env draws from one split): ``ValueError``.
+``params`` (world-parameter overrides) are a server setting, not a per-env one: only ``None``
+or ``{}`` is accepted.
+
+Failover (``failover=True``): when the server dies, the step returns every sub-env
+``truncated`` (reward 0, observation = the last one received) and the envs are re-created on a
+surviving server; the following partial ``_reset`` starts their first episodes (see
+:mod:`sharedspace.client`). :attr:`RemoteBatchedEnv.failovers` counts them.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from .client import SimClient, VectorClient
+from .errors import SharedspaceError
+from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+
+__all__ = ["RemoteBatchedEnv"]
+
+NODE_FEATURES = 11
+EPISODE_FLAG_KEYS = ("episode_success", "episode_collision", "episode_timeout")
+EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_abs_acc")
+_DEFAULT_POOL = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
+
+
+def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
+    """(pool name, [(scenario name, split)]) of a pool file / list of scenario dicts."""
+    if pool is None:
+        path = _DEFAULT_POOL
+        if not path.is_file():
+            return None, []
+        data = json.loads(path.read_text())
+    elif isinstance(pool, str | Path):
+        data = json.loads(Path(pool).read_text())
+    elif isinstance(pool, Mapping):
+        data = pool
+    else:
+        data = {"name": None, "scenarios": list(pool)}
+    return data.get("name"), [(s["name"], s.get("split", "train")) for s in data["scenarios"]]
+
+
+class RemoteBatchedEnv(EnvBase):
+    """K server envs as one TorchRL env of batch size ``[K]`` (ENV_CONTRACT.md).
+
+    Args:
+        num_envs, max_agents, split, seed, scenario_order, pedestrian_model: as
+            :class:`~sharedspace.local_env.LocalBatchedEnv`.
+        pool: path of the scenario file (or its scenario dicts) the server serves; its
+            ``name`` selects the server pool and its order gives ``scenario_index``
+            (default: ``scenarios/data/hbs-paper.json``, the server's embedded pool).
+        endpoint, prefix: where the server is (zenoh connect endpoint, key prefix).
+        timeout: query timeout, s.
+        failover: re-create the envs on a surviving server when theirs dies.
+        client: an existing :class:`~sharedspace.client.SimClient` to share.
+        external_agents, reward_weights, pedestrian_params: ``CreateEnv`` fields.
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        num_envs: int = 4,
+        max_agents: int = 8,
+        split: str | None = "train",
+        seed: int = 0,
+        scenario_order: str = "random",
+        scenarios: Sequence[int] | None = None,
+        pool: str | Path | Sequence[Mapping[str, Any]] | None = None,
+        params: Mapping[str, Any] | None = None,
+        pedestrian_model: str = "cr_sfm",
+        device: str | torch.device = "cpu",
+        *,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        timeout: float = DEFAULT_TIMEOUT,
+        failover: bool = False,
+        client: SimClient | None = None,
+        external_agents: Sequence[str] = ("vehicle_0",),
+        reward_weights: Mapping[str, float] | None = None,
+        pedestrian_params: Mapping[str, float] | None = None,
+    ):
+        if num_envs < 1 or max_agents < 1:
+            raise ValueError("num_envs and max_agents must be at least 1")
+        if scenario_order not in ("random", "sequential"):
+            raise ValueError(f"unknown scenario_order {scenario_order!r}")
+        if split not in ("train", "test"):
+            raise ValueError(
+                f"RemoteBatchedEnv serves split 'train' or 'test', not {split!r} "
+                "(a server env draws its episodes from one split)"
+            )
+        if scenarios is not None:
+            raise ValueError("RemoteBatchedEnv: explicit `scenarios` are not supported")
+        if params:
+            raise ValueError(
+                "RemoteBatchedEnv: world `params` are a server setting (sim-server --cfg params:)"
+            )
+        if len(external_agents) != 1:
+            raise ValueError("RemoteBatchedEnv drives one external agent per sub-env")
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.num_envs = k = int(num_envs)
+        self.max_agents = m = int(max_agents)
+        self.split = split
+        self.scenario_order = scenario_order
+        self.pedestrian_model = pedestrian_model
+        pool_name, pool_list = _pool_scenarios(pool)
+        self.pool_name = pool_name
+        self._scenario_index = {name: i for i, (name, _) in enumerate(pool_list)}
+        self._split_names = [name for name, s in pool_list if s == split]
+        if scenario_order == "sequential" and not self._split_names:
+            raise ValueError("scenario_order='sequential' needs the pool file (pool=...)")
+        self.env_time_s = 0.0
+        self._seed = int(seed)
+        self._reseed_pending = False
+        self._cursor = [0] * k
+        create = dict(
+            seed=self._seed,
+            split=split,
+            pool=pool_name if pool is not None else None,
+            pedestrian_model=pedestrian_model,
+            pedestrian_params=pedestrian_params,
+            external_agents=list(external_agents),
+            reward_weights=reward_weights,
+            max_agents=m,
+            autoreset=scenario_order == "random",
+        )
+        if client is None:
+            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
+        self.vec = VectorClient(k, client=client, failover=failover, **create)
+        action = self.vec.created["action"]
+        self.dt = float(self.vec.created["dt"])
+        self.vehicle_params = {
+            "acc_max": float(action["physical_high"][0]),
+            "omega_max": float(action["physical_high"][1]),
+        }
+        self._pending: list[dict[str, Any] | None] = [None] * k
+        self._done = np.ones(k, dtype=bool)  # every sub-env needs a reset first
+        self._scenario = np.full(k, -1, dtype=np.int64)
+        self._obs = {
+            "features": np.zeros((k, m, NODE_FEATURES), dtype=np.float32),
+            "adjacency": np.zeros((k, m, m), dtype=np.float32),
+            "mask": np.zeros((k, m), dtype=bool),
+        }
+
+        bool_spec = Categorical(2, shape=(k, 1), dtype=torch.bool, device=self.device)
+        obs = {
+            "features": Unbounded((k, m, NODE_FEATURES), dtype=torch.float32, device=self.device),
+            "adjacency": Unbounded((k, m, m), dtype=torch.float32, device=self.device),
+            "mask": Binary(n=m, shape=(k, m), dtype=torch.bool, device=self.device),
+            "scenario_index": Unbounded((k, 1), dtype=torch.int64, device=self.device),
+        }
+        for key in EPISODE_FLAG_KEYS:
+            obs[key] = bool_spec.clone()
+        for key in EPISODE_FLOAT_KEYS:
+            obs[key] = Unbounded((k, 1), dtype=torch.float32, device=self.device)
+        self.observation_spec = Composite(obs, shape=(k,), device=self.device)
+        self.action_spec = Bounded(-1.0, 1.0, (k, 2), dtype=torch.float32, device=self.device)
+        self.reward_spec = Unbounded((k, 1), dtype=torch.float32, device=self.device)
+        self.done_spec = Composite(
+            done=bool_spec.clone(),
+            terminated=bool_spec.clone(),
+            truncated=bool_spec.clone(),
+            shape=(k,),
+            device=self.device,
+        )
+
+    # ----------------------------------------------------------------------------------------
+
+    @property
+    def env_ids(self) -> list[str]:
+        return list(self.vec.env_ids)
+
+    @property
+    def server_id(self) -> str:
+        return self.vec.server_id
+
+    @property
+    def failovers(self) -> int:
+        return self.vec.failovers
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._seed = 0 if seed is None else int(seed)
+        self._reseed_pending = True
+        self._pending = [None] * self.num_envs
+        self._cursor = [0] * self.num_envs
+
+    def _index_of(self, scenario: str) -> int:
+        return self._scenario_index.get(scenario, -1)
+
+    def _take_reset(self, k: int, result: Mapping[str, Any]) -> None:
+        obs = result["obs"]
+        self._obs["features"][k] = obs["features"][0]
+        self._obs["adjacency"][k] = obs["adjacency"][0]
+        self._obs["mask"][k] = obs["mask"][0].astype(bool)
+        self._scenario[k] = self._index_of(result["scenario"])
+        self._done[k] = False
+
+    def _blank(self) -> dict[str, np.ndarray]:
+        k = self.num_envs
+        out: dict[str, np.ndarray] = {
+            "terminated": np.zeros((k, 1), dtype=bool),
+            "truncated": np.zeros((k, 1), dtype=bool),
+        }
+        for key in EPISODE_FLAG_KEYS:
+            out[key] = np.zeros((k, 1), dtype=bool)
+        for key in EPISODE_FLOAT_KEYS:
+            out[key] = np.zeros((k, 1), dtype=np.float32)
+        return out
+
+    def _to_td(self, out: dict[str, np.ndarray]) -> TensorDictBase:
+        out["features"] = self._obs["features"].copy()
+        out["adjacency"] = self._obs["adjacency"].copy()
+        out["mask"] = self._obs["mask"].copy()
+        out["done"] = out["terminated"] | out["truncated"]
+        out["scenario_index"] = self._scenario.reshape(-1, 1).copy()
+        return TensorDict(
+            {key: torch.from_numpy(v) for key, v in out.items()},
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        t0 = time.perf_counter()
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+        todo = [k for k in range(self.num_envs) if mask is None or mask[k] or self._done[k]]
+        queries: list[int] = []
+        for k in todo:
+            pending = self._pending[k]
+            self._pending[k] = None
+            if pending is not None and mask is not None:
+                self._take_reset(k, pending)
+            else:
+                queries.append(k)
+        if queries:
+            seeds = scen = None
+            if self._reseed_pending:
+                seeds = [self._seed + k for k in queries]
+            if self.scenario_order == "sequential":
+                n = len(self._split_names)
+                scen = []
+                for k in queries:
+                    scen.append(self._split_names[(k + self._cursor[k] * self.num_envs) % n])
+                    self._cursor[k] += 1
+            ids = self.vec.env_ids
+            results = self.vec.client.reset_many(
+                [ids[k] for k in queries], seeds=seeds, scenarios=scen
+            )
+            for k, r in zip(queries, results, strict=True):
+                self._take_reset(k, r)
+            if self._reseed_pending and len(queries) == self.num_envs:
+                self._reseed_pending = False
+        td = self._to_td(self._blank())
+        self.env_time_s += time.perf_counter() - t0
+        return td
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        t0 = time.perf_counter()
+        if self._done.any():
+            k = int(np.flatnonzero(self._done)[0])
+            raise RuntimeError(f"sub-env {k} is done: reset it (with `_reset`) before stepping")
+        actions = tensordict.get("action").detach().cpu().numpy().astype(np.float32, copy=False)
+        actions = np.clip(actions, -1.0, 1.0).reshape(self.num_envs, 1, 2)
+        res = self.vec.step(actions)
+        out = self._blank()
+        obs = res["obs"]
+        self._obs["features"][:] = obs["features"][:, 0]
+        self._obs["adjacency"][:] = obs["adjacency"][:, 0]
+        self._obs["mask"][:] = obs["mask"][:, 0]
+        out["reward"] = np.array(res["reward"], dtype=np.float32).reshape(-1, 1)
+        out["terminated"] = res["terminated"].reshape(-1, 1).astype(bool)
+        out["truncated"] = res["truncated"].reshape(-1, 1).astype(bool)
+        for k, env in enumerate(res["envs"]):
+            info = env.get("info") or {}
+            for met in info.get("metrics") or ():
+                outcome = met.get("outcome")
+                if outcome in ("success", "collision", "timeout"):
+                    out["episode_" + outcome][k, 0] = True
+                out["episode_avg_speed"][k, 0] = met.get("avg_speed", 0.0)
+                out["episode_avg_abs_jerk"][k, 0] = met.get("avg_abs_jerk", 0.0)
+                out["episode_max_abs_acc"][k, 0] = met.get("max_abs_acc", 0.0)
+            if res.get("failover"):
+                self._pending[k] = env["reset"] if self.scenario_order == "random" else None
+                self._done[k] = True
+                continue
+            if env.get("scenario"):
+                self._scenario[k] = self._index_of(env["scenario"])
+            if out["terminated"][k, 0] or out["truncated"][k, 0]:
+                self._done[k] = True
+                self._pending[k] = env.get("reset")
+        if res.get("failover"):
+            out["truncated"][:] = True
+            self._cursor = [0] * self.num_envs
+        td = self._to_td(out)
+        self.env_time_s += time.perf_counter() - t0
+        return td
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        try:
+            self.vec.close()
+        except SharedspaceError:
+            pass
+        try:
+            super().close(raise_if_closed=raise_if_closed)
+        except TypeError:  # older signature
+            super().close()

@@ -1,0 +1,388 @@
+"""Zenoh transport of the sharedspace clients (protocol/SPEC.md sections 1, 3, 9).
+
+:class:`Transport` wraps one zenoh session:
+
+- configuration: ``endpoint`` (one or several ``connect`` endpoints, e.g.
+  ``"tcp/127.0.0.1:7447"``), ``listen`` endpoints, ``mode`` (``"peer"`` default, or
+  ``"client"``); multicast scouting is **off** unless ``multicast=True``;
+- every query is a ``get`` under a timeout (:meth:`Transport.query`); a query that gets no
+  reply raises :class:`QueryFailed` (no queryable matched: the server is gone, or it timed out);
+- the trainer liveliness token ``{p}/trainer/{client_id}`` is declared when the session opens
+  (SPEC section 9), so that the server reaps this trainer's envs when the process dies;
+- server discovery: liveliness ``{p}/server/*/alive`` plus ``{p}/server/*/info`` queries
+  (:meth:`Transport.servers`), the least-loaded choice (:meth:`Transport.pick_server`), and a
+  liveliness watch of the servers (:meth:`Transport.is_alive`) used to detect a lost server.
+
+Errors: :class:`~sharedspace.errors.NoServer` (no server answered at the endpoint within the
+timeout; the message names both), :class:`~sharedspace.errors.VersionMismatch` (servers found,
+none speaking this client's protocol version), :class:`ServerLost` (the server hosting envs
+went away).
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import logging
+import os
+import random
+import re
+import socket
+import threading
+import time
+import weakref
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import zenoh
+
+from . import codec
+from .errors import NoServer, SharedspaceError, VersionMismatch
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "DEFAULT_PREFIX",
+    "DEFAULT_TIMEOUT",
+    "CREATE_TIMEOUT",
+    "QueryFailed",
+    "ServerLost",
+    "Transport",
+    "make_client_id",
+    "server_load",
+]
+
+log = logging.getLogger("sharedspace")
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_PREFIX = "sharedspace"
+#: Query timeout of every request but ``env/create`` (SPEC section 1 suggests 5 s).
+DEFAULT_TIMEOUT = 5.0
+#: Timeout of ``env/create`` (SPEC section 1 suggests 10 s).
+CREATE_TIMEOUT = 10.0
+
+_SEGMENT_BAD = re.compile(r"[^A-Za-z0-9_.\-]")
+
+#: Open transports, closed at interpreter exit: a zenoh session still holding Python callbacks
+#: when the interpreter finalises can deadlock the exit.
+_OPEN: weakref.WeakSet[Transport] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_all() -> None:
+    for t in list(_OPEN):
+        try:
+            t.close()
+        except Exception:  # noqa: BLE001 - best effort at exit
+            pass
+
+
+class QueryFailed(SharedspaceError):
+    """A query got no reply: no queryable matched its key, or none answered in time."""
+
+    def __init__(self, key: str, timeout: float, elapsed: float):
+        self.key = key
+        self.timeout = timeout
+        self.elapsed = elapsed
+        self.timed_out = elapsed >= timeout * 0.95
+        why = (
+            f"no reply within {timeout:g} s"
+            if self.timed_out
+            else f"no queryable answered (after {elapsed:.3f} s)"
+        )
+        super().__init__(f"query on {key!r}: {why}")
+
+
+class ServerLost(SharedspaceError):
+    """The server hosting this client's envs went away (its liveliness token disappeared, or a
+    query to it got no reply). The envs, and any episode in flight, are lost with it; see
+    :meth:`sharedspace.client.VectorClient.recreate`."""
+
+    def __init__(self, server_id: str, reason: str, env_ids: Sequence[str] = ()):
+        self.server_id = server_id
+        self.reason = reason
+        self.env_ids = list(env_ids)
+        text = f"server {server_id!r} lost: {reason}"
+        if self.env_ids:
+            text += f" ({len(self.env_ids)} env(s) gone, e.g. {self.env_ids[0]!r})"
+        text += "; recreate the envs on another server (VectorClient.recreate / failover=True)"
+        super().__init__(text)
+
+
+def make_client_id() -> str:
+    """A trainer id unique to this process: ``{host}-{pid}-{random}`` (one key segment)."""
+    host = _SEGMENT_BAD.sub("", socket.gethostname())[:32] or "py"
+    return f"{host}-{os.getpid()}-{random.getrandbits(32):08x}"
+
+
+def server_load(info: dict[str, Any]) -> float:
+    """``load / capacity`` of a ``ServerInfo`` (1.0 for a full or capacity-0 server)."""
+    cap = int(info.get("capacity") or 0)
+    return float(info.get("load") or 0) / cap if cap > 0 else 1.0
+
+
+def _as_list(x: str | Iterable[str] | None) -> list[str]:
+    if x is None:
+        return []
+    if isinstance(x, str):
+        return [x]
+    return list(x)
+
+
+class Transport:
+    """One zenoh session talking to sharedspace servers under ``prefix``.
+
+    Args:
+        endpoint: zenoh ``connect`` endpoint(s) of the server(s) or a router
+            (default ``tcp/127.0.0.1:7447``; ``[]`` connects nowhere, for scouting set-ups).
+        prefix: key prefix of the servers (SPEC section 1).
+        mode: zenoh mode, ``"peer"`` (default) or ``"client"``.
+        listen: zenoh ``listen`` endpoints (default none).
+        multicast: enable zenoh multicast scouting (default off).
+        timeout: query timeout in s (``env/create`` uses ``max(timeout, CREATE_TIMEOUT)``).
+        client_id: trainer id (default :func:`make_client_id`).
+        config: extra zenoh config entries ``{"path/to/key": json-able value}``.
+        protocol_version: the version this client speaks (tests use a wrong one).
+    """
+
+    def __init__(
+        self,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        *,
+        mode: str = "peer",
+        listen: str | Sequence[str] | None = None,
+        multicast: bool = False,
+        timeout: float = DEFAULT_TIMEOUT,
+        client_id: str | None = None,
+        config: dict[str, Any] | None = None,
+        protocol_version: int = codec.PROTOCOL_VERSION,
+    ):
+        if mode not in ("peer", "client", "router"):
+            raise ValueError(f"mode must be 'peer', 'client' or 'router', got {mode!r}")
+        self.endpoints = _as_list(endpoint)
+        self.prefix = prefix.strip("/")
+        self.mode = mode
+        self.timeout = float(timeout)
+        self.protocol_version = int(protocol_version)
+        self.client_id = client_id or make_client_id()
+        if not self.client_id or _SEGMENT_BAD.search(self.client_id):
+            raise ValueError(f"client_id {self.client_id!r} is not a valid key segment")
+        zconf = zenoh.Config()
+        zconf.insert_json5("mode", json.dumps(mode))
+        zconf.insert_json5("connect/endpoints", json.dumps(self.endpoints))
+        if mode != "client":
+            zconf.insert_json5("listen/endpoints", json.dumps(_as_list(listen)))
+        zconf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+        for key, value in (config or {}).items():
+            zconf.insert_json5(key, json.dumps(value))
+        try:
+            self.session = zenoh.open(zconf)
+        except zenoh.ZError as e:
+            raise NoServer(
+                self.endpoint,
+                None,
+                f"cannot open a zenoh session to {self.endpoint!r} (mode {mode}): {e}",
+            ) from e
+        self._lock = threading.Lock()
+        self._alive: set[str] = set()
+        self._lost: set[str] = set()
+        self._closed = False
+        # Trainer token first (SPEC 9: before any CreateEnv), then the server watch.
+        self._token = self.session.liveliness().declare_token(
+            f"{self.prefix}/trainer/{self.client_id}"
+        )
+        self._watch = self.session.liveliness().declare_subscriber(
+            f"{self.prefix}/server/*/alive", self._on_alive, history=True
+        )
+        _OPEN.add(self)
+
+    # ----------------------------------------------------------------------------------------
+
+    @property
+    def endpoint(self) -> str:
+        """The connect endpoint(s) as one string (for messages)."""
+        return ", ".join(self.endpoints) if self.endpoints else "(scouting, no endpoint)"
+
+    def key(self, *parts: str) -> str:
+        return "/".join((self.prefix, *parts))
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if len(parts) < 2:
+            return
+        sid = parts[-2]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(sid)
+                self._lost.discard(sid)
+            else:
+                self._alive.discard(sid)
+                self._lost.add(sid)
+        if sample.kind != zenoh.SampleKind.PUT:
+            log.info("sharedspace: server %s liveliness token gone", sid)
+
+    def is_alive(self, server_id: str) -> bool:
+        """False once the server's liveliness token was seen disappearing."""
+        with self._lock:
+            return server_id not in self._lost
+
+    def alive_servers(self) -> set[str]:
+        with self._lock:
+            return set(self._alive)
+
+    # ----------------------------------------------------------------------------------------
+    # Queries
+
+    def get_async(self, key: str, payload: bytes, timeout: float | None = None):
+        """Starts a query; returns ``(handler, key, timeout, t0)`` for :meth:`wait`."""
+        if self._closed:
+            raise SharedspaceError("transport is closed")
+        t = self.timeout if timeout is None else float(timeout)
+        handler = self.session.get(
+            key,
+            payload=payload,
+            target=zenoh.QueryTarget.BEST_MATCHING,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=t,
+        )
+        return handler, key, t, time.perf_counter()
+
+    @staticmethod
+    def wait(pending) -> bytes:
+        """The first reply payload of a query started by :meth:`get_async`."""
+        handler, key, t, t0 = pending
+        try:
+            reply = handler.recv()
+        except zenoh.ZError:
+            raise QueryFailed(key, t, time.perf_counter() - t0) from None
+        sample = reply.ok
+        if sample is None:
+            err = reply.err
+            text = err.payload.to_bytes().decode("utf-8", "replace") if err is not None else "?"
+            raise SharedspaceError(f"query on {key!r}: zenoh error reply: {text}")
+        return sample.payload.to_bytes()
+
+    def query(self, key: str, payload: bytes, timeout: float | None = None) -> bytes:
+        """One ``get`` on ``key``; the first reply's payload (raises :class:`QueryFailed`)."""
+        return self.wait(self.get_async(key, payload, timeout))
+
+    def request(self, key: str, payload: bytes, timeout: float | None = None) -> Any:
+        """A query whose reply envelope is decoded (``ok`` value, or the typed ServerError)."""
+        return codec.decode_reply(self.query(key, payload, timeout))
+
+    # ----------------------------------------------------------------------------------------
+    # Discovery
+
+    def servers(self, timeout: float | None = None, wait: bool = True) -> list[dict[str, Any]]:
+        """``ServerInfo`` of every live server (SPEC 5.1), sorted by load then id.
+
+        With ``wait`` the query is repeated until at least one server answers or ``timeout``
+        (default: the transport's) passes: a peer session connects in the background.
+        """
+        total = self.timeout if timeout is None else float(timeout)
+        deadline = time.monotonic() + total
+        payload = codec.encode_info_request(self.protocol_version)
+        while True:
+            remaining = max(deadline - time.monotonic(), 0.05)
+            handler = self.session.get(
+                self.key("server", "*", "info"),
+                payload=payload,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                target=zenoh.QueryTarget.ALL,
+                timeout=min(remaining, 2.0),
+            )
+            infos: dict[str, dict[str, Any]] = {}
+            for reply in handler:
+                if reply.ok is None:
+                    continue
+                try:
+                    info = codec.decode_reply(reply.ok.payload.to_bytes())
+                except SharedspaceError as e:
+                    log.warning("sharedspace: bad info reply on %s: %s", reply.ok.key_expr, e)
+                    continue
+                if isinstance(info, dict) and "server_id" in info:
+                    infos[str(info["server_id"])] = info
+            if infos or not wait or time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)
+        with self._lock:
+            lost = set(self._lost)
+        out = [i for sid, i in infos.items() if sid not in lost]
+        out.sort(key=lambda i: (server_load(i), str(i["server_id"])))
+        return out
+
+    def pick_server(
+        self, exclude: Iterable[str] = (), timeout: float | None = None, need: int = 1
+    ) -> dict[str, Any]:
+        """The least-loaded live server (``load / capacity``) speaking this protocol version
+        with room for ``need`` more envs, not in ``exclude``.
+
+        Raises :class:`~sharedspace.errors.NoServer` when none answers within ``timeout`` and
+        :class:`~sharedspace.errors.VersionMismatch` when every server speaks another version.
+        """
+        excluded = set(exclude)
+        total = self.timeout if timeout is None else float(timeout)
+        deadline = time.monotonic() + total
+        while True:
+            infos = [
+                i
+                for i in self.servers(timeout=max(deadline - time.monotonic(), 0.05))
+                if str(i["server_id"]) not in excluded
+            ]
+            if infos or time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)
+        if not infos:
+            extra = f" (excluding {sorted(excluded)})" if excluded else ""
+            raise NoServer(
+                self.endpoint,
+                total,
+                f"no sharedspace server (prefix {self.prefix!r}) answered on "
+                f"{self.endpoint!r} within {total:g} s{extra}",
+            )
+        same = [i for i in infos if int(i.get("protocol_version", -1)) == self.protocol_version]
+        if not same:
+            found = ", ".join(f"{i['server_id']} (v{i.get('protocol_version')})" for i in infos)
+            raise VersionMismatch(
+                "version_mismatch",
+                f"this client speaks protocol version {self.protocol_version}; "
+                f"the servers found speak another: {found}",
+            )
+        roomy = [i for i in same if int(i.get("capacity", 0)) - int(i.get("load", 0)) >= need]
+        return (roomy or same)[0]
+
+    # ----------------------------------------------------------------------------------------
+
+    def declare_subscriber(self, key: str, callback):
+        return self.session.declare_subscriber(key, callback)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def close(self) -> None:
+        """Undeclares the trainer token (the server then reaps envs still open) and closes."""
+        if self._closed:
+            return
+        self._closed = True
+        for obj in (self._watch, self._token):
+            try:
+                obj.undeclare()
+            except Exception:  # noqa: BLE001 - best effort on shutdown
+                pass
+        try:
+            self.session.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001
+            pass

@@ -1,0 +1,68 @@
+"""The trainer's tiny smoke run on the remote env (env_backend=remote): checkpoint + evaluate."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("torchrl")
+
+from sharedspace.train.config import load_config  # noqa: E402
+from sharedspace.train.evaluate import main as evaluate_main  # noqa: E402
+from sharedspace.train.train import train  # noqa: E402
+
+TINY = [
+    "num_envs=2",
+    "max_agents=5",
+    "frames_per_batch=16",
+    "init_random_frames=32",
+    "utd_ratio=0.25",
+    "batch_size=16",
+    "buffer_size=500",
+    "hidden_sizes=16,16",
+    "gcn_hidden=8",
+    "eval_interval=0",
+    "checkpoint_interval=64",
+    "progress=false",
+]
+
+
+def test_remote_train_and_evaluate(sim_server, tmp_path, capsys):
+    log_dir = tmp_path / "run"
+    remote = [
+        "env_backend=remote",
+        f"server_endpoint={sim_server.endpoint}",
+        f"server_prefix={sim_server.prefix}",
+    ]
+    cfg = load_config(None, [*TINY, *remote, "total_frames=96", f"log_dir={log_dir}"])
+    out = train(cfg)
+    assert out["counters"]["frames"] == 96 and out["counters"]["updates"] > 0
+    assert 0.0 < out["env_time_share"] < 1.0
+    ckpt = log_dir / "checkpoints" / "last.pt"
+    assert ckpt.exists()
+    eval_json = tmp_path / "eval.json"
+    assert (
+        evaluate_main(
+            [
+                "--checkpoint",
+                str(ckpt),
+                "--split",
+                "test",
+                "--json",
+                str(eval_json),
+                "--set",
+                *remote,
+            ]
+        )
+        == 0
+    )
+    assert "g_sac_cog" in capsys.readouterr().out
+    rec = json.loads(eval_json.read_text())
+    assert len(rec["episodes"]) == 18
+    assert sorted(e["scenario_index"] for e in rec["episodes"]) == sorted(
+        h["scenario_index"] for h in rec["human"]
+    )
+    row = rec["table"]["g_sac_cog"]
+    assert row["success"] + row["collision"] + row["timeout"] == pytest.approx(1.0)
