@@ -133,3 +133,26 @@ def test_scenario_sequence_split_and_seed():
     assert torch.equal(a, b)
     train_ids = set(split_indices(POOL, "train"))
     assert set(a.reshape(-1).tolist()) <= train_ids
+
+
+@pytest.mark.parametrize("model", ["sfm", "ra_sfm", "cr_sfm"])
+def test_local_defaults_are_the_servers_shipped_defaults(model, tmp_path):
+    """Without params the local env simulates the same world as the server (shipped params)."""
+    import json
+    import subprocess
+
+    from conftest import sim_server_binary
+
+    from sharedspace.local_env import shipped_params
+    from sharedspace.reference import DEFAULT_PARAMS, merge_params
+
+    binary = sim_server_binary()
+    if binary is None:
+        pytest.skip("sim-server binary not built (cargo build -p sim-server)")
+    out = tmp_path / "r.jsonl"
+    subprocess.run(
+        [str(binary), "rollout", "--scenario", "0", "--model", model, "--out", str(out)],
+        check=True,
+    )
+    server_params = json.loads(out.read_text().splitlines()[0])["params"]
+    assert merge_params(DEFAULT_PARAMS, shipped_params(model)) == server_params

@@ -28,7 +28,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from sharedspace.reference import ReferenceWorld
+from sharedspace.reference import ReferenceWorld, merge_params
 
 __all__ = [
     "DEFAULT_POOL_PATH",
@@ -42,6 +42,8 @@ __all__ = [
 
 #: The paper's scenario pool (HBS shared space, 59 train + 18 test scenarios).
 DEFAULT_POOL_PATH = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
+#: The server's shipped default parameters (calibrated on the HBS train split, docs/RESULTS.md).
+SHIPPED_PARAMS_PATH = Path(__file__).resolve().parents[3] / "params" / "calibrated.json5"
 NODE_FEATURES = len(ReferenceWorld.FEATURE_NAMES)
 EPISODE_FLAG_KEYS = ("episode_success", "episode_collision", "episode_timeout")
 EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_abs_acc")
@@ -50,6 +52,17 @@ EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_
 def load_pool(path: str | Path | None = None) -> list[dict[str, Any]]:
     """The scenarios of a scenario file (scenarios/FORMAT.md), in pool order."""
     return json.loads(Path(path or DEFAULT_POOL_PATH).read_text())["scenarios"]
+
+
+def shipped_params(pedestrian_model: str) -> dict[str, Any]:
+    """The parameters ``sim-server`` uses when given none: ``params/calibrated.json5`` with
+    ``pedestrian_model``'s overlay from its ``models`` section applied, as
+    sim-server/src/params_file.rs does, so that local and remote envs simulate the same world."""
+    import json5
+
+    doc = json5.loads(SHIPPED_PARAMS_PATH.read_text())
+    overlay = doc.pop("models", {}).get(pedestrian_model, {})
+    return merge_params(doc, overlay)
 
 
 def split_indices(pool: Sequence[Mapping[str, Any]], split: str | None) -> list[int]:
@@ -77,7 +90,8 @@ class LocalBatchedEnv(EnvBase):
             ``K`` = split size every scenario is played exactly once by the first episodes).
         scenarios: explicit pool indices to use instead of ``split``.
         pool: scenario dicts or the path of a scenario file (default: hbs-paper.json).
-        params: ``WorldParams`` overrides (reference.py's nested dict).
+        params: ``WorldParams`` overrides (reference.py's nested dict); ``None``: the server's
+            shipped defaults (:func:`shipped_params`), ``{}``: model.md's starting values.
         pedestrian_model: ``cr_sfm`` (default), ``ra_sfm``, ``sfm``, ``cv`` or ``replay``.
     """
 
@@ -111,7 +125,8 @@ class LocalBatchedEnv(EnvBase):
         )
         self.split = split
         self.scenario_order = scenario_order
-        self.world_params = dict(params or {})
+        # No params: the server's shipped defaults, not model.md's starting values.
+        self.world_params = dict(params) if params is not None else shipped_params(pedestrian_model)
         self.pedestrian_model = pedestrian_model
         probe = ReferenceWorld(self.pool[self.scenario_ids[0]], self.world_params, pedestrian_model)
         self.dt = probe.dt
