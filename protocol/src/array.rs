@@ -64,6 +64,8 @@ pub trait Element: Copy + Default + PartialEq + fmt::Debug + sealed::Sealed + 's
     const SIZE: usize;
     /// Appends the little-endian bytes of `self`.
     fn write_le(self, out: &mut Vec<u8>);
+    /// Writes the little-endian bytes of `values` into `out` (`values.len() * SIZE` bytes).
+    fn write_all_le(values: &[Self], out: &mut [u8]);
     /// Reads one element from exactly `SIZE` little-endian bytes.
     fn read_le(bytes: &[u8]) -> Self;
 }
@@ -76,6 +78,12 @@ macro_rules! impl_element {
             #[inline]
             fn write_le(self, out: &mut Vec<u8>) {
                 out.extend_from_slice(&self.to_le_bytes());
+            }
+            #[inline]
+            fn write_all_le(values: &[Self], out: &mut [u8]) {
+                for (c, v) in out.chunks_exact_mut($size).zip(values) {
+                    c.copy_from_slice(&v.to_le_bytes());
+                }
             }
             #[inline]
             fn read_le(bytes: &[u8]) -> Self {
@@ -132,10 +140,8 @@ impl<T: Element> NdArray<T> {
                 actual_bytes: values.len().saturating_mul(T::SIZE),
             });
         }
-        let mut data = Vec::with_capacity(n * T::SIZE);
-        for &v in values {
-            v.write_le(&mut data);
-        }
+        let mut data = vec![0u8; n * T::SIZE];
+        T::write_all_le(values, &mut data);
         Ok(Self {
             shape,
             data,

@@ -602,8 +602,9 @@ impl BatchStep {
     /// ids (`bad_request`) and finiteness (`non_finite_action`, naming the env); returns per
     /// env its rows as `f64`.
     pub fn checked_actions(&self, n_agents: u32) -> Result<Vec<Vec<[f64; 2]>>, ErrorReply> {
-        for (i, id) in self.env_ids.iter().enumerate() {
-            if self.env_ids[..i].contains(id) {
+        let mut seen = std::collections::HashSet::with_capacity(self.env_ids.len());
+        for id in &self.env_ids {
+            if !seen.insert(id.as_str()) {
                 return Err(ErrorReply::new(
                     ErrorCode::BadRequest,
                     format!("env id {id:?} listed twice in batch"),

@@ -35,6 +35,8 @@ pub enum ObservationError {
     NoRoom,
     #[error("buffers have lengths {got:?}, expected {want:?} (features, adjacency, mask)")]
     BufferSize { got: [usize; 3], want: [usize; 3] },
+    #[error("node id buffer has length {got}, expected {want}")]
+    IdsSize { got: usize, want: usize },
 }
 
 /// Lengths of the feature, adjacency and mask buffers for `max_agents` nodes.
@@ -58,6 +60,41 @@ impl World {
         features: &mut [f32],
         adjacency: &mut [f32],
         mask: &mut [u8],
+    ) -> Result<bool, ObservationError> {
+        self.fill_observation_impl(ego, max_agents, features, adjacency, mask, None)
+    }
+
+    /// [`World::fill_observation`] that also writes the agent id of every node into `node_ids`
+    /// (`[max_agents]`, `pad` for padding nodes; all `pad` when `ego` is not present).
+    #[allow(clippy::too_many_arguments)]
+    pub fn fill_observation_with_ids(
+        &self,
+        ego: AgentId,
+        max_agents: usize,
+        features: &mut [f32],
+        adjacency: &mut [f32],
+        mask: &mut [u8],
+        node_ids: &mut [AgentId],
+        pad: AgentId,
+    ) -> Result<bool, ObservationError> {
+        if node_ids.len() != max_agents {
+            return Err(ObservationError::IdsSize {
+                got: node_ids.len(),
+                want: max_agents,
+            });
+        }
+        node_ids.fill(pad);
+        self.fill_observation_impl(ego, max_agents, features, adjacency, mask, Some(node_ids))
+    }
+
+    fn fill_observation_impl(
+        &self,
+        ego: AgentId,
+        max_agents: usize,
+        features: &mut [f32],
+        adjacency: &mut [f32],
+        mask: &mut [u8],
+        node_ids: Option<&mut [AgentId]>,
     ) -> Result<bool, ObservationError> {
         if max_agents == 0 {
             return Err(ObservationError::NoRoom);
@@ -83,12 +120,17 @@ impl World {
         slots.push(ego_slot);
         slots.extend(near.iter().map(|n| n.2));
 
-        let me = self.agent(ego).expect("slot found above");
+        if let Some(ids) = node_ids {
+            ids[0] = ego;
+            for (k, n) in near.iter().enumerate() {
+                ids[k + 1] = n.1;
+            }
+        }
+        let me = self.view(ego_slot);
         let (s, c) = me.heading.sin_cos();
         let to_ego = |v: Vec2| Vec2::new(c * v.x + s * v.y, -s * v.x + c * v.y);
-        let views: Vec<_> = self.agents().collect();
         for (node, &slot) in slots.iter().enumerate() {
-            let a = &views[slot];
+            let a = &self.view(slot);
             let rel = to_ego(a.position - me.position);
             let rel_v = to_ego(a.velocity - me.velocity);
             let row = &mut features[node * NODE_FEATURES..(node + 1) * NODE_FEATURES];

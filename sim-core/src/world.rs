@@ -314,7 +314,7 @@ struct ExternalTrack {
 }
 
 /// Structure-of-arrays state of the agents present at the current step.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 struct Agents {
     id: Vec<AgentId>,
     kind: Vec<AgentKind>,
@@ -335,6 +335,34 @@ struct Agents {
     edge_start: Vec<u32>,
     edge_len: Vec<u32>,
     leaving: Vec<bool>,
+}
+
+impl Clone for Agents {
+    fn clone(&self) -> Self {
+        let mut a = Self::default();
+        a.clone_from(self);
+        a
+    }
+
+    /// Field-wise, reusing the allocations (the step's `next` buffer is refilled every step).
+    fn clone_from(&mut self, src: &Self) {
+        self.id.clone_from(&src.id);
+        self.kind.clone_from(&src.kind);
+        self.control.clone_from(&src.control);
+        self.shape.clone_from(&src.shape);
+        self.pos.clone_from(&src.pos);
+        self.vel.clone_from(&src.vel);
+        self.acc.clone_from(&src.acc);
+        self.prev_acc.clone_from(&src.prev_acc);
+        self.speed.clone_from(&src.speed);
+        self.heading.clone_from(&src.heading);
+        self.goal.clone_from(&src.goal);
+        self.v0.clone_from(&src.v0);
+        self.initial_vel.clone_from(&src.initial_vel);
+        self.edge_start.clone_from(&src.edge_start);
+        self.edge_len.clone_from(&src.edge_len);
+        self.leaving.clone_from(&src.leaving);
+    }
 }
 
 impl Agents {
@@ -633,7 +661,7 @@ impl World {
         self.agents.len() == 0
     }
 
-    fn view(&self, i: usize) -> AgentView {
+    pub(crate) fn view(&self, i: usize) -> AgentView {
         let a = &self.agents;
         AgentView {
             id: a.id[i],

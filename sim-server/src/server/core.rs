@@ -23,10 +23,11 @@ use sim_core::params::{PedestrianModel, WorldParams};
 use crate::params_file::ModelParams;
 use sim_core::scenario::Split;
 
-use super::env::{Buffers, Env, EnvSpec, Gates, Publication};
+use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication};
 use super::pools::ServedPool;
 
-/// Batches of at least this many envs are stepped on several threads.
+/// Batches of at least this many envs may be stepped on several threads (see
+/// [`ServerCore::set_batch_threads`]).
 pub const PARALLEL_MIN_BATCH: usize = 64;
 
 /// Server limits.
@@ -231,6 +232,18 @@ pub struct ServerCore {
     pools: Vec<Arc<ServedPool>>,
     params: ModelParams,
     reg: Mutex<Registry>,
+    /// Most threads a large batch is stepped on.
+    batch_threads: usize,
+}
+
+/// All but one of the available cores (the network runtime keeps one busy moving the
+/// replies), at least one: on two cores a batch is stepped on the calling thread, where
+/// spawning a helper costs more than it saves.
+fn default_batch_threads() -> usize {
+    std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .saturating_sub(1)
+        .max(1)
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -255,7 +268,14 @@ impl ServerCore {
             pools: pools.into_iter().map(Arc::new).collect(),
             params: params.into(),
             reg: Mutex::new(Registry::default()),
+            batch_threads: default_batch_threads(),
         }
+    }
+
+    /// Sets the most threads a batch of at least [`PARALLEL_MIN_BATCH`] envs is stepped on
+    /// (default: the available cores less one, at least one).
+    pub fn set_batch_threads(&mut self, threads: usize) {
+        self.batch_threads = threads.max(1);
     }
 
     pub fn server_id(&self) -> &str {
@@ -439,6 +459,7 @@ impl ServerCore {
             autoreset: req.autoreset,
             realtime_factor: req.realtime_factor,
             keys: self.keys.clone(),
+            fresh_worlds: EnvSpec::world_cache(&pool),
         });
         let mut reg = lock(&self.reg);
         let load = reg.envs.len() as u64;
@@ -571,7 +592,25 @@ impl ServerCore {
     pub fn handle_batch(&self, payload: &[u8], gates: Gates) -> Response {
         let mut pubs = Vec::new();
         let r = self.batch(payload, gates, &mut pubs);
-        Response::of(r, pubs)
+        // Encoded straight into a buffer of about the reply's size (the arrays dominate it).
+        let cap = r.as_ref().map_or(256, |b| {
+            let o = &b.obs;
+            1024 + o.features.as_le_bytes().len()
+                + o.adjacency.as_le_bytes().len()
+                + o.mask.as_le_bytes().len()
+                + o.node_ids.as_le_bytes().len()
+                + 8 * b.reward.as_le_bytes().len()
+                + 256 * b.env_ids.len()
+        });
+        let mut reply = Vec::with_capacity(cap);
+        if let Err(e) = rmp_serde::encode::write_named(&mut reply, &Reply::from(r)) {
+            panic!("{e}");
+        }
+        Response {
+            reply,
+            pubs,
+            realtime_envs: Vec::new(),
+        }
     }
 
     fn batch(
@@ -650,29 +689,22 @@ impl ServerCore {
         for env in &envs {
             env.check_steppable(true)?;
         }
-        // Large batches are stepped on several threads (chunks of envs, each into its own
-        // buffers, concatenated in order afterwards).
+        // Large batches are stepped on several threads (consecutive chunks of envs, each
+        // writing its own range of the one output buffer), the first chunk on this thread.
         let threads = if k >= PARALLEL_MIN_BATCH {
-            std::thread::available_parallelism()
-                .map_or(1, |n| n.get())
-                .min(k / (PARALLEL_MIN_BATCH / 2))
+            self.batch_threads.min(k / (PARALLEL_MIN_BATCH / 2)).max(1)
         } else {
             1
         };
-        let chunk = k.div_ceil(threads.max(1));
+        let chunk = k.div_ceil(threads);
+        let mut buf = Buffers::new(k, n_ext, m as usize);
         let mut refs: Vec<&mut Env> = envs.iter_mut().map(|g| &mut **g).collect();
-        type Part = (
-            Buffers,
-            Vec<BatchEnvInfo>,
-            Vec<Publication>,
-            Result<(), ErrorReply>,
-        );
-        let run = |envs: &mut [&mut Env], actions: &[Vec<[f64; 2]>]| -> Part {
-            let mut buf = Buffers::new(envs.len(), n_ext, m as usize);
+        type Part = (Vec<BatchEnvInfo>, Vec<Publication>, Result<(), ErrorReply>);
+        let run = |envs: &mut [&mut Env], actions: &[Vec<[f64; 2]>], mut out: BufMut<'_>| -> Part {
             let mut infos = Vec::with_capacity(envs.len());
             let mut pubs = Vec::new();
             for (i, env) in envs.iter_mut().enumerate() {
-                match env.step_into(&actions[i], &mut buf.slots(i), gates, &mut pubs) {
+                match env.step_into(&actions[i], &mut out.slots(i), gates, &mut pubs) {
                     Ok(meta) => infos.push(BatchEnvInfo {
                         episode: meta.episode,
                         scenario: meta.scenario,
@@ -681,45 +713,44 @@ impl ServerCore {
                         info: meta.info,
                         reset: meta.reset,
                     }),
-                    Err(e) => return (buf, infos, pubs, Err(e)),
+                    Err(e) => return (infos, pubs, Err(e)),
                 }
             }
-            (buf, infos, pubs, Ok(()))
+            (infos, pubs, Ok(()))
         };
         let parts: Vec<Part> = if threads <= 1 {
-            vec![run(&mut refs, &actions)]
+            vec![run(&mut refs, &actions, buf.view())]
         } else {
             std::thread::scope(|sc| {
-                let handles: Vec<_> = refs
+                let mut work = refs
                     .chunks_mut(chunk)
                     .zip(actions.chunks(chunk))
-                    .map(|(e, a)| sc.spawn(move || run(e, a)))
+                    .zip(buf.view().chunks(k, chunk));
+                let ((e0, a0), o0) = work.next().expect("k >= 1");
+                let handles: Vec<_> = work
+                    .map(|((e, a), o)| sc.spawn(move || run(e, a, o)))
                     .collect();
-                handles
-                    .into_iter()
-                    .map(|h| {
-                        h.join().unwrap_or_else(|_| {
-                            (
-                                Buffers::default(),
-                                Vec::new(),
-                                Vec::new(),
-                                Err(ErrorReply::new(
-                                    ErrorCode::Internal,
-                                    "batch worker panicked",
-                                )),
-                            )
-                        })
+                let mut parts = Vec::with_capacity(threads);
+                parts.push(run(e0, a0, o0));
+                parts.extend(handles.into_iter().map(|h| {
+                    h.join().unwrap_or_else(|_| {
+                        (
+                            Vec::new(),
+                            Vec::new(),
+                            Err(ErrorReply::new(
+                                ErrorCode::Internal,
+                                "batch worker panicked",
+                            )),
+                        )
                     })
-                    .collect()
+                }));
+                parts
             })
         };
         drop(refs);
-        let mut buf = Buffers::new(0, n_ext, m as usize);
-        buf.k = k;
         let mut infos = Vec::with_capacity(k);
-        for (b, inf, p, r) in parts {
+        for (inf, p, r) in parts {
             r?;
-            buf.append(b);
             infos.extend(inf);
             pubs.extend(p);
         }
@@ -944,7 +975,8 @@ mod tests {
 
     #[test]
     fn threaded_batch_equals_single_steps() {
-        let c = core(Limits::default());
+        let mut c = core(Limits::default());
+        c.set_batch_threads(3);
         let k = 2 * PARALLEL_MIN_BATCH + 3;
         let mut req = CreateEnv::new("a");
         req.count = k as u32;

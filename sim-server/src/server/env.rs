@@ -1,7 +1,7 @@
 //! One simulation env: a seeded scenario sequence, the current episode's [`World`], and the
 //! translation between sim-core results and protocol messages. Pure and synchronous.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use protocol::{
     encode, AgentDesc, AgentKind as WireKind, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply,
@@ -80,11 +80,19 @@ pub struct EnvSpec {
     pub autoreset: bool,
     pub realtime_factor: f64,
     pub keys: KeySpace,
+    /// The fresh world of each scenario of the pool for this configuration, built on first
+    /// use (`World::new` is deterministic, so a reset clones it instead of building it again).
+    pub fresh_worlds: Vec<OnceLock<World>>,
 }
 
 impl EnvSpec {
     pub fn n_ext(&self) -> usize {
         self.external_names.len()
+    }
+
+    /// One empty cache slot per scenario of `pool`, for [`EnvSpec::fresh_worlds`].
+    pub fn world_cache(pool: &ServedPool) -> Vec<OnceLock<World>> {
+        (0..pool.scenarios.len()).map(|_| OnceLock::new()).collect()
     }
 }
 
@@ -100,6 +108,107 @@ pub struct Slots<'a> {
     pub terms: [&'a mut [f32]; 5],
     pub terminated: &'a mut [u8],
     pub truncated: &'a mut [u8],
+}
+
+/// The slots of a contiguous range of envs of a [`Buffers`].
+pub struct BufMut<'a> {
+    n_ext: usize,
+    m: usize,
+    s: Slots<'a>,
+}
+
+impl<'a> BufMut<'a> {
+    /// Per env: features, adjacency, mask/node ids, and per-agent element counts.
+    fn sizes(&self) -> [usize; 4] {
+        let (n, m, f) = (self.n_ext, self.m, N_FEATURES as usize);
+        [n * m * f, n * m * m, n * m, n]
+    }
+
+    /// The slots of env `i` of this range.
+    pub fn into_slots(self, i: usize) -> Slots<'a> {
+        let (_, rest) = self.split_at(i);
+        rest.split_at(1).0.s
+    }
+
+    /// Splits into envs `[0, i)` and `[i, ..)`.
+    pub fn split_at(self, i: usize) -> (BufMut<'a>, BufMut<'a>) {
+        let [sf, sa, sm, se] = self.sizes();
+        let s = self.s;
+        let (f0, f1) = s.features.split_at_mut(i * sf);
+        let (a0, a1) = s.adjacency.split_at_mut(i * sa);
+        let (m0, m1) = s.mask.split_at_mut(i * sm);
+        let (i0, i1) = s.node_ids.split_at_mut(i * sm);
+        let (r0, r1) = s.reward.split_at_mut(i * se);
+        let [t0, t1, t2, t3, t4] = s.terms.map(|t| t.split_at_mut(i * se));
+        let (te0, te1) = s.terminated.split_at_mut(i * se);
+        let (tr0, tr1) = s.truncated.split_at_mut(i * se);
+        let (n_ext, m) = (self.n_ext, self.m);
+        (
+            BufMut {
+                n_ext,
+                m,
+                s: Slots {
+                    features: f0,
+                    adjacency: a0,
+                    mask: m0,
+                    node_ids: i0,
+                    reward: r0,
+                    terms: [t0.0, t1.0, t2.0, t3.0, t4.0],
+                    terminated: te0,
+                    truncated: tr0,
+                },
+            },
+            BufMut {
+                n_ext,
+                m,
+                s: Slots {
+                    features: f1,
+                    adjacency: a1,
+                    mask: m1,
+                    node_ids: i1,
+                    reward: r1,
+                    terms: [t0.1, t1.1, t2.1, t3.1, t4.1],
+                    terminated: te1,
+                    truncated: tr1,
+                },
+            },
+        )
+    }
+
+    /// Splits into consecutive ranges of `chunk` envs (the last may be shorter).
+    pub fn chunks(self, k: usize, chunk: usize) -> Vec<BufMut<'a>> {
+        let mut out = Vec::with_capacity(k.div_ceil(chunk.max(1)));
+        let mut rest = self;
+        let mut left = k;
+        while left > chunk {
+            let (a, b) = rest.split_at(chunk);
+            out.push(a);
+            rest = b;
+            left -= chunk;
+        }
+        out.push(rest);
+        out
+    }
+
+    /// Reborrowed slots of env `i` of this range.
+    pub fn slots(&mut self, i: usize) -> Slots<'_> {
+        let [t0, t1, t2, t3, t4] = &mut self.s.terms;
+        BufMut {
+            n_ext: self.n_ext,
+            m: self.m,
+            s: Slots {
+                features: self.s.features,
+                adjacency: self.s.adjacency,
+                mask: self.s.mask,
+                node_ids: self.s.node_ids,
+                reward: self.s.reward,
+                terms: [t0, t1, t2, t3, t4],
+                terminated: self.s.terminated,
+                truncated: self.s.truncated,
+            },
+        }
+        .into_slots(i)
+    }
 }
 
 /// Owned buffers for `k` envs with `n_ext` agents and `m` nodes each.
@@ -154,24 +263,25 @@ impl Buffers {
 
     /// The slots of env `i`.
     pub fn slots(&mut self, i: usize) -> Slots<'_> {
-        let (n, m, f) = (self.n_ext, self.m, N_FEATURES as usize);
-        let e = i * n..(i + 1) * n;
+        self.view().into_slots(i)
+    }
+
+    /// A mutable view of all envs' slots (splittable into disjoint ranges of envs).
+    pub fn view(&mut self) -> BufMut<'_> {
         let [t0, t1, t2, t3, t4] = &mut self.terms;
-        Slots {
-            features: &mut self.features[i * n * m * f..(i + 1) * n * m * f],
-            adjacency: &mut self.adjacency[i * n * m * m..(i + 1) * n * m * m],
-            mask: &mut self.mask[i * n * m..(i + 1) * n * m],
-            node_ids: &mut self.node_ids[i * n * m..(i + 1) * n * m],
-            reward: &mut self.reward[e.clone()],
-            terms: [
-                &mut t0[e.clone()],
-                &mut t1[e.clone()],
-                &mut t2[e.clone()],
-                &mut t3[e.clone()],
-                &mut t4[e.clone()],
-            ],
-            terminated: &mut self.terminated[e.clone()],
-            truncated: &mut self.truncated[e],
+        BufMut {
+            n_ext: self.n_ext,
+            m: self.m,
+            s: Slots {
+                features: &mut self.features,
+                adjacency: &mut self.adjacency,
+                mask: &mut self.mask,
+                node_ids: &mut self.node_ids,
+                reward: &mut self.reward,
+                terms: [t0, t1, t2, t3, t4],
+                terminated: &mut self.terminated,
+                truncated: &mut self.truncated,
+            },
         }
     }
 
@@ -281,34 +391,13 @@ fn event(kind: EventKind, step: u32, t: f64, agents: Vec<u32>) -> Event {
 /// Writes the observations of `ext_ids` into the slots (`node_ids` included).
 fn write_obs(world: &World, ext_ids: &[AgentId], m: usize, s: &mut Slots<'_>) {
     let f = N_FEATURES as usize;
-    let mut near: Vec<(f64, AgentId)> = Vec::new();
     for (e, &ego) in ext_ids.iter().enumerate() {
         let feats = &mut s.features[e * m * f..(e + 1) * m * f];
         let adj = &mut s.adjacency[e * m * m..(e + 1) * m * m];
         let mask = &mut s.mask[e * m..(e + 1) * m];
         let ids = &mut s.node_ids[e * m..(e + 1) * m];
-        ids.fill(PAD_NODE_ID);
         // Buffer sizes are right by construction and m >= 1 is checked at creation.
-        let present = world
-            .fill_observation(ego, m, feats, adj, mask)
-            .unwrap_or(false);
-        if !present {
-            continue;
-        }
-        // Same node order as `fill_observation`: ego, then by (clearance, id).
-        near.clear();
-        near.extend(
-            world
-                .graph_edges()
-                .filter(|g| g.observer == ego)
-                .map(|g| (g.clearance, g.target)),
-        );
-        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        near.truncate(m - 1);
-        ids[0] = ego;
-        for (k, &(_, id)) in near.iter().enumerate() {
-            ids[k + 1] = id;
-        }
+        let _ = world.fill_observation_with_ids(ego, m, feats, adj, mask, ids, PAD_NODE_ID);
     }
 }
 
@@ -402,10 +491,20 @@ impl Env {
             model_overrides: Vec::new(),
             external: ext_ids.clone(),
         };
-        let world = World::new(served.scenario.clone(), spec.params, config).map_err(|e| {
-            ErrorReply::new(ErrorCode::Internal, format!("cannot start episode: {e}"))
-                .with_env(self.id.clone())
-        })?;
+        let cached = spec.fresh_worlds.get(idx).and_then(OnceLock::get);
+        let world = match cached {
+            Some(w) => w.clone(),
+            None => {
+                let w = World::new(served.scenario.clone(), spec.params, config).map_err(|e| {
+                    ErrorReply::new(ErrorCode::Internal, format!("cannot start episode: {e}"))
+                        .with_env(self.id.clone())
+                })?;
+                if let Some(cell) = spec.fresh_worlds.get(idx) {
+                    let _ = cell.set(w.clone());
+                }
+                w
+            }
+        };
         self.world = Some(world);
         self.scenario = idx;
         self.ext_ids = ext_ids;

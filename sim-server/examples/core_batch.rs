@@ -1,0 +1,75 @@
+//! Focused timing of `ServerCore::handle_batch` (no zenoh): `core_batch [K] [iterations]`.
+
+use std::time::Instant;
+
+use protocol::{decode, encode, BatchStep, CreateEnv, EnvCreated, F32Array, KeySpace, Reply};
+use sim_core::params::WorldParams;
+use sim_server::server::core::{Limits, ServerCore};
+use sim_server::server::env::Gates;
+use sim_server::server::pools::ServedPool;
+
+fn main() {
+    let args: Vec<usize> = std::env::args()
+        .skip(1)
+        .filter_map(|a| a.parse().ok())
+        .collect();
+    let k = args.first().copied().unwrap_or(256);
+    let iters = args.get(1).copied().unwrap_or(200);
+    let core = ServerCore::new(
+        "bench".into(),
+        KeySpace::default(),
+        Limits::default(),
+        vec![ServedPool::new(scenarios::embedded::default_pool())],
+        WorldParams::default(),
+    );
+    let mut req = CreateEnv::new("c");
+    req.autoreset = true;
+    req.count = k as u32;
+    req.seed = 1000 + k as u64;
+    let r = core.handle_create(&encode(&req), Instant::now());
+    let ids = decode::<Reply<EnvCreated>>(&r.reply)
+        .unwrap()
+        .into_result()
+        .unwrap()
+        .env_ids;
+    for id in &ids {
+        core.handle_reset(id, &[], Gates::NONE);
+    }
+    let vals: Vec<f32> = (0..k).flat_map(|i| [0.2 + 0.001 * i as f32, 0.0]).collect();
+    let b = encode(&BatchStep {
+        env_ids: ids,
+        actions: F32Array::new(vec![k as u32, 1, 2], &vals).unwrap().into(),
+    });
+    if let Some(path) = std::env::var_os("CORE_BATCH_DUMP") {
+        // The replies of `iters` batches, concatenated (for comparing builds).
+        let mut all = Vec::new();
+        for _ in 0..iters {
+            all.extend(core.handle_batch(&b, Gates::NONE).reply);
+        }
+        std::fs::write(path, all).unwrap();
+        return;
+    }
+    let measure = move || {
+        for _ in 0..20 {
+            core.handle_batch(&b, Gates::NONE);
+        }
+        let t0 = Instant::now();
+        let mut len = 0;
+        for _ in 0..iters {
+            len += core.handle_batch(&b, Gates::NONE).reply.len();
+        }
+        (t0.elapsed().as_secs_f64() / iters as f64, len)
+    };
+    // CORE_BATCH_THREAD=1: measured on a spawned thread (as on a tokio worker).
+    let (dt, len) = if std::env::var_os("CORE_BATCH_THREAD").is_some() {
+        std::thread::spawn(measure).join().unwrap()
+    } else {
+        measure()
+    };
+    println!(
+        "K={k}: {:.1} us/batch, {:.2} us/env-step, reply {} B",
+        dt * 1e6,
+        dt * 1e6 / k as f64,
+        len / iters
+    );
+}
