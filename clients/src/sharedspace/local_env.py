@@ -65,6 +65,33 @@ def shipped_params(pedestrian_model: str) -> dict[str, Any]:
     return merge_params(doc, overlay)
 
 
+def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
+    """Sets the specs of clients/ENV_CONTRACT.md on ``env`` (batch size ``[k]``, ``m`` nodes):
+    the one definition both the local and the remote batched env use."""
+    dev = env.device
+    bool_spec = Categorical(2, shape=(k, 1), dtype=torch.bool, device=dev)
+    obs = {
+        "features": Unbounded((k, m, NODE_FEATURES), dtype=torch.float32, device=dev),
+        "adjacency": Unbounded((k, m, m), dtype=torch.float32, device=dev),
+        "mask": Binary(n=m, shape=(k, m), dtype=torch.bool, device=dev),
+        "scenario_index": Unbounded((k, 1), dtype=torch.int64, device=dev),
+    }
+    for key in EPISODE_FLAG_KEYS:
+        obs[key] = bool_spec.clone()
+    for key in EPISODE_FLOAT_KEYS:
+        obs[key] = Unbounded((k, 1), dtype=torch.float32, device=dev)
+    env.observation_spec = Composite(obs, shape=(k,), device=dev)
+    env.action_spec = Bounded(-1.0, 1.0, (k, 2), dtype=torch.float32, device=dev)
+    env.reward_spec = Unbounded((k, 1), dtype=torch.float32, device=dev)
+    env.done_spec = Composite(
+        done=bool_spec.clone(),
+        terminated=bool_spec.clone(),
+        truncated=bool_spec.clone(),
+        shape=(k,),
+        device=dev,
+    )
+
+
 def split_indices(pool: Sequence[Mapping[str, Any]], split: str | None) -> list[int]:
     """Pool indices of the scenarios of ``split`` (``"train"``, ``"test"``, or ``None``/"all")."""
     if split in (None, "all"):
@@ -141,27 +168,7 @@ class LocalBatchedEnv(EnvBase):
         self._scenario = np.zeros(k, dtype=np.int64)
         self._reseed(seed)
 
-        bool_spec = Categorical(2, shape=(k, 1), dtype=torch.bool, device=self.device)
-        obs = {
-            "features": Unbounded((k, m, NODE_FEATURES), dtype=torch.float32, device=self.device),
-            "adjacency": Unbounded((k, m, m), dtype=torch.float32, device=self.device),
-            "mask": Binary(n=m, shape=(k, m), dtype=torch.bool, device=self.device),
-            "scenario_index": Unbounded((k, 1), dtype=torch.int64, device=self.device),
-        }
-        for key in EPISODE_FLAG_KEYS:
-            obs[key] = bool_spec.clone()
-        for key in EPISODE_FLOAT_KEYS:
-            obs[key] = Unbounded((k, 1), dtype=torch.float32, device=self.device)
-        self.observation_spec = Composite(obs, shape=(k,), device=self.device)
-        self.action_spec = Bounded(-1.0, 1.0, (k, 2), dtype=torch.float32, device=self.device)
-        self.reward_spec = Unbounded((k, 1), dtype=torch.float32, device=self.device)
-        self.done_spec = Composite(
-            done=bool_spec.clone(),
-            terminated=bool_spec.clone(),
-            truncated=bool_spec.clone(),
-            shape=(k,),
-            device=self.device,
-        )
+        set_contract_specs(self, k, m)
 
     # ----------------------------------------------------------------------------------------
     # Scenario sequence

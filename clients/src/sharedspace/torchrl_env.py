@@ -38,18 +38,20 @@ from typing import Any
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from .client import SimClient, VectorClient
 from .errors import SharedspaceError
+from .local_env import (
+    EPISODE_FLAG_KEYS,
+    EPISODE_FLOAT_KEYS,
+    NODE_FEATURES,
+    set_contract_specs,
+)
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
 __all__ = ["RemoteBatchedEnv"]
 
-NODE_FEATURES = 11
-EPISODE_FLAG_KEYS = ("episode_success", "episode_collision", "episode_timeout")
-EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_abs_acc")
 _DEFAULT_POOL = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
 
 
@@ -171,27 +173,7 @@ class RemoteBatchedEnv(EnvBase):
             "mask": np.zeros((k, m), dtype=bool),
         }
 
-        bool_spec = Categorical(2, shape=(k, 1), dtype=torch.bool, device=self.device)
-        obs = {
-            "features": Unbounded((k, m, NODE_FEATURES), dtype=torch.float32, device=self.device),
-            "adjacency": Unbounded((k, m, m), dtype=torch.float32, device=self.device),
-            "mask": Binary(n=m, shape=(k, m), dtype=torch.bool, device=self.device),
-            "scenario_index": Unbounded((k, 1), dtype=torch.int64, device=self.device),
-        }
-        for key in EPISODE_FLAG_KEYS:
-            obs[key] = bool_spec.clone()
-        for key in EPISODE_FLOAT_KEYS:
-            obs[key] = Unbounded((k, 1), dtype=torch.float32, device=self.device)
-        self.observation_spec = Composite(obs, shape=(k,), device=self.device)
-        self.action_spec = Bounded(-1.0, 1.0, (k, 2), dtype=torch.float32, device=self.device)
-        self.reward_spec = Unbounded((k, 1), dtype=torch.float32, device=self.device)
-        self.done_spec = Composite(
-            done=bool_spec.clone(),
-            terminated=bool_spec.clone(),
-            truncated=bool_spec.clone(),
-            shape=(k,),
-            device=self.device,
-        )
+        set_contract_specs(self, k, m)
 
     # ----------------------------------------------------------------------------------------
 
