@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf calibrate table1 table2 lint-py venv clean
+.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf calibrate table1 table2 train eval lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -80,6 +80,15 @@ table1: $(SERVER) $(VENV)/.installed ## paper Table I on the test split (calibra
 	rm -rf out/table1-trajectories
 	$(SERVER) eval-peds --split test --params $(CALIBRATED) --out docs/table1.json --trajectories out/table1-trajectories
 	$(PY) -m calibration.plot_trajectories --trajectories out/table1-trajectories --out docs/figures
+
+TRAIN_ARGS ?= --set variant=g_sac_cog total_frames=200000 log_dir=runs/g_sac_cog
+CKPT ?= runs/g_sac_cog/checkpoints/last.pt
+
+train: $(SERVER) $(VENV)/.installed ## train against a fresh local server (TRAIN_ARGS='--set variant=s_sac ...')
+	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.train $(TRAIN_ARGS) --set env_backend=remote server_endpoint=$$SHAREDSPACE_ENDPOINT'
+
+eval: $(SERVER) $(VENV)/.installed ## evaluate CKPT on the test split (Table II columns and the human driver)
+	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.train.evaluate --checkpoint $(CKPT) --split test --set env_backend=remote server_endpoint=$$SHAREDSPACE_ENDPOINT'
 
 table2: $(SERVER) $(VENV)/.installed ## paper Table II: three variants trained at once against one server, evaluated (docs/RESULTS.md)
 	./scripts/table2.sh

@@ -181,6 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument(
         "--set",
         nargs="*",
+        action="extend",
         default=[],
         metavar="KEY=VALUE",
         help="config overrides (e.g. env_backend=remote)",

@@ -288,7 +288,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--config", default=None, help="TOML or JSON file of TrainConfig fields")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="overrides")
+    ap.add_argument(
+        "--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE", help="overrides"
+    )
     ap.add_argument("--resume", default=None, help="checkpoint to continue from")
     args = ap.parse_args(argv)
     if args.resume:  # the checkpoint's config, then the file and the overrides over it
