@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from sharedspace.codec import FEATURE_NAMES
+
 __all__ = [
     "DEFAULT_PARAMS",
     "PEDESTRIAN_MODELS",
@@ -692,20 +694,8 @@ class ReferenceWorld:
             "a": a[ii, jj],
         }
 
-    #: Node features of :meth:`observation`, in order (``sim_core::observation::FEATURE_NAMES``).
-    FEATURE_NAMES = (
-        "rel_x",
-        "rel_y",
-        "rel_vx",
-        "rel_vy",
-        "speed",
-        "heading_diff",
-        "radius",
-        "is_vehicle",
-        "goal_dx",
-        "goal_dy",
-        "goal_dist",
-    )
+    #: Node features of :meth:`observation`, in order (the wire protocol's, SPEC.md section 7).
+    FEATURE_NAMES = FEATURE_NAMES
 
     def observation(self, agent_id: int, max_agents: int) -> dict[str, np.ndarray]:
         """Agent ``agent_id``'s observation as ``World::fill_observation`` of the Rust core.
