@@ -66,3 +66,26 @@ def test_remote_train_and_evaluate(sim_server, tmp_path, capsys):
     )
     row = rec["table"]["g_sac_cog"]
     assert row["success"] + row["collision"] + row["timeout"] == pytest.approx(1.0)
+
+
+def test_remote_train_with_a_zenoh_config_file(sim_server, tmp_path):
+    """`zenoh_config` (a file like deploy/trainer.json5) configures the trainer's session."""
+    zcfg = tmp_path / "trainer.json5"
+    zcfg.write_text(
+        "// the trainer's zenoh session\n"
+        f'{{ mode: "peer", connect: {{ endpoints: ["{sim_server.endpoint}"] }},\n'
+        "  scouting: { multicast: { enabled: false } } }\n"
+    )
+    cfg = load_config(
+        None,
+        [
+            *TINY,
+            "env_backend=remote",
+            f"zenoh_config={zcfg}",
+            f"server_prefix={sim_server.prefix}",
+            "total_frames=32",
+            f"log_dir={tmp_path / 'run'}",
+        ],
+    )
+    out = train(cfg)
+    assert out["counters"]["frames"] == 32

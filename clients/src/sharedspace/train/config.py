@@ -35,6 +35,7 @@ class TrainConfig:
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
     server_endpoint: str = "tcp/127.0.0.1:7447"  # Zenoh endpoint of the server (remote only)
     server_prefix: str = "sharedspace"  # Zenoh key prefix of the server (remote only)
+    zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first

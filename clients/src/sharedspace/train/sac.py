@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import torch
 from tensordict.nn import InteractionType, NormalParamExtractor, TensorDictModule
 from torch import nn, optim
@@ -60,7 +63,36 @@ def make_env(
         raise RuntimeError(
             "env_backend=remote needs sharedspace.torchrl_env.RemoteBatchedEnv"
         ) from exc
+    if cfg.zenoh_config:
+        from sharedspace.client import SimClient
+
+        settings = zenoh_file_settings(cfg.zenoh_config)
+        client = SimClient(
+            endpoint=None,
+            prefix=cfg.server_prefix,
+            mode=settings.pop("mode", "client"),
+            config=settings,
+        )
+        return RemoteBatchedEnv(prefix=cfg.server_prefix, client=client, **kwargs)
     return RemoteBatchedEnv(endpoint=cfg.server_endpoint, prefix=cfg.server_prefix, **kwargs)
+
+
+def zenoh_file_settings(path: str) -> dict[str, Any]:
+    """A zenoh JSON5 configuration file (such as deploy/trainer.json5) as the flat
+    ``{"path/to/key": value}`` entries :class:`sharedspace.transport.Transport` takes."""
+    import json5
+
+    flat: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict) and value:
+            for key, inner in value.items():
+                walk(f"{prefix}/{key}" if prefix else key, inner)
+        else:
+            flat[prefix] = value
+
+    walk("", json5.loads(Path(path).read_text()))
+    return flat
 
 
 def _encoder(cfg: TrainConfig) -> GraphEncoder:
