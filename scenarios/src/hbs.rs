@@ -361,6 +361,24 @@ fn scenario_name(scene: u32, car: u64) -> String {
     }
 }
 
+/// Every car with a moving window of at least `min_window` frames, in `(scene, car id)` order:
+/// `(scene, car id, track, first frame, length)`. Both pools start from these windows.
+fn car_windows(
+    data: &HbsData,
+    moving_speed: f64,
+    min_window: u32,
+) -> impl Iterator<Item = (u32, u64, &Track, u32, u32)> {
+    data.tracks
+        .iter()
+        .filter_map(move |(&(scene, car_id), car)| {
+            if car.label != Label::Car || min_window == 0 {
+                return None;
+            }
+            let (from, len) = moving_window(car, moving_speed)?;
+            (len >= min_window).then_some((scene, car_id, car, from, len))
+        })
+}
+
 /// The moving window of a car: `(first frame, length)` (see the module docs).
 fn moving_window(track: &Track, moving_speed: f64) -> Option<(u32, u32)> {
     let (&first, _) = track.frames.iter().next()?;
@@ -469,16 +487,8 @@ fn provenance(data: &HbsData, pool: &str, params: &str) -> String {
 /// The paper-like pool `hbs-paper` (see the module docs).
 pub fn extract_paper(data: &HbsData, params: &PaperParams) -> ScenarioPool {
     let mut scenarios = Vec::new();
-    for (&(scene, car_id), car) in &data.tracks {
-        if car.label != Label::Car {
-            continue;
-        }
-        let Some((from, len)) = moving_window(car, params.moving_speed) else {
-            continue;
-        };
-        if len < params.min_window || params.min_window == 0 {
-            continue;
-        }
+    for (scene, car_id, car, from, len) in car_windows(data, params.moving_speed, params.min_window)
+    {
         let full = record(car_id, AgentKind::Vehicle, car, from, len, 0, false);
         // Candidates: pedestrians present from the window's first frame, with how long.
         let mut cands: Vec<(u64, u32, Vec<f64>, AgentRecord)> = Vec::new();
@@ -558,16 +568,8 @@ pub fn extract_paper(data: &HbsData, params: &PaperParams) -> ScenarioPool {
 /// The general pool `hbs-general` (see the module docs).
 pub fn extract_general(data: &HbsData, params: &GeneralParams) -> ScenarioPool {
     let mut scenarios = Vec::new();
-    for (&(scene, car_id), car) in &data.tracks {
-        if car.label != Label::Car {
-            continue;
-        }
-        let Some((from, len)) = moving_window(car, params.moving_speed) else {
-            continue;
-        };
-        if len < params.min_window || params.min_window == 0 {
-            continue;
-        }
+    for (scene, car_id, car, from, len) in car_windows(data, params.moving_speed, params.min_window)
+    {
         let ego = record(car_id, AgentKind::Vehicle, car, from, len, 0, false);
         let end = from + len; // exclusive
         let mut cands: Vec<AgentRecord> = Vec::new();
