@@ -45,7 +45,9 @@ test: $(VENV)/.installed ## every test: Rust (fmt, clippy, unit, integration, pr
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	$(CARGO) test --workspace
 	$(CARGO) build -p sim-server
-	SHAREDSPACE_SIM_SERVER=target/debug/sim-server $(PY) -m pytest clients/tests -q -p no:cacheprovider
+	@# a hung interpreter exit must fail CI in minutes, not eat its whole budget
+	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 1800 $(PY) -m pytest clients/tests -q -p no:cacheprovider \
+		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
 	$(PY) -m ruff check clients calibration bench
 
 lint: ## cargo fmt --check and clippy -D warnings

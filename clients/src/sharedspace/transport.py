@@ -62,18 +62,31 @@ CREATE_TIMEOUT = 10.0
 
 _SEGMENT_BAD = re.compile(r"[^A-Za-z0-9_.\-]")
 
-#: Open transports, closed at interpreter exit: a zenoh session still holding Python callbacks
-#: when the interpreter finalises can deadlock the exit.
+#: Open transports, closed when the interpreter shuts down. zenoh-python runs every Python
+#: callback (a subscriber's, an observer's) on a non-daemon thread that lives until its session
+#: closes, and ``threading._shutdown`` joins those threads *before* ``atexit`` handlers run: a
+#: session left open would keep the process alive forever after ``main`` returns.
 _OPEN: weakref.WeakSet[Transport] = weakref.WeakSet()
 
+#: Liveliness events buffered between two reads of the server watch (servers come and go
+#: rarely; the oldest are dropped only after this many unread changes).
+_WATCH_CAPACITY = 4096
 
-@atexit.register
+
 def _close_all() -> None:
     for t in list(_OPEN):
         try:
             t.close()
         except Exception:  # noqa: BLE001 - best effort at exit
             pass
+
+
+# Runs inside threading._shutdown, before it joins the callback threads (concurrent.futures
+# relies on the same hook); plain atexit is the fallback where the hook is missing.
+_register_before_thread_join = getattr(threading, "_register_atexit", None)
+if _register_before_thread_join is not None:
+    _register_before_thread_join(_close_all)
+atexit.register(_close_all)
 
 
 class QueryFailed(SharedspaceError):
@@ -191,8 +204,12 @@ class Transport:
         self._token = self.session.liveliness().declare_token(
             f"{self.prefix}/trainer/{self.client_id}"
         )
+        # A channel drained on every read rather than a callback: a callback would cost every
+        # transport one more Python thread.
         self._watch = self.session.liveliness().declare_subscriber(
-            f"{self.prefix}/server/*/alive", self._on_alive, history=True
+            f"{self.prefix}/server/*/alive",
+            zenoh.handlers.RingChannel(_WATCH_CAPACITY),
+            history=True,
         )
         _OPEN.add(self)
 
@@ -206,28 +223,32 @@ class Transport:
     def key(self, *parts: str) -> str:
         return "/".join((self.prefix, *parts))
 
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        parts = str(sample.key_expr).split("/")
-        if len(parts) < 2:
+    def _drain_watch(self) -> None:
+        """Applies the liveliness changes received since the last read (caller holds the lock)."""
+        if self._closed:
             return
-        sid = parts[-2]
-        with self._lock:
+        while (sample := self._watch.try_recv()) is not None:
+            parts = str(sample.key_expr).split("/")
+            if len(parts) < 2:
+                continue
+            sid = parts[-2]
             if sample.kind == zenoh.SampleKind.PUT:
                 self._alive.add(sid)
                 self._lost.discard(sid)
             else:
                 self._alive.discard(sid)
                 self._lost.add(sid)
-        if sample.kind != zenoh.SampleKind.PUT:
-            log.info("sharedspace: server %s liveliness token gone", sid)
+                log.info("sharedspace: server %s liveliness token gone", sid)
 
     def is_alive(self, server_id: str) -> bool:
         """False once the server's liveliness token was seen disappearing."""
         with self._lock:
+            self._drain_watch()
             return server_id not in self._lost
 
     def alive_servers(self) -> set[str]:
         with self._lock:
+            self._drain_watch()
             return set(self._alive)
 
     # ----------------------------------------------------------------------------------------
@@ -306,6 +327,7 @@ class Transport:
                 break
             time.sleep(0.05)
         with self._lock:
+            self._drain_watch()
             lost = set(self._lost)
         out = [i for sid, i in infos.items() if sid not in lost]
         out.sort(key=lambda i: (server_load(i), str(i["server_id"])))
@@ -362,9 +384,10 @@ class Transport:
 
     def close(self) -> None:
         """Undeclares the trainer token (the server then reaps envs still open) and closes."""
-        if self._closed:
-            return
-        self._closed = True
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
         for obj in (self._watch, self._token):
             try:
                 obj.undeclare()
