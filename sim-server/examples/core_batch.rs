@@ -3,7 +3,7 @@
 use std::time::Instant;
 
 use protocol::{decode, encode, BatchStep, CreateEnv, EnvCreated, F32Array, KeySpace, Reply};
-use sim_core::params::WorldParams;
+use sim_server::params_file::{ModelParams, ParamsDoc};
 use sim_server::server::core::{Limits, ServerCore};
 use sim_server::server::env::Gates;
 use sim_server::server::pools::ServedPool;
@@ -20,7 +20,8 @@ fn main() {
         KeySpace::default(),
         Limits::default(),
         vec![ServedPool::new(scenarios::embedded::default_pool())],
-        WorldParams::default(),
+        // The parameters `sim-server serve` runs with by default (params/calibrated.json5).
+        ModelParams::from_doc(&ParamsDoc::shipped()).expect("shipped parameters are valid"),
     );
     let mut req = CreateEnv::new("c");
     req.autoreset = true;
