@@ -258,3 +258,50 @@ def test_no_server_error():
     e = NoServer("sharedspace/server/*/info", 5.0)
     assert e.endpoint == "sharedspace/server/*/info" and e.timeout == 5.0
     assert "5 s" in str(e) and isinstance(e, SharedspaceError)
+
+
+# --------------------------------------------------------------------------------------------
+# The client's hot-path reply decoder must agree with the careful generic one.
+
+
+def _same(a, b):
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (
+            isinstance(a, np.ndarray)
+            and isinstance(b, np.ndarray)
+            and a.dtype == b.dtype
+            and a.shape == b.shape
+            and np.array_equal(a, b)
+        )
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(map(_same, a, b))
+    return a == b
+
+
+@pytest.mark.parametrize("name", ["reply_step", "reply_reset", "reply_batch_step"])
+def test_client_decode_result_equals_codec_decode_reply(name):
+    from sharedspace.client import decode_result
+
+    payload = (GOLDEN / f"{name}.msgpack").read_bytes()
+    assert _same(decode_result(payload), codec.decode_reply(payload))
+
+
+@pytest.mark.parametrize(
+    "field, value, says",
+    [
+        ("reward", None, "expected a binary-array map"),
+        ("reward", {"dtype": "<f4", "shape": [1]}, "expected a binary-array map"),
+        ("reward", {"dtype": "<f4", "shape": [3], "data": b"\0" * 4}, "needs 12"),
+        ("terminated", {"dtype": "<i8", "shape": [1], "data": b"\0" * 8}, "unsupported dtype"),
+        ("reward", {"dtype": "<f4", "shape": [-1], "data": b""}, "non-negative"),
+    ],
+)
+def test_client_decode_result_names_a_malformed_array(field, value, says):
+    from sharedspace.client import decode_result
+
+    reply = msgpack.unpackb((GOLDEN / "reply_step.msgpack").read_bytes(), raw=False)
+    reply["ok"][field] = value
+    with pytest.raises(ProtocolError, match=says):
+        decode_result(msgpack.packb(reply, use_bin_type=True))
