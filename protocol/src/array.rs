@@ -81,8 +81,13 @@ macro_rules! impl_element {
             }
             #[inline]
             fn write_all_le(values: &[Self], out: &mut [u8]) {
-                for (c, v) in out.chunks_exact_mut($size).zip(values) {
-                    c.copy_from_slice(&v.to_le_bytes());
+                // Indexed within slices of exactly matching lengths: this form compiles to
+                // vector copies, a `chunks_exact_mut` zip to one element per iteration (5x the
+                // instructions on the batch reply's arrays).
+                let n = values.len().min(out.len() / $size);
+                let (values, out) = (&values[..n], &mut out[..n * $size]);
+                for (i, v) in values.iter().enumerate() {
+                    out[i * $size..(i + 1) * $size].copy_from_slice(&v.to_le_bytes());
                 }
             }
             #[inline]

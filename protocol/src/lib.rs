@@ -10,6 +10,8 @@
 //!   [`FloatArray`]).
 //! * [`codec`]: [`encode`] / [`decode`] (named-map MessagePack).
 //! * [`samples`]: the fixed example values behind the golden files in `tests/golden/`.
+//! * [`wire`]: direct writing of the batch-step reply from borrowed slices (same bytes as
+//!   [`encode`]).
 
 pub mod array;
 pub mod codec;
@@ -17,6 +19,7 @@ pub mod error;
 pub mod keys;
 pub mod messages;
 pub mod samples;
+pub mod wire;
 
 /// The protocol version. Bumped on every incompatible change (see `SPEC.md`, "Versioning").
 pub const PROTOCOL_VERSION: u32 = 1;

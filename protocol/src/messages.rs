@@ -612,6 +612,19 @@ impl BatchStep {
                 .with_env(id.clone()));
             }
         }
+        let rows = self.checked_action_rows(n_agents)?;
+        if n_agents == 0 {
+            return Ok(vec![Vec::new(); self.env_ids.len()]);
+        }
+        Ok(rows
+            .chunks(n_agents as usize)
+            .map(<[[f64; 2]]>::to_vec)
+            .collect())
+    }
+
+    /// [`BatchStep::checked_actions`] without the check for distinct env ids (for callers that
+    /// check that themselves): the `K * n_agents` rows, env by env, in one vector.
+    pub fn checked_action_rows(&self, n_agents: u32) -> Result<Vec<[f64; 2]>, ErrorReply> {
         let k = u32::try_from(self.env_ids.len())
             .map_err(|_| ErrorReply::new(ErrorCode::LimitExceeded, "too many env ids in batch"))?;
         if let Err(e) = self
@@ -625,7 +638,6 @@ impl BatchStep {
         }
         let values = self.actions.to_f64_vec();
         let per_env = (n_agents * ACTION_DIM) as usize;
-        let mut out = Vec::with_capacity(self.env_ids.len());
         for (env, chunk) in self.env_ids.iter().zip(values.chunks(per_env.max(1))) {
             if let Some(i) = chunk.iter().position(|v| !v.is_finite()) {
                 return Err(ErrorReply::new(
@@ -639,12 +651,8 @@ impl BatchStep {
                 )
                 .with_env(env.clone()));
             }
-            out.push(chunk.chunks_exact(2).map(|c| [c[0], c[1]]).collect());
         }
-        if per_env == 0 {
-            out = vec![Vec::new(); self.env_ids.len()];
-        }
-        Ok(out)
+        Ok(values.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
     }
 }
 

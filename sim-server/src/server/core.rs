@@ -11,11 +11,12 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use protocol::keys::{make_env_id, validate_env_id};
+use protocol::wire::{write_batch_env_info, write_batch_step_ok, BatchEnvInfoRef};
 use protocol::{
-    decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchEnvInfo, BatchStep,
-    BatchStepResult, Close, Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest,
-    KeySpace, Mode, ObsLayout, PedestrianModel as WireModel, Reply, Reset, ServerInfo,
-    Split as WireSplit, Step, PROTOCOL_VERSION,
+    decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
+    Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
+    PedestrianModel as WireModel, Reply, Reset, ServerInfo, Split as WireSplit, Step,
+    PROTOCOL_VERSION,
 };
 use serde::Serialize;
 use sim_core::params::{PedestrianModel, WorldParams};
@@ -234,6 +235,8 @@ pub struct ServerCore {
     reg: Mutex<Registry>,
     /// Most threads a large batch is stepped on.
     batch_threads: usize,
+    /// Step buffers of finished batches, for reuse (a K=256 batch's are ~200 KB).
+    scratch: Mutex<Vec<Buffers>>,
 }
 
 /// All but one of the available cores (the network runtime keeps one busy moving the
@@ -269,6 +272,7 @@ impl ServerCore {
             params: params.into(),
             reg: Mutex::new(Registry::default()),
             batch_threads: default_batch_threads(),
+            scratch: Mutex::new(Vec::new()),
         }
     }
 
@@ -356,6 +360,20 @@ impl ServerCore {
             )
         }
         .with_env(env_id.to_string()))
+    }
+
+    /// [`ServerCore::lookup`] of every id under one lock of the registry.
+    fn lookup_all(&self, env_ids: &[String]) -> Result<Vec<Arc<Mutex<Env>>>, ErrorReply> {
+        {
+            let reg = lock(&self.reg);
+            let found: Option<Vec<_>> =
+                env_ids.iter().map(|id| reg.envs.get(id).cloned()).collect();
+            if let Some(found) = found {
+                return Ok(found);
+            }
+        }
+        // Some id is unknown or closed: the first such gets its error as from a single lookup.
+        env_ids.iter().map(|id| self.lookup(id)).collect()
     }
 
     /// `CreateEnv` → `Reply<EnvCreated>`.
@@ -591,21 +609,9 @@ impl ServerCore {
     /// `BatchStep`.
     pub fn handle_batch(&self, payload: &[u8], gates: Gates) -> Response {
         let mut pubs = Vec::new();
-        let r = self.batch(payload, gates, &mut pubs);
-        // Encoded straight into a buffer of about the reply's size (the arrays dominate it).
-        let cap = r.as_ref().map_or(256, |b| {
-            let o = &b.obs;
-            1024 + o.features.as_le_bytes().len()
-                + o.adjacency.as_le_bytes().len()
-                + o.mask.as_le_bytes().len()
-                + o.node_ids.as_le_bytes().len()
-                + 8 * b.reward.as_le_bytes().len()
-                + 256 * b.env_ids.len()
-        });
-        let mut reply = Vec::with_capacity(cap);
-        if let Err(e) = rmp_serde::encode::write_named(&mut reply, &Reply::from(r)) {
-            panic!("{e}");
-        }
+        let reply = self
+            .batch(payload, gates, &mut pubs)
+            .unwrap_or_else(|e| reply_bytes::<BatchStepResult>(Err(e)));
         Response {
             reply,
             pubs,
@@ -613,12 +619,15 @@ impl ServerCore {
         }
     }
 
+    /// Steps a batch and writes its `Reply::Ok(BatchStepResult)` straight from the step
+    /// buffers (see [`protocol::wire`]): no owned arrays or per-env infos are built, which
+    /// halved the allocations and copies of a large batch.
     fn batch(
         &self,
         payload: &[u8],
         gates: Gates,
         pubs: &mut Vec<Publication>,
-    ) -> Result<BatchStepResult, ErrorReply> {
+    ) -> Result<Vec<u8>, ErrorReply> {
         let req: BatchStep = decode(payload).map_err(bad)?;
         let k = req.env_ids.len();
         if k == 0 {
@@ -644,10 +653,7 @@ impl ServerCore {
                 );
             }
         }
-        let mut handles = Vec::with_capacity(k);
-        for id in &req.env_ids {
-            handles.push(self.lookup(id)?);
-        }
+        let handles = self.lookup_all(&req.env_ids)?;
         // Lock in id order.
         let mut guards: Vec<Option<MutexGuard<'_, Env>>> = (0..k).map(|_| None).collect();
         for &i in &order {
@@ -685,7 +691,7 @@ impl ServerCore {
                 .with_env(env.id.clone()));
             }
         }
-        let actions = req.checked_actions(n_ext as u32)?;
+        let actions = req.checked_action_rows(n_ext as u32)?;
         for env in &envs {
             env.check_steppable(true)?;
         }
@@ -697,34 +703,43 @@ impl ServerCore {
             1
         };
         let chunk = k.div_ceil(threads);
-        let mut buf = Buffers::new(k, n_ext, m as usize);
+        let mut buf = self.take_buffers(k, n_ext, m as usize);
         let mut refs: Vec<&mut Env> = envs.iter_mut().map(|g| &mut **g).collect();
-        type Part = (Vec<BatchEnvInfo>, Vec<Publication>, Result<(), ErrorReply>);
-        let run = |envs: &mut [&mut Env], actions: &[Vec<[f64; 2]>], mut out: BufMut<'_>| -> Part {
-            let mut infos = Vec::with_capacity(envs.len());
+        // Per chunk: its envs' `BatchEnvInfo` maps, already encoded, and its publications.
+        type Part = (Vec<u8>, Vec<Publication>, Result<(), ErrorReply>);
+        let run = |envs: &mut [&mut Env], actions: &[[f64; 2]], mut out: BufMut<'_>| -> Part {
+            let mut infos = Vec::with_capacity(envs.len() * 128);
             let mut pubs = Vec::new();
-            for (i, env) in envs.iter_mut().enumerate() {
-                match env.step_into(&actions[i], &mut out.slots(i), gates, &mut pubs) {
-                    Ok(meta) => infos.push(BatchEnvInfo {
-                        episode: meta.episode,
-                        scenario: meta.scenario,
-                        step: meta.step,
-                        t: meta.t,
-                        info: meta.info,
-                        reset: meta.reset,
-                    }),
+            let rows = actions.chunks(n_ext.max(1));
+            for (i, (env, rows)) in envs.iter_mut().zip(rows).enumerate() {
+                let rows = if n_ext == 0 { &[][..] } else { rows };
+                match env.step_into(rows, &mut out.slots(i), gates, &mut pubs) {
+                    Ok(meta) => write_batch_env_info(
+                        &mut infos,
+                        &BatchEnvInfoRef {
+                            episode: meta.episode,
+                            scenario: env.scenario_name(meta.scenario),
+                            step: meta.step,
+                            t: meta.t,
+                            action_clipped: &meta.info.action_clipped,
+                            events: &meta.info.events,
+                            metrics: &meta.info.metrics,
+                            reset: meta.reset.as_ref(),
+                        },
+                    ),
                     Err(e) => return (infos, pubs, Err(e)),
                 }
             }
             (infos, pubs, Ok(()))
         };
+        let per_chunk = chunk * n_ext;
         let parts: Vec<Part> = if threads <= 1 {
             vec![run(&mut refs, &actions, buf.view())]
         } else {
             std::thread::scope(|sc| {
                 let mut work = refs
                     .chunks_mut(chunk)
-                    .zip(actions.chunks(chunk))
+                    .zip(actions.chunks(per_chunk.max(1)))
                     .zip(buf.view().chunks(k, chunk));
                 let ((e0, a0), o0) = work.next().expect("k >= 1");
                 let handles: Vec<_> = work
@@ -748,23 +763,43 @@ impl ServerCore {
             })
         };
         drop(refs);
-        let mut infos = Vec::with_capacity(k);
-        for (inf, p, r) in parts {
+        drop(envs);
+        let mut infos = Vec::new();
+        for (i, (inf, p, r)) in parts.into_iter().enumerate() {
             r?;
-            infos.extend(inf);
+            if i == 0 {
+                infos = inf;
+            } else {
+                infos.extend_from_slice(&inf);
+            }
             pubs.extend(p);
         }
-        drop(envs);
-        let (reward, reward_terms, terminated, truncated) = buf.rewards(true)?;
-        Ok(BatchStepResult {
-            env_ids: req.env_ids,
-            obs: buf.obs(true)?,
-            reward,
-            reward_terms,
-            terminated,
-            truncated,
-            envs: infos,
-        })
+        let arrays = buf.arrays();
+        let mut reply = Vec::with_capacity(
+            1024 + arrays.data_bytes()
+                + 16 * k
+                + req.env_ids.iter().map(String::len).sum::<usize>()
+                + infos.len(),
+        );
+        let written = write_batch_step_ok(&mut reply, &req.env_ids, &arrays, &infos);
+        self.return_buffers(buf);
+        written.map_err(Buffers::err)?;
+        Ok(reply)
+    }
+
+    /// Step buffers for a batch, reusing those of an earlier batch when there are any.
+    fn take_buffers(&self, k: usize, n_ext: usize, m: usize) -> Buffers {
+        let mut buf = lock(&self.scratch).pop().unwrap_or_default();
+        buf.resize(k, n_ext, m);
+        buf
+    }
+
+    fn return_buffers(&self, buf: Buffers) {
+        let mut pool = lock(&self.scratch);
+        // As many as batches ever ran at once; a few is plenty.
+        if pool.len() < 8 {
+            pool.push(buf);
+        }
     }
 
     /// Realtime action published on `{p}/env/{env_id}/action/{agent}`. Errors are for logging.

@@ -15,6 +15,8 @@ use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::{AgentKind, Split};
 use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, World};
 
+use protocol::wire::BatchArrays;
+
 use super::pools::{ScenarioSequence, ServedPool};
 
 /// Which publications somebody listens to (decided by the network layer from zenoh matching
@@ -190,24 +192,29 @@ impl<'a> BufMut<'a> {
         out
     }
 
-    /// Reborrowed slots of env `i` of this range.
+    /// Reborrowed slots of env `i` of this range (indexed directly: this runs once per env and
+    /// step, where splitting every buffer twice showed in profiles).
     pub fn slots(&mut self, i: usize) -> Slots<'_> {
-        let [t0, t1, t2, t3, t4] = &mut self.s.terms;
-        BufMut {
-            n_ext: self.n_ext,
-            m: self.m,
-            s: Slots {
-                features: self.s.features,
-                adjacency: self.s.adjacency,
-                mask: self.s.mask,
-                node_ids: self.s.node_ids,
-                reward: self.s.reward,
-                terms: [t0, t1, t2, t3, t4],
-                terminated: self.s.terminated,
-                truncated: self.s.truncated,
-            },
+        let [sf, sa, sm, se] = self.sizes();
+        let s = &mut self.s;
+        let [t0, t1, t2, t3, t4] = &mut s.terms;
+        let r = |n: usize| i * n..(i + 1) * n;
+        Slots {
+            features: &mut s.features[r(sf)],
+            adjacency: &mut s.adjacency[r(sa)],
+            mask: &mut s.mask[r(sm)],
+            node_ids: &mut s.node_ids[r(sm)],
+            reward: &mut s.reward[r(se)],
+            terms: [
+                &mut t0[r(se)],
+                &mut t1[r(se)],
+                &mut t2[r(se)],
+                &mut t3[r(se)],
+                &mut t4[r(se)],
+            ],
+            terminated: &mut s.terminated[r(se)],
+            truncated: &mut s.truncated[r(se)],
         }
-        .into_slots(i)
     }
 }
 
@@ -243,6 +250,45 @@ impl Buffers {
             terms: std::array::from_fn(|_| vec![0.0; e]),
             terminated: vec![0; e],
             truncated: vec![0; e],
+        }
+    }
+
+    /// Sizes the buffers for `k` envs with `n_ext` agents and `m` nodes, keeping their
+    /// allocations. Contents are unspecified afterwards: every step overwrites all of an env's
+    /// slots, so reused buffers need no clearing.
+    pub fn resize(&mut self, k: usize, n_ext: usize, m: usize) {
+        let f = N_FEATURES as usize;
+        let e = k * n_ext;
+        self.k = k;
+        self.n_ext = n_ext;
+        self.m = m;
+        self.features.resize(e * m * f, 0.0);
+        self.adjacency.resize(e * m * m, 0.0);
+        self.mask.resize(e * m, 0);
+        self.node_ids.resize(e * m, PAD_NODE_ID);
+        self.reward.resize(e, 0.0);
+        for t in &mut self.terms {
+            t.resize(e, 0.0);
+        }
+        self.terminated.resize(e, 0);
+        self.truncated.resize(e, 0);
+    }
+
+    /// Borrowed view of the arrays for writing a batch reply (see [`protocol::wire`]).
+    pub fn arrays(&self) -> BatchArrays<'_> {
+        let [t0, t1, t2, t3, t4] = &self.terms;
+        BatchArrays {
+            k: self.k as u32,
+            n_ext: self.n_ext as u32,
+            m: self.m as u32,
+            features: &self.features,
+            adjacency: &self.adjacency,
+            mask: &self.mask,
+            node_ids: &self.node_ids,
+            reward: &self.reward,
+            terms: [t0, t1, t2, t3, t4],
+            terminated: &self.terminated,
+            truncated: &self.truncated,
         }
     }
 
@@ -294,7 +340,7 @@ impl Buffers {
         s
     }
 
-    fn err(e: protocol::ArrayError) -> ErrorReply {
+    pub(crate) fn err(e: protocol::ArrayError) -> ErrorReply {
         ErrorReply::new(ErrorCode::Internal, format!("building arrays: {e}"))
     }
 
@@ -338,7 +384,8 @@ impl Buffers {
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepMeta {
     pub episode: u64,
-    pub scenario: String,
+    /// Index of the stepped episode's scenario in the env's pool (see [`Env::scenario_name`]).
+    pub scenario: usize,
     pub step: u32,
     pub t: f64,
     pub info: StepInfo,
@@ -360,6 +407,11 @@ pub struct Env {
     /// Realtime: held action and last applied sequence number per external agent.
     held: Vec<[f64; 2]>,
     held_seq: Vec<Option<u64>>,
+    /// Scratch for the actions of the active external agents of a step (kept to avoid an
+    /// allocation per step).
+    active: Vec<(AgentId, [f64; 2])>,
+    /// Scratch for the first observation of an episode (autoreset makes that frequent).
+    reset_obs: Buffers,
     pub closed: bool,
 }
 
@@ -415,6 +467,8 @@ impl Env {
             returns: vec![0.0; n],
             held: vec![[0.0; 2]; n],
             held_seq: vec![None; n],
+            active: Vec::with_capacity(n),
+            reset_obs: Buffers::default(),
             closed: false,
         }
     }
@@ -427,11 +481,9 @@ impl Env {
         self.world.as_ref()
     }
 
-    fn scenario_name(&self) -> String {
-        self.spec.pool.scenarios[self.scenario]
-            .scenario
-            .name
-            .clone()
+    /// The name of scenario `idx` of this env's pool (as in [`StepMeta::scenario`]).
+    pub fn scenario_name(&self, idx: usize) -> &str {
+        &self.spec.pool.scenarios[idx].scenario.name
     }
 
     /// Starts a new episode (`Reset`). Publications of the first state go to `pubs`.
@@ -525,7 +577,7 @@ impl Env {
         Ok(result)
     }
 
-    fn reset_result(&self) -> Result<ResetResult, ErrorReply> {
+    fn reset_result(&mut self) -> Result<ResetResult, ErrorReply> {
         let world = self.world.as_ref().expect("reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
         let mut agents: Vec<AgentDesc> = world
@@ -547,13 +599,12 @@ impl Env {
             })
             .collect();
         agents.sort_by_key(|a| a.id);
-        let mut buf = Buffers::new(1, self.spec.n_ext(), self.spec.max_agents as usize);
-        write_obs(
-            world,
-            &self.ext_ids,
-            self.spec.max_agents as usize,
-            &mut buf.slots(0),
-        );
+        let m = self.spec.max_agents as usize;
+        let mut buf = std::mem::take(&mut self.reset_obs);
+        buf.resize(1, self.spec.n_ext(), m);
+        write_obs(world, &self.ext_ids, m, &mut buf.slots(0));
+        let obs = buf.obs(false);
+        self.reset_obs = buf;
         Ok(ResetResult {
             env_id: self.id.clone(),
             episode: self.episode,
@@ -562,7 +613,7 @@ impl Env {
             t: 0.0,
             horizon_steps: world.horizon(),
             agents,
-            obs: buf.obs(false)?,
+            obs: obs?,
         })
     }
 
@@ -610,16 +661,16 @@ impl Env {
             .with_env(self.id.clone()));
         }
         let world = self.world.as_mut().expect("checked above");
-        let active: Vec<(AgentId, [f64; 2])> = world
-            .active_externals()
-            .filter_map(|id| {
-                self.ext_ids
+        let ext_ids = &self.ext_ids;
+        self.active.clear();
+        self.active
+            .extend(world.active_externals().filter_map(|id| {
+                ext_ids
                     .iter()
                     .position(|&x| x == id)
                     .map(|k| (id, actions[k]))
-            })
-            .collect();
-        let out = world.step(&active).map_err(|e| {
+            }));
+        let out = world.step(&self.active).map_err(|e| {
             let code = match e {
                 StepError::EpisodeOver => ErrorCode::NeedsReset,
                 StepError::NonFiniteAction { .. } => ErrorCode::NonFiniteAction,
@@ -694,7 +745,7 @@ impl Env {
             self.publish_state(gates, &events, pubs);
         }
         let meta_episode = self.episode;
-        let scenario = self.scenario_name();
+        let scenario = self.scenario;
         let reset = if over && self.spec.autoreset {
             Some(self.reset(None, None, gates, pubs)?)
         } else {
@@ -727,7 +778,7 @@ impl Env {
         Ok(StepResult {
             env_id: self.id.clone(),
             episode: meta.episode,
-            scenario: meta.scenario,
+            scenario: self.scenario_name(meta.scenario).to_string(),
             step: meta.step,
             t: meta.t,
             obs: buf.obs(false)?,

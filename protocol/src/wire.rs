@@ -1,0 +1,465 @@
+//! Direct MessagePack writing of the batch-step reply, the largest and most frequent message.
+//!
+//! [`encode`](crate::encode) of a `Reply<BatchStepResult>` needs the arrays as owned
+//! [`NdArray`](crate::NdArray)s (one copy of every element into little-endian bytes) and the
+//! per-env parts as owned [`BatchEnvInfo`](crate::BatchEnvInfo)s, and then copies everything
+//! once more into the output. The writers here take borrowed slices and write the same bytes
+//! straight into the output buffer: every function produces exactly what `rmp_serde`'s named
+//! encoding of the corresponding message produces (the tests compare the two byte for byte).
+
+use serde::Serialize;
+
+use crate::array::{shape_len, ArrayError, Element};
+use crate::messages::{EpisodeMetrics, Event, ResetResult};
+
+fn put_u8s(out: &mut Vec<u8>, marker: u8, bytes: &[u8]) {
+    out.push(marker);
+    out.extend_from_slice(bytes);
+}
+
+/// A MessagePack unsigned integer in its shortest form (as `rmp::encode::write_uint`).
+pub fn write_uint(out: &mut Vec<u8>, v: u64) {
+    if v < 128 {
+        out.push(v as u8);
+    } else if v <= u64::from(u8::MAX) {
+        put_u8s(out, 0xcc, &[v as u8]);
+    } else if v <= u64::from(u16::MAX) {
+        put_u8s(out, 0xcd, &(v as u16).to_be_bytes());
+    } else if v <= u64::from(u32::MAX) {
+        put_u8s(out, 0xce, &(v as u32).to_be_bytes());
+    } else {
+        put_u8s(out, 0xcf, &v.to_be_bytes());
+    }
+}
+
+/// A MessagePack float 64.
+pub fn write_f64(out: &mut Vec<u8>, v: f64) {
+    put_u8s(out, 0xcb, &v.to_be_bytes());
+}
+
+/// A MessagePack boolean.
+pub fn write_bool(out: &mut Vec<u8>, v: bool) {
+    out.push(if v { 0xc3 } else { 0xc2 });
+}
+
+/// A MessagePack string.
+pub fn write_str(out: &mut Vec<u8>, s: &str) {
+    let n = s.len();
+    if n < 32 {
+        out.push(0xa0 | n as u8);
+    } else if n <= usize::from(u8::MAX) {
+        put_u8s(out, 0xd9, &[n as u8]);
+    } else if n <= usize::from(u16::MAX) {
+        put_u8s(out, 0xda, &(n as u16).to_be_bytes());
+    } else {
+        put_u8s(out, 0xdb, &(n as u32).to_be_bytes());
+    }
+    out.extend_from_slice(s.as_bytes());
+}
+
+/// A MessagePack array header of `n` elements.
+pub fn write_array_len(out: &mut Vec<u8>, n: usize) {
+    if n < 16 {
+        out.push(0x90 | n as u8);
+    } else if n <= usize::from(u16::MAX) {
+        put_u8s(out, 0xdc, &(n as u16).to_be_bytes());
+    } else {
+        put_u8s(out, 0xdd, &(n as u32).to_be_bytes());
+    }
+}
+
+/// A MessagePack map header of `n` entries.
+pub fn write_map_len(out: &mut Vec<u8>, n: usize) {
+    if n < 16 {
+        out.push(0x80 | n as u8);
+    } else if n <= usize::from(u16::MAX) {
+        put_u8s(out, 0xde, &(n as u16).to_be_bytes());
+    } else {
+        put_u8s(out, 0xdf, &(n as u32).to_be_bytes());
+    }
+}
+
+fn write_bin_len(out: &mut Vec<u8>, n: usize) {
+    if n <= usize::from(u8::MAX) {
+        put_u8s(out, 0xc4, &[n as u8]);
+    } else if n <= usize::from(u16::MAX) {
+        put_u8s(out, 0xc5, &(n as u16).to_be_bytes());
+    } else {
+        put_u8s(out, 0xc6, &(n as u32).to_be_bytes());
+    }
+}
+
+/// Appends `value` with the named encoding of [`encode`](crate::encode).
+fn write_named<T: Serialize + ?Sized>(out: &mut Vec<u8>, value: &T) {
+    if let Err(e) = rmp_serde::encode::write_named(out, value) {
+        // Writing into a Vec cannot fail, and the message types serialize infallibly.
+        unreachable!("encoding into a Vec failed: {e}");
+    }
+}
+
+/// An array in the wire layout of [`NdArray`](crate::NdArray) (`{dtype, shape, data}`), written
+/// from row-major `values` of `shape`.
+pub fn write_array<T: Element>(
+    out: &mut Vec<u8>,
+    shape: &[u32],
+    values: &[T],
+) -> Result<(), ArrayError> {
+    let n = shape_len(shape)?;
+    if values.len() != n {
+        return Err(ArrayError::LengthMismatch {
+            dtype: T::DTYPE,
+            shape: shape.to_vec(),
+            expected: n,
+            expected_bytes: n.saturating_mul(T::SIZE),
+            actual_bytes: values.len().saturating_mul(T::SIZE),
+        });
+    }
+    let bytes = n
+        .checked_mul(T::SIZE)
+        .filter(|&b| u32::try_from(b).is_ok())
+        .ok_or_else(|| ArrayError::ShapeOverflow {
+            shape: shape.to_vec(),
+        })?;
+    write_map_len(out, 3);
+    write_str(out, "dtype");
+    write_str(out, T::DTYPE);
+    write_str(out, "shape");
+    write_array_len(out, shape.len());
+    for &d in shape {
+        write_uint(out, u64::from(d));
+    }
+    write_str(out, "data");
+    write_bin_len(out, bytes);
+    let start = out.len();
+    out.resize(start + bytes, 0);
+    T::write_all_le(values, &mut out[start..]);
+    Ok(())
+}
+
+/// The stacked arrays of a batch step result: `k` envs of `n_ext` agents with `m` nodes each,
+/// row-major with the env axis first.
+#[derive(Debug, Clone, Copy)]
+pub struct BatchArrays<'a> {
+    pub k: u32,
+    pub n_ext: u32,
+    pub m: u32,
+    pub features: &'a [f32],
+    pub adjacency: &'a [f32],
+    pub mask: &'a [u8],
+    pub node_ids: &'a [u32],
+    pub reward: &'a [f32],
+    /// progress, success, collision, danger, comfort.
+    pub terms: [&'a [f32]; 5],
+    pub terminated: &'a [u8],
+    pub truncated: &'a [u8],
+}
+
+impl BatchArrays<'_> {
+    /// Bytes of array data (a lower bound of the encoded size).
+    pub fn data_bytes(&self) -> usize {
+        4 * (self.features.len() + self.adjacency.len() + self.node_ids.len())
+            + self.mask.len()
+            + 4 * 6 * self.reward.len()
+            + 2 * self.terminated.len()
+    }
+}
+
+/// Writes a whole `Reply::Ok(BatchStepResult)`: `env_ids`, the arrays, and `envs`, which must be
+/// `env_ids.len()` entries already written with [`write_batch_env_info`], concatenated.
+/// Byte-identical to `encode(&Reply::Ok(result))` of the equivalent owned result.
+pub fn write_batch_step_ok(
+    out: &mut Vec<u8>,
+    env_ids: &[String],
+    a: &BatchArrays<'_>,
+    envs: &[u8],
+) -> Result<(), ArrayError> {
+    let (k, n, m, f) = (a.k, a.n_ext, a.m, crate::N_FEATURES);
+    write_map_len(out, 1);
+    write_str(out, "ok");
+    write_map_len(out, 7);
+    write_str(out, "env_ids");
+    write_array_len(out, env_ids.len());
+    for id in env_ids {
+        write_str(out, id);
+    }
+    write_str(out, "obs");
+    write_map_len(out, 4);
+    write_str(out, "features");
+    write_array(out, &[k, n, m, f], a.features)?;
+    write_str(out, "adjacency");
+    write_array(out, &[k, n, m, m], a.adjacency)?;
+    write_str(out, "mask");
+    write_array(out, &[k, n, m], a.mask)?;
+    write_str(out, "node_ids");
+    write_array(out, &[k, n, m], a.node_ids)?;
+    write_str(out, "reward");
+    write_array(out, &[k, n], a.reward)?;
+    write_str(out, "reward_terms");
+    write_map_len(out, 5);
+    for (name, t) in ["progress", "success", "collision", "danger", "comfort"]
+        .iter()
+        .zip(a.terms)
+    {
+        write_str(out, name);
+        write_array(out, &[k, n], t)?;
+    }
+    write_str(out, "terminated");
+    write_array(out, &[k, n], a.terminated)?;
+    write_str(out, "truncated");
+    write_array(out, &[k, n], a.truncated)?;
+    write_str(out, "envs");
+    write_array_len(out, env_ids.len());
+    out.extend_from_slice(envs);
+    Ok(())
+}
+
+/// The fields of one [`BatchEnvInfo`](crate::BatchEnvInfo), borrowed.
+#[derive(Debug, Clone, Copy)]
+pub struct BatchEnvInfoRef<'a> {
+    pub episode: u64,
+    pub scenario: &'a str,
+    pub step: u32,
+    pub t: f64,
+    pub action_clipped: &'a [bool],
+    pub events: &'a [Event],
+    pub metrics: &'a [EpisodeMetrics],
+    pub reset: Option<&'a ResetResult>,
+}
+
+/// Writes one `BatchEnvInfo` map (an element of `BatchStepResult::envs`).
+pub fn write_batch_env_info(out: &mut Vec<u8>, e: &BatchEnvInfoRef<'_>) {
+    write_map_len(out, 6);
+    write_str(out, "episode");
+    write_uint(out, e.episode);
+    write_str(out, "scenario");
+    write_str(out, e.scenario);
+    write_str(out, "step");
+    write_uint(out, u64::from(e.step));
+    write_str(out, "t");
+    write_f64(out, e.t);
+    write_str(out, "info");
+    write_map_len(out, 3);
+    write_str(out, "action_clipped");
+    write_array_len(out, e.action_clipped.len());
+    for &c in e.action_clipped {
+        write_bool(out, c);
+    }
+    write_str(out, "events");
+    if e.events.is_empty() {
+        write_array_len(out, 0);
+    } else {
+        write_named(out, e.events);
+    }
+    write_str(out, "metrics");
+    if e.metrics.is_empty() {
+        write_array_len(out, 0);
+    } else {
+        write_named(out, e.metrics);
+    }
+    write_str(out, "reset");
+    match e.reset {
+        None => out.push(0xc0),
+        Some(r) => write_named(out, r),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::messages::*;
+    use crate::{encode, F32Array, U32Array, U8Array};
+
+    fn sample_result(k: usize, n: usize, m: usize, with_extras: bool) -> BatchStepResult {
+        let f = N_FEATURES as usize;
+        let e = k * n;
+        let fl = |len: usize, s: f32| -> Vec<f32> {
+            (0..len).map(|i| (i as f32 * 0.37 + s).sin()).collect()
+        };
+        let sh = |rest: &[usize]| -> Vec<u32> {
+            std::iter::once(k as u32)
+                .chain(rest.iter().map(|&d| d as u32))
+                .collect()
+        };
+        let reset = crate::samples::reset_result();
+        BatchStepResult {
+            env_ids: (0..k)
+                .map(|i| format!("srv-{}", i * 1000 + i * 7))
+                .collect(),
+            obs: ObsBatch {
+                features: F32Array::new(sh(&[n, m, f]), &fl(e * m * f, 0.1)).unwrap(),
+                adjacency: F32Array::new(sh(&[n, m, m]), &fl(e * m * m, 0.2)).unwrap(),
+                mask: U8Array::new(sh(&[n, m]), &vec![1; e * m]).unwrap(),
+                node_ids: U32Array::new(
+                    sh(&[n, m]),
+                    &(0..e * m)
+                        .map(|i| {
+                            if i % 3 == 0 {
+                                PAD_NODE_ID
+                            } else {
+                                i as u32 * 977
+                            }
+                        })
+                        .collect::<Vec<_>>(),
+                )
+                .unwrap(),
+            },
+            reward: F32Array::new(sh(&[n]), &fl(e, 0.3)).unwrap(),
+            reward_terms: RewardTerms {
+                progress: F32Array::new(sh(&[n]), &fl(e, 0.4)).unwrap(),
+                success: F32Array::new(sh(&[n]), &fl(e, 0.5)).unwrap(),
+                collision: F32Array::new(sh(&[n]), &fl(e, 0.6)).unwrap(),
+                danger: F32Array::new(sh(&[n]), &fl(e, 0.7)).unwrap(),
+                comfort: F32Array::new(sh(&[n]), &fl(e, 0.8)).unwrap(),
+            },
+            terminated: U8Array::new(sh(&[n]), &vec![0; e]).unwrap(),
+            truncated: U8Array::new(sh(&[n]), &vec![1; e]).unwrap(),
+            envs: (0..k)
+                .map(|i| BatchEnvInfo {
+                    episode: (i as u64) << (i % 40),
+                    scenario: "s".repeat(i % 300),
+                    step: (i as u32).wrapping_mul(2_654_435_761),
+                    t: i as f64 * 0.1,
+                    info: StepInfo {
+                        action_clipped: (0..n).map(|a| (a + i) % 2 == 0).collect(),
+                        events: if with_extras && i % 2 == 0 {
+                            vec![Event {
+                                kind: EventKind::EpisodeEnd,
+                                step: 3,
+                                t: 0.3,
+                                agents: vec![1, 2],
+                                outcome: Some(Outcome::Collision),
+                            }]
+                        } else {
+                            Vec::new()
+                        },
+                        metrics: if with_extras && i % 3 == 0 {
+                            vec![EpisodeMetrics {
+                                agent: "vehicle_0".into(),
+                                outcome: Outcome::Timeout,
+                                steps: 40,
+                                duration: 4.0,
+                                episode_return: -1.5,
+                                avg_speed: 3.0,
+                                avg_abs_jerk: 0.2,
+                                max_abs_acc: 1.1,
+                            }]
+                        } else {
+                            Vec::new()
+                        },
+                    },
+                    reset: (with_extras && i % 4 == 1).then(|| reset.clone()),
+                })
+                .collect(),
+        }
+    }
+
+    fn direct(r: &BatchStepResult) -> Vec<u8> {
+        let mut envs = Vec::new();
+        for e in &r.envs {
+            write_batch_env_info(
+                &mut envs,
+                &BatchEnvInfoRef {
+                    episode: e.episode,
+                    scenario: &e.scenario,
+                    step: e.step,
+                    t: e.t,
+                    action_clipped: &e.info.action_clipped,
+                    events: &e.info.events,
+                    metrics: &e.info.metrics,
+                    reset: e.reset.as_ref(),
+                },
+            );
+        }
+        let (o, t) = (&r.obs, &r.reward_terms);
+        let shape = o.features.shape();
+        let (features, adjacency, mask, node_ids) = (
+            o.features.to_vec(),
+            o.adjacency.to_vec(),
+            o.mask.to_vec(),
+            o.node_ids.to_vec(),
+        );
+        let terms: Vec<Vec<f32>> = [&t.progress, &t.success, &t.collision, &t.danger, &t.comfort]
+            .iter()
+            .map(|a| a.to_vec())
+            .collect();
+        let (reward, terminated, truncated) = (
+            r.reward.to_vec(),
+            r.terminated.to_vec(),
+            r.truncated.to_vec(),
+        );
+        let a = BatchArrays {
+            k: shape[0],
+            n_ext: shape[1],
+            m: shape[2],
+            features: &features,
+            adjacency: &adjacency,
+            mask: &mask,
+            node_ids: &node_ids,
+            reward: &reward,
+            terms: [&terms[0], &terms[1], &terms[2], &terms[3], &terms[4]],
+            terminated: &terminated,
+            truncated: &truncated,
+        };
+        let mut out = Vec::new();
+        write_batch_step_ok(&mut out, &r.env_ids, &a, &envs).unwrap();
+        out
+    }
+
+    #[test]
+    fn batch_reply_is_byte_identical_to_the_serde_encoding() {
+        // Sizes that cross every MessagePack length class used: fix/8/16/32-bit bin and
+        // array lengths, long scenario names, large episode and step numbers.
+        for (k, n, m, extras) in [
+            (1, 1, 1, false),
+            (1, 1, 8, true),
+            (3, 2, 8, true),
+            (17, 1, 8, true),
+            (300, 1, 8, true),
+            (64, 3, 20, false),
+        ] {
+            let r = sample_result(k, n, m, extras);
+            let want = encode(&Reply::Ok(r.clone()));
+            assert_eq!(direct(&r), want, "k={k} n={n} m={m}");
+        }
+    }
+
+    #[test]
+    fn golden_batch_sample_is_reproduced() {
+        let r = crate::samples::batch_step_result();
+        assert_eq!(direct(&r), encode(&Reply::Ok(r.clone())));
+    }
+
+    #[test]
+    fn integers_and_strings_match_rmp() {
+        for v in [
+            0u64,
+            1,
+            127,
+            128,
+            255,
+            256,
+            65535,
+            65536,
+            u64::from(u32::MAX),
+            u64::from(u32::MAX) + 1,
+            u64::MAX,
+        ] {
+            let mut out = Vec::new();
+            write_uint(&mut out, v);
+            assert_eq!(out, encode(&v), "{v}");
+        }
+        for len in [0, 31, 32, 255, 256, 65535, 65536] {
+            let s = "x".repeat(len);
+            let mut out = Vec::new();
+            write_str(&mut out, &s);
+            assert_eq!(out, encode(&s), "{len}");
+        }
+    }
+
+    #[test]
+    fn wrong_lengths_are_errors() {
+        let mut out = Vec::new();
+        assert!(write_array::<f32>(&mut out, &[2, 2], &[1.0; 3]).is_err());
+        assert!(write_array::<u8>(&mut out, &[u32::MAX, u32::MAX, u32::MAX], &[]).is_err());
+    }
+}
