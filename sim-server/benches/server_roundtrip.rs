@@ -66,6 +66,74 @@ where
 
 const T: Duration = Duration::from_secs(30);
 
+/// Per thread name (numbered suffixes merged, e.g. `rx-0` and `rx-1` into `rx`): seconds on a
+/// CPU and seconds runnable but waiting for one, summed over this process's threads.
+fn threads_sched() -> std::collections::BTreeMap<String, (f64, f64)> {
+    let mut out = std::collections::BTreeMap::new();
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return out;
+    };
+    for t in dir.flatten() {
+        let p = t.path();
+        let (Ok(comm), Ok(stat)) = (
+            std::fs::read_to_string(p.join("comm")),
+            std::fs::read_to_string(p.join("schedstat")),
+        ) else {
+            continue;
+        };
+        let name = comm.trim().trim_end_matches(|c: char| c.is_ascii_digit());
+        let name = name.trim_end_matches('-').to_string();
+        let mut f = stat
+            .split_whitespace()
+            .map(|v| v.parse::<f64>().unwrap_or(0.0));
+        let (run, wait) = (f.next().unwrap_or(0.0), f.next().unwrap_or(0.0));
+        let e = out.entry(name).or_insert((0.0, 0.0));
+        e.0 += run * 1e-9;
+        e.1 += wait * 1e-9;
+    }
+    out
+}
+
+/// `after - before` of [`threads_sched`] per call, as "name on-CPU/waiting" in microseconds,
+/// for threads that used at least 1 us per call.
+fn threads_delta(
+    before: &std::collections::BTreeMap<String, (f64, f64)>,
+    after: &std::collections::BTreeMap<String, (f64, f64)>,
+    calls: u64,
+) -> String {
+    let mut parts = Vec::new();
+    for (name, a) in after {
+        let b = before.get(name).copied().unwrap_or((0.0, 0.0));
+        let (run, wait) = (
+            (a.0 - b.0) / calls as f64 * 1e6,
+            (a.1 - b.1) / calls as f64 * 1e6,
+        );
+        if run >= 1.0 {
+            parts.push(format!("{name} {run:.0}/{wait:.0}"));
+        }
+    }
+    parts.join(", ")
+}
+
+/// CPU seconds used so far by all threads of this process (`/proc/self/stat`, in clock ticks
+/// of 10 ms: meaningful over a measurement of a second or more).
+fn process_cpu() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// This thread's (time on a CPU, time runnable but waiting for one) so far, in seconds, from
+/// Linux's `/proc/thread-self/schedstat`: tells a slower computation from one that waited.
+fn thread_sched() -> Option<(f64, f64)> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let mut f = s.split_whitespace().map(|v| v.parse::<f64>().ok());
+    Some((f.next()?? * 1e-9, f.next()?? * 1e-9))
+}
+
 fn main() {
     let secs: f64 = std::env::args()
         .skip(1)
@@ -195,6 +263,7 @@ async fn bench(secs: f64) {
         });
         let key = c.keys().batch_step("bench").unwrap();
         let reply_len = c.raw(&key, b.clone()).await.unwrap().len();
+        let th0 = threads_sched();
         let (t_srv, n_srv) = time_it(secs, || {
             let c = &c;
             let k = key.clone();
@@ -204,10 +273,15 @@ async fn bench(secs: f64) {
             }
         })
         .await;
+        let th_srv = threads_delta(&th0, &threads_sched(), n_srv + 50);
+        let th0 = threads_sched();
         let (t_bare, n_bare) = time_it(secs, bare_call(b.len(), reply_len)).await;
+        let th_bare = threads_delta(&th0, &threads_sched(), n_bare + 50);
         // The same batch through the pure core alone (no zenoh): where the time goes.
         let core = server.core().clone();
-        let (t_core, _) = time_it(secs.min(1.0), || {
+        let s0 = thread_sched();
+        let p0 = process_cpu();
+        let (t_core, n_core) = time_it(secs.min(1.0), || {
             let core = core.clone();
             let p = b.clone();
             async move {
@@ -216,8 +290,19 @@ async fn bench(secs: f64) {
             }
         })
         .await;
+        // Per measured batch (the warm-up's 50 included in the count).
+        let n = (n_core + 50) as f64;
+        let sched = match (s0, thread_sched(), p0, process_cpu()) {
+            (Some(a), Some(b), Some(p0), Some(p1)) => format!(
+                " (on CPU {:.1} us, waiting for a CPU {:.1} us; all threads of the process {:.1} us CPU)",
+                (b.0 - a.0) / n * 1e6,
+                (b.1 - a.1) / n * 1e6,
+                (p1 - p0) / n * 1e6
+            ),
+            _ => String::new(),
+        };
         println!(
-            "batch K={k:>3}: core alone (decode, step, observe, encode) {:.1} us/batch = {:.0} env-steps/s",
+            "batch K={k:>3}: core alone (decode, step, observe, encode) {:.1} us/batch = {:.0} env-steps/s{sched}",
             t_core * 1e6,
             k as f64 / t_core
         );
@@ -231,6 +316,7 @@ async fn bench(secs: f64) {
             reply_len,
             t_srv / t_bare
         );
+        println!("batch K={k:>3}: per call, us on CPU/waiting for one, by thread: server: {th_srv}; bare: {th_bare}");
         rows.push(
             json!({"case": format!("batch{k}"), "k": k, "server_us": t_srv * 1e6,
             "bare_us": t_bare * 1e6, "ratio": t_srv / t_bare, "env_steps_per_s": rate,

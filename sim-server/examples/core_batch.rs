@@ -15,7 +15,7 @@ fn main() {
         .collect();
     let k = args.first().copied().unwrap_or(256);
     let iters = args.get(1).copied().unwrap_or(200);
-    let core = ServerCore::new(
+    let mut core = ServerCore::new(
         "bench".into(),
         KeySpace::default(),
         Limits::default(),
@@ -23,6 +23,13 @@ fn main() {
         // The parameters `sim-server serve` runs with by default (params/calibrated.json5).
         ModelParams::from_doc(&ParamsDoc::shipped()).expect("shipped parameters are valid"),
     );
+    // CORE_BATCH_THREADS=N: step large batches on up to N threads (default: the server's).
+    if let Some(n) = std::env::var("CORE_BATCH_THREADS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        core.set_batch_threads(n);
+    }
     let mut req = CreateEnv::new("c");
     req.autoreset = true;
     req.count = k as u32;
@@ -49,6 +56,23 @@ fn main() {
         }
         std::fs::write(path, all).unwrap();
         return;
+    }
+    // CORE_BATCH_WARM_THREAD=N: N batches first on another thread, as when a server's runtime
+    // workers stepped the envs before (their worlds then live in that thread's malloc arena).
+    let warm: usize = std::env::var("CORE_BATCH_WARM_THREAD")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    let core = std::sync::Arc::new(core);
+    if warm > 0 {
+        let (core, b) = (core.clone(), b.clone());
+        std::thread::spawn(move || {
+            for _ in 0..warm {
+                core.handle_batch(&b, Gates::NONE);
+            }
+        })
+        .join()
+        .unwrap();
     }
     let measure = move || {
         for _ in 0..20 {
