@@ -10,7 +10,7 @@
 use serde::Serialize;
 
 use crate::array::{shape_len, ArrayError, Element};
-use crate::messages::{EpisodeMetrics, Event, ResetResult};
+use crate::messages::{AgentKind, EpisodeMetrics, Event, ResetResult};
 
 fn put_u8s(out: &mut Vec<u8>, marker: u8, bytes: &[u8]) {
     out.push(marker);
@@ -130,9 +130,16 @@ pub fn write_array<T: Element>(
     }
     write_str(out, "data");
     write_bin_len(out, bytes);
-    let start = out.len();
-    out.resize(start + bytes, 0);
-    T::write_all_le(values, &mut out[start..]);
+    // Through a small stack buffer rather than `resize` + overwrite, so the output is written
+    // once instead of zeroed first.
+    out.reserve(bytes);
+    const CHUNK: usize = 1024;
+    let mut tmp = [0u8; CHUNK];
+    for part in values.chunks(CHUNK / T::SIZE) {
+        let n = part.len() * T::SIZE;
+        T::write_all_le(part, &mut tmp[..n]);
+        out.extend_from_slice(&tmp[..n]);
+    }
     Ok(())
 }
 
@@ -213,7 +220,7 @@ pub fn write_batch_step_ok(
     Ok(())
 }
 
-/// The fields of one [`BatchEnvInfo`](crate::BatchEnvInfo), borrowed.
+/// The fields of one [`BatchEnvInfo`](crate::BatchEnvInfo), borrowed, but for `reset`.
 #[derive(Debug, Clone, Copy)]
 pub struct BatchEnvInfoRef<'a> {
     pub episode: u64,
@@ -223,44 +230,149 @@ pub struct BatchEnvInfoRef<'a> {
     pub action_clipped: &'a [bool],
     pub events: &'a [Event],
     pub metrics: &'a [EpisodeMetrics],
-    pub reset: Option<&'a ResetResult>,
 }
 
 /// Writes one `BatchEnvInfo` map (an element of `BatchStepResult::envs`).
-pub fn write_batch_env_info(out: &mut Vec<u8>, e: &BatchEnvInfoRef<'_>) {
-    write_map_len(out, 6);
-    write_str(out, "episode");
+pub fn write_batch_env_info(
+    out: &mut Vec<u8>,
+    e: &BatchEnvInfoRef<'_>,
+    reset: Option<&ResetResult>,
+) {
+    write_batch_env_info_head(out, e);
+    match reset {
+        None => write_nil(out),
+        Some(r) => write_named(out, r),
+    }
+}
+
+/// [`write_batch_env_info`] up to the value of its last field, `reset`, which the caller
+/// writes next: [`write_nil`], or a `ResetResult` (e.g. with [`write_reset_result`]).
+pub fn write_batch_env_info_head(out: &mut Vec<u8>, e: &BatchEnvInfoRef<'_>) {
+    // The constant runs of map headers and keys are pre-encoded (this runs once per env and
+    // step); the tests check them against the serde encoding.
+    out.extend_from_slice(b"\x86\xa7episode");
     write_uint(out, e.episode);
-    write_str(out, "scenario");
+    out.extend_from_slice(b"\xa8scenario");
     write_str(out, e.scenario);
-    write_str(out, "step");
+    out.extend_from_slice(b"\xa4step");
     write_uint(out, u64::from(e.step));
-    write_str(out, "t");
+    out.extend_from_slice(b"\xa1t");
     write_f64(out, e.t);
-    write_str(out, "info");
-    write_map_len(out, 3);
-    write_str(out, "action_clipped");
+    out.extend_from_slice(b"\xa4info\x83\xaeaction_clipped");
     write_array_len(out, e.action_clipped.len());
     for &c in e.action_clipped {
         write_bool(out, c);
     }
-    write_str(out, "events");
+    out.extend_from_slice(b"\xa6events");
     if e.events.is_empty() {
         write_array_len(out, 0);
     } else {
         write_named(out, e.events);
     }
-    write_str(out, "metrics");
+    out.extend_from_slice(b"\xa7metrics");
     if e.metrics.is_empty() {
         write_array_len(out, 0);
     } else {
         write_named(out, e.metrics);
     }
-    write_str(out, "reset");
-    match e.reset {
-        None => out.push(0xc0),
-        Some(r) => write_named(out, r),
+    out.extend_from_slice(b"\xa5reset");
+}
+
+/// MessagePack nil (an absent optional value).
+pub fn write_nil(out: &mut Vec<u8>) {
+    out.push(0xc0);
+}
+
+fn write_opt_f64(out: &mut Vec<u8>, v: Option<f64>) {
+    match v {
+        None => write_nil(out),
+        Some(v) => write_f64(out, v),
     }
+}
+
+/// The fields of one [`AgentDesc`](crate::AgentDesc), borrowed.
+#[derive(Debug, Clone, Copy)]
+pub struct AgentDescRef<'a> {
+    pub id: u32,
+    pub name: &'a str,
+    pub kind: AgentKind,
+    pub external: bool,
+    pub radius: f64,
+    pub length: Option<f64>,
+    pub width: Option<f64>,
+}
+
+/// One env's observation arrays (`[n_ext, m, F]`, `[n_ext, m, m]`, `[n_ext, m]`, `[n_ext, m]`).
+#[derive(Debug, Clone, Copy)]
+pub struct ObsRef<'a> {
+    pub n_ext: u32,
+    pub m: u32,
+    pub features: &'a [f32],
+    pub adjacency: &'a [f32],
+    pub mask: &'a [u8],
+    pub node_ids: &'a [u32],
+}
+
+/// The fields of a [`ResetResult`], borrowed (`step` and `t` are always 0).
+#[derive(Debug, Clone, Copy)]
+pub struct ResetResultRef<'a> {
+    pub env_id: &'a str,
+    pub episode: u64,
+    pub scenario: &'a str,
+    pub horizon_steps: u32,
+    /// In id order, as in `ResetResult::agents`.
+    pub agents: &'a [AgentDescRef<'a>],
+    pub obs: ObsRef<'a>,
+}
+
+/// Writes a `ResetResult` map, byte-identical to its serde encoding.
+pub fn write_reset_result(out: &mut Vec<u8>, r: &ResetResultRef<'_>) -> Result<(), ArrayError> {
+    out.extend_from_slice(b"\x88\xa6env_id");
+    write_str(out, r.env_id);
+    out.extend_from_slice(b"\xa7episode");
+    write_uint(out, r.episode);
+    out.extend_from_slice(b"\xa8scenario");
+    write_str(out, r.scenario);
+    // "step": 0, "t": 0.0
+    out.extend_from_slice(b"\xa4step\x00\xa1t");
+    write_f64(out, 0.0);
+    out.extend_from_slice(b"\xadhorizon_steps");
+    write_uint(out, u64::from(r.horizon_steps));
+    out.extend_from_slice(b"\xa6agents");
+    write_array_len(out, r.agents.len());
+    for a in r.agents {
+        out.extend_from_slice(b"\x87\xa2id");
+        write_uint(out, u64::from(a.id));
+        out.extend_from_slice(b"\xa4name");
+        write_str(out, a.name);
+        out.extend_from_slice(b"\xa4kind");
+        write_str(
+            out,
+            match a.kind {
+                AgentKind::Vehicle => "vehicle",
+                AgentKind::Pedestrian => "pedestrian",
+            },
+        );
+        out.extend_from_slice(b"\xa8external");
+        write_bool(out, a.external);
+        out.extend_from_slice(b"\xa6radius");
+        write_f64(out, a.radius);
+        out.extend_from_slice(b"\xa6length");
+        write_opt_f64(out, a.length);
+        out.extend_from_slice(b"\xa5width");
+        write_opt_f64(out, a.width);
+    }
+    let o = &r.obs;
+    let (n, m) = (o.n_ext, o.m);
+    out.extend_from_slice(b"\xa3obs\x84\xa8features");
+    write_array(out, &[n, m, crate::N_FEATURES], o.features)?;
+    out.extend_from_slice(b"\xa9adjacency");
+    write_array(out, &[n, m, m], o.adjacency)?;
+    out.extend_from_slice(b"\xa4mask");
+    write_array(out, &[n, m], o.mask)?;
+    out.extend_from_slice(b"\xa8node_ids");
+    write_array(out, &[n, m], o.node_ids)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -356,19 +468,23 @@ mod tests {
     fn direct(r: &BatchStepResult) -> Vec<u8> {
         let mut envs = Vec::new();
         for e in &r.envs {
-            write_batch_env_info(
-                &mut envs,
-                &BatchEnvInfoRef {
-                    episode: e.episode,
-                    scenario: &e.scenario,
-                    step: e.step,
-                    t: e.t,
-                    action_clipped: &e.info.action_clipped,
-                    events: &e.info.events,
-                    metrics: &e.info.metrics,
-                    reset: e.reset.as_ref(),
-                },
-            );
+            let info = BatchEnvInfoRef {
+                episode: e.episode,
+                scenario: &e.scenario,
+                step: e.step,
+                t: e.t,
+                action_clipped: &e.info.action_clipped,
+                events: &e.info.events,
+                metrics: &e.info.metrics,
+            };
+            match &e.reset {
+                // Both ways of writing the reset result.
+                Some(r) if e.step % 2 == 0 => {
+                    write_batch_env_info_head(&mut envs, &info);
+                    write_reset_result(&mut envs, &reset_ref(r).as_ref()).unwrap();
+                }
+                r => write_batch_env_info(&mut envs, &info, r.as_ref()),
+            }
         }
         let (o, t) = (&r.obs, &r.reward_terms);
         let shape = o.features.shape();
@@ -403,6 +519,84 @@ mod tests {
         let mut out = Vec::new();
         write_batch_step_ok(&mut out, &r.env_ids, &a, &envs).unwrap();
         out
+    }
+
+    /// Owned parts of a [`ResetResultRef`].
+    struct ResetParts {
+        r: ResetResult,
+        features: Vec<f32>,
+        adjacency: Vec<f32>,
+        mask: Vec<u8>,
+        node_ids: Vec<u32>,
+    }
+
+    impl ResetParts {
+        fn as_ref(&self) -> ResetResultRef<'_> {
+            // Leaked: test-only, keeps the borrow simple.
+            let agents: &'static [AgentDescRef<'static>] = Box::leak(
+                self.r
+                    .agents
+                    .iter()
+                    .map(|a| AgentDescRef {
+                        id: a.id,
+                        name: Box::leak(a.name.clone().into_boxed_str()),
+                        kind: a.kind,
+                        external: a.external,
+                        radius: a.radius,
+                        length: a.length,
+                        width: a.width,
+                    })
+                    .collect::<Vec<_>>()
+                    .into_boxed_slice(),
+            );
+            let shape = self.r.obs.features.shape();
+            ResetResultRef {
+                env_id: &self.r.env_id,
+                episode: self.r.episode,
+                scenario: &self.r.scenario,
+                horizon_steps: self.r.horizon_steps,
+                agents,
+                obs: ObsRef {
+                    n_ext: shape[0],
+                    m: shape[1],
+                    features: &self.features,
+                    adjacency: &self.adjacency,
+                    mask: &self.mask,
+                    node_ids: &self.node_ids,
+                },
+            }
+        }
+    }
+
+    fn reset_ref(r: &ResetResult) -> ResetParts {
+        ResetParts {
+            r: r.clone(),
+            features: r.obs.features.to_vec(),
+            adjacency: r.obs.adjacency.to_vec(),
+            mask: r.obs.mask.to_vec(),
+            node_ids: r.obs.node_ids.to_vec(),
+        }
+    }
+
+    #[test]
+    fn reset_result_is_byte_identical_to_the_serde_encoding() {
+        let mut r = crate::samples::reset_result();
+        for round in 0..3 {
+            let mut out = Vec::new();
+            write_reset_result(&mut out, &reset_ref(&r).as_ref()).unwrap();
+            assert_eq!(out, encode(&r), "round {round}");
+            // Longer names, more agents, large numbers.
+            r.env_id = format!("{}-{}", r.env_id, "x".repeat(40));
+            r.episode = r.episode * 1000 + 77_777;
+            r.horizon_steps = r.horizon_steps * 300 + 1;
+            let mut more = r.agents.clone();
+            for a in &mut more {
+                a.id += 1000 * (round + 1);
+                a.name = format!("{}_{}", a.name, "n".repeat(30));
+                a.length = a.length.or(Some(4.5));
+            }
+            r.agents.extend(more);
+        }
     }
 
     #[test]

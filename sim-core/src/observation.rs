@@ -4,6 +4,8 @@
 //! Node 0 is the ego agent. The other nodes are the agents inside its perception radius, nearest
 //! (by clearance, then by id) first; agents beyond `max_agents - 1` of them are left out.
 
+use std::cell::RefCell;
+
 use crate::geometry::Vec2;
 use crate::risk;
 use crate::scenario::AgentKind;
@@ -27,6 +29,14 @@ pub const FEATURE_NAMES: [&str; NODE_FEATURES] = [
     "goal_dy",
     "goal_dist",
 ];
+
+thread_local! {
+    /// The nearest-agent list and node slots of [`World::fill_observation`], kept per thread:
+    /// an observation is filled per external agent and step, two allocations each otherwise.
+    #[allow(clippy::type_complexity)]
+    static SCRATCH: RefCell<(Vec<(f64, AgentId, usize)>, Vec<usize>)> =
+        const { RefCell::new((Vec::new(), Vec::new())) };
+}
 
 /// Why an observation could not be written.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -110,13 +120,41 @@ impl World {
         let Some(ego_slot) = self.slot_of(ego) else {
             return Ok(false);
         };
-        let mut near: Vec<(f64, AgentId, usize)> = self
-            .out_edges(ego_slot)
-            .map(|e| (e.clearance, e.target, e.target_slot as usize))
-            .collect();
-        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        SCRATCH.with(|scratch| {
+            let mut scratch = scratch.borrow_mut();
+            let (near, slots) = &mut *scratch;
+            self.fill_nodes(
+                (ego, ego_slot),
+                max_agents,
+                (features, adjacency, mask),
+                node_ids,
+                near,
+                slots,
+            );
+        });
+        Ok(true)
+    }
+
+    /// The part of [`World::fill_observation_impl`] after the checks, with the scratch vectors.
+    fn fill_nodes(
+        &self,
+        (ego, ego_slot): (AgentId, usize),
+        max_agents: usize,
+        (features, adjacency, mask): (&mut [f32], &mut [f32], &mut [u8]),
+        node_ids: Option<&mut [AgentId]>,
+        near: &mut Vec<(f64, AgentId, usize)>,
+        slots: &mut Vec<usize>,
+    ) {
+        near.clear();
+        near.extend(
+            self.out_edges(ego_slot)
+                .map(|e| (e.clearance, e.target, e.target_slot as usize)),
+        );
+        // Entries with equal (clearance, id) are equal (the id fixes the slot), so an unstable
+        // sort, which needs no allocation, orders them as a stable one would.
+        near.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         near.truncate(max_agents - 1);
-        let mut slots = Vec::with_capacity(near.len() + 1);
+        slots.clear();
         slots.push(ego_slot);
         slots.extend(near.iter().map(|n| n.2));
 
@@ -158,6 +196,5 @@ impl World {
                 }
             }
         }
-        Ok(true)
     }
 }

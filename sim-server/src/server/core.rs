@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use protocol::keys::{make_env_id, validate_env_id};
-use protocol::wire::{write_batch_env_info, write_batch_step_ok, BatchEnvInfoRef};
+use protocol::wire::{write_batch_env_info_head, write_batch_step_ok, write_nil, BatchEnvInfoRef};
 use protocol::{
     decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
     Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
@@ -713,21 +713,26 @@ impl ServerCore {
             let rows = actions.chunks(n_ext.max(1));
             for (i, (env, rows)) in envs.iter_mut().zip(rows).enumerate() {
                 let rows = if n_ext == 0 { &[][..] } else { rows };
-                match env.step_into(rows, &mut out.slots(i), gates, &mut pubs) {
-                    Ok(meta) => write_batch_env_info(
-                        &mut infos,
-                        &BatchEnvInfoRef {
-                            episode: meta.episode,
-                            scenario: env.scenario_name(meta.scenario),
-                            step: meta.step,
-                            t: meta.t,
-                            action_clipped: &meta.info.action_clipped,
-                            events: &meta.info.events,
-                            metrics: &meta.info.metrics,
-                            reset: meta.reset.as_ref(),
-                        },
-                    ),
+                let meta = match env.step_into(rows, &mut out.slots(i), gates, &mut pubs) {
+                    Ok(meta) => meta,
                     Err(e) => return (infos, pubs, Err(e)),
+                };
+                write_batch_env_info_head(
+                    &mut infos,
+                    &BatchEnvInfoRef {
+                        episode: meta.episode,
+                        scenario: env.scenario_name(meta.scenario),
+                        step: meta.step,
+                        t: meta.t,
+                        action_clipped: env.action_clipped(),
+                        events: &meta.events,
+                        metrics: &meta.metrics,
+                    },
+                );
+                if !meta.reset {
+                    write_nil(&mut infos);
+                } else if let Err(e) = env.write_reset_result(&mut infos) {
+                    return (infos, pubs, Err(e));
                 }
             }
             (infos, pubs, Ok(()))

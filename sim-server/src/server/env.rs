@@ -15,7 +15,7 @@ use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::{AgentKind, Split};
 use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, World};
 
-use protocol::wire::BatchArrays;
+use protocol::wire::{self, AgentDescRef, BatchArrays, ObsRef, ResetResultRef};
 
 use super::pools::{ScenarioSequence, ServedPool};
 
@@ -388,8 +388,12 @@ pub struct StepMeta {
     pub scenario: usize,
     pub step: u32,
     pub t: f64,
-    pub info: StepInfo,
-    pub reset: Option<ResetResult>,
+    /// With [`Env::action_clipped`], the step's [`StepInfo`].
+    pub events: Vec<Event>,
+    pub metrics: Vec<EpisodeMetrics>,
+    /// Whether the step ended the episode and autoreset started the next: its `ResetResult`
+    /// is then [`Env::reset_result`] (or [`Env::write_reset_result`]) until the next step.
+    pub reset: bool,
 }
 
 /// One env.
@@ -412,6 +416,9 @@ pub struct Env {
     active: Vec<(AgentId, [f64; 2])>,
     /// Scratch for the first observation of an episode (autoreset makes that frequent).
     reset_obs: Buffers,
+    /// Per external agent: whether its action in the last step was clipped (kept here rather
+    /// than allocated per step).
+    clipped: Vec<bool>,
     pub closed: bool,
 }
 
@@ -469,6 +476,7 @@ impl Env {
             held_seq: vec![None; n],
             active: Vec::with_capacity(n),
             reset_obs: Buffers::default(),
+            clipped: vec![false; n],
             closed: false,
         }
     }
@@ -479,6 +487,11 @@ impl Env {
 
     pub fn world(&self) -> Option<&World> {
         self.world.as_ref()
+    }
+
+    /// Per external agent, whether its action in the last step was clipped.
+    pub fn action_clipped(&self) -> &[bool] {
+        &self.clipped
     }
 
     /// The name of scenario `idx` of this env's pool (as in [`StepMeta::scenario`]).
@@ -494,6 +507,30 @@ impl Env {
         gates: Gates,
         pubs: &mut Vec<Publication>,
     ) -> Result<ResetResult, ErrorReply> {
+        self.start_episode(seed, scenario)?;
+        let result = self.reset_result()?;
+        self.publish_episode_start(gates, pubs);
+        Ok(result)
+    }
+
+    /// Publications of an episode's first state, if any are wanted.
+    fn publish_episode_start(&self, gates: Gates, pubs: &mut Vec<Publication>) {
+        if !gates.any() {
+            return;
+        }
+        let Some(world) = &self.world else { return };
+        let mut ids: Vec<u32> = world.agents().map(|a| a.id).collect();
+        ids.sort_unstable();
+        let events = vec![event(EventKind::EpisodeStart, 0, 0.0, ids)];
+        self.publish_state(gates, &events, pubs);
+    }
+
+    /// The state change of [`Env::reset`].
+    fn start_episode(
+        &mut self,
+        seed: Option<u64>,
+        scenario: Option<&str>,
+    ) -> Result<(), ErrorReply> {
         let spec = self.spec.clone();
         let pool = &spec.pool;
         let idx = match scenario {
@@ -545,7 +582,15 @@ impl Env {
         };
         let cached = spec.fresh_worlds.get(idx).and_then(OnceLock::get);
         let world = match cached {
-            Some(w) => w.clone(),
+            // Into the finished episode's world, so that a `World::clone_from` reusing its
+            // allocations pays off here (sim-core's derived one still clones and drops).
+            Some(w) => match self.world.take() {
+                Some(mut old) => {
+                    old.clone_from(w);
+                    old
+                }
+                None => w.clone(),
+            },
             None => {
                 let w = World::new(served.scenario.clone(), spec.params, config).map_err(|e| {
                     ErrorReply::new(ErrorCode::Internal, format!("cannot start episode: {e}"))
@@ -564,20 +609,12 @@ impl Env {
         self.returns.iter_mut().for_each(|r| *r = 0.0);
         self.held.iter_mut().for_each(|h| *h = [0.0; 2]);
         self.held_seq.iter_mut().for_each(|h| *h = None);
-        let result = self.reset_result()?;
-        if gates.any() {
-            let events = vec![event(
-                EventKind::EpisodeStart,
-                0,
-                0.0,
-                result.agents.iter().map(|a| a.id).collect(),
-            )];
-            self.publish_state(gates, &events, pubs);
-        }
-        Ok(result)
+        Ok(())
     }
 
-    fn reset_result(&mut self) -> Result<ResetResult, ErrorReply> {
+    /// The `ResetResult` of the current episode's first state (right after a reset or an
+    /// autoreset).
+    pub fn reset_result(&mut self) -> Result<ResetResult, ErrorReply> {
         let world = self.world.as_ref().expect("reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
         let mut agents: Vec<AgentDesc> = world
@@ -615,6 +652,60 @@ impl Env {
             agents,
             obs: obs?,
         })
+    }
+
+    /// [`Env::reset_result`] written straight into `out` (MessagePack, the same bytes as its
+    /// encoding), without building the owned result.
+    pub fn write_reset_result(&mut self, out: &mut Vec<u8>) -> Result<(), ErrorReply> {
+        let world = self
+            .world
+            .as_ref()
+            .expect("write_reset_result after a reset");
+        let served = &self.spec.pool.scenarios[self.scenario];
+        let ext_ids = &self.ext_ids;
+        let mut agents: Vec<AgentDescRef<'_>> = world
+            .agents()
+            .map(|a| {
+                let (length, width) = match a.shape {
+                    Shape::Rect { length, width } => (Some(length), Some(width)),
+                    Shape::Disc { .. } => (None, None),
+                };
+                AgentDescRef {
+                    id: a.id,
+                    name: &served.names[a.id as usize],
+                    kind: to_wire_kind(a.kind),
+                    external: ext_ids.contains(&a.id),
+                    radius: a.shape.bounding_radius(),
+                    length,
+                    width,
+                }
+            })
+            .collect();
+        agents.sort_by_key(|a| a.id);
+        let m = self.spec.max_agents as usize;
+        let n_ext = self.spec.n_ext();
+        let buf = &mut self.reset_obs;
+        buf.resize(1, n_ext, m);
+        write_obs(world, ext_ids, m, &mut buf.slots(0));
+        wire::write_reset_result(
+            out,
+            &ResetResultRef {
+                env_id: &self.id,
+                episode: self.episode,
+                scenario: &served.scenario.name,
+                horizon_steps: world.horizon(),
+                agents: &agents,
+                obs: ObsRef {
+                    n_ext: n_ext as u32,
+                    m: m as u32,
+                    features: &buf.features,
+                    adjacency: &buf.adjacency,
+                    mask: &buf.mask,
+                    node_ids: &buf.node_ids,
+                },
+            },
+        )
+        .map_err(Buffers::err)
     }
 
     /// Checks the env can be stepped in lockstep now.
@@ -687,7 +778,8 @@ impl Env {
         }
         slots.terminated.fill(0);
         slots.truncated.fill(0);
-        let mut clipped = vec![false; n];
+        self.clipped.clear();
+        self.clipped.resize(n, false);
         let mut events: Vec<Event> = out
             .events
             .iter()
@@ -717,7 +809,7 @@ impl Env {
             slots.truncated[k] = u8::from(o.truncated);
             self.returns[k] += total;
             if o.action_clipped {
-                clipped[k] = true;
+                self.clipped[k] = true;
                 events.push(event(EventKind::ActionClipped, step, t, vec![o.agent]));
             }
             if let Some(mm) = &o.metrics {
@@ -746,21 +838,18 @@ impl Env {
         }
         let meta_episode = self.episode;
         let scenario = self.scenario;
-        let reset = if over && self.spec.autoreset {
-            Some(self.reset(None, None, gates, pubs)?)
-        } else {
-            None
-        };
+        let reset = over && self.spec.autoreset;
+        if reset {
+            self.start_episode(None, None)?;
+            self.publish_episode_start(gates, pubs);
+        }
         Ok(StepMeta {
             episode: meta_episode,
             scenario,
             step,
             t,
-            info: StepInfo {
-                action_clipped: clipped,
-                events,
-                metrics,
-            },
+            events,
+            metrics,
             reset,
         })
     }
@@ -786,8 +875,16 @@ impl Env {
             reward_terms,
             terminated,
             truncated,
-            info: meta.info,
-            reset: meta.reset,
+            info: StepInfo {
+                action_clipped: self.clipped.clone(),
+                events: meta.events,
+                metrics: meta.metrics,
+            },
+            reset: if meta.reset {
+                Some(self.reset_result()?)
+            } else {
+                None
+            },
         })
     }
 
