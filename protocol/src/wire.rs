@@ -375,6 +375,72 @@ pub fn write_reset_result(out: &mut Vec<u8>, r: &ResetResultRef<'_>) -> Result<(
     Ok(())
 }
 
+/// [`decode`](crate::decode) of a [`BatchStep`](crate::BatchStep), with a direct reading of the
+/// env ids in the usual layout (a map of `env_ids` then `actions`, ids as MessagePack strings):
+/// through serde each id costs a copy into a staging buffer besides its allocation. Anything
+/// else (other layouts, malformed input) goes through `decode`, so results and errors are
+/// always those of `decode`.
+pub fn decode_batch_step(bytes: &[u8]) -> Result<crate::BatchStep, crate::ProtocolError> {
+    match fast_batch_step(bytes) {
+        Some(req) => Ok(req),
+        None => crate::decode(bytes),
+    }
+}
+
+/// Reads `n` big-endian bytes as a length.
+fn take_len(b: &mut &[u8], n: usize) -> Option<usize> {
+    if b.len() < n {
+        return None;
+    }
+    let (head, rest) = b.split_at(n);
+    *b = rest;
+    Some(
+        head.iter()
+            .fold(0usize, |acc, &x| (acc << 8) | usize::from(x)),
+    )
+}
+
+fn take_str<'a>(b: &mut &'a [u8]) -> Option<&'a str> {
+    let (&marker, mut rest) = b.split_first()?;
+    let len = match marker {
+        0xa0..=0xbf => usize::from(marker & 0x1f),
+        0xd9 => take_len(&mut rest, 1)?,
+        0xda => take_len(&mut rest, 2)?,
+        0xdb => take_len(&mut rest, 4)?,
+        _ => return None,
+    };
+    if rest.len() < len {
+        return None;
+    }
+    let (s, tail) = rest.split_at(len);
+    *b = tail;
+    std::str::from_utf8(s).ok()
+}
+
+fn fast_batch_step(bytes: &[u8]) -> Option<crate::BatchStep> {
+    let mut b = bytes.strip_prefix(b"\x82\xa7env_ids")?;
+    let (&marker, mut rest) = b.split_first()?;
+    let n = match marker {
+        0x90..=0x9f => usize::from(marker & 0x0f),
+        0xdc => take_len(&mut rest, 2)?,
+        0xdd => take_len(&mut rest, 4)?,
+        _ => return None,
+    };
+    b = rest;
+    // Each id takes at least one byte: a count beyond that is malformed (and must not size an
+    // allocation).
+    if n > b.len() {
+        return None;
+    }
+    let mut env_ids = Vec::with_capacity(n);
+    for _ in 0..n {
+        env_ids.push(take_str(&mut b)?.to_owned());
+    }
+    let b = b.strip_prefix(b"\xa7actions")?;
+    let actions = crate::decode(b).ok()?;
+    Some(crate::BatchStep { env_ids, actions })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -647,6 +713,66 @@ mod tests {
             let mut out = Vec::new();
             write_str(&mut out, &s);
             assert_eq!(out, encode(&s), "{len}");
+        }
+    }
+
+    #[test]
+    fn batch_step_decoding_equals_serde() {
+        use crate::{decode, BatchStep, F32Array, F64Array};
+        let mut cases = Vec::new();
+        for (k, id_len) in [
+            (1usize, 3usize),
+            (15, 31),
+            (16, 32),
+            (300, 40),
+            (3, 300),
+            (2, 70_000),
+        ] {
+            let ids: Vec<String> = (0..k)
+                .map(|i| format!("{i}{}", "é".repeat(id_len / 2)))
+                .collect();
+            let vals: Vec<f32> = (0..2 * k).map(|i| i as f32 * 0.25 - 1.0).collect();
+            let f32req = BatchStep {
+                env_ids: ids.clone(),
+                actions: F32Array::new(vec![k as u32, 1, 2], &vals).unwrap().into(),
+            };
+            let vals64: Vec<f64> = vals.iter().map(|&v| f64::from(v)).collect();
+            let f64req = BatchStep {
+                env_ids: ids,
+                actions: F64Array::new(vec![k as u32, 2], &vals64).unwrap().into(),
+            };
+            cases.push(encode(&f32req));
+            cases.push(encode(&f64req));
+        }
+        for (i, c) in cases.iter().enumerate() {
+            assert!(
+                fast_batch_step(c).is_some(),
+                "usual layout {i} read directly"
+            );
+        }
+        // Malformed and unusual inputs: every prefix of a valid request, trailing bytes,
+        // invalid UTF-8 in an id, an id as bin, fields in the other order, a struct as array.
+        let valid = cases[2].clone();
+        for cut in 0..valid.len() {
+            cases.push(valid[..cut].to_vec());
+        }
+        let mut trailing = valid.clone();
+        trailing.push(0xc0);
+        cases.push(trailing);
+        let mut bad_utf8 = valid.clone();
+        let at = valid.iter().position(|&c| c == b'0').unwrap();
+        bad_utf8[at] = 0xff;
+        cases.push(bad_utf8);
+        let mut as_bin = valid.clone();
+        as_bin[at - 1] = 0xc4;
+        cases.push(as_bin);
+        cases.push(b"\x82\xa7actions\xc0\xa7env_ids\x90".to_vec());
+        cases.push(b"\x82\xa7env_ids\xdd\xff\xff\xff\xff".to_vec());
+        cases.push(b"\x92\x90\xc0".to_vec());
+        for (i, c) in cases.iter().enumerate() {
+            let want = decode::<BatchStep>(c).map_err(|e| e.to_string());
+            let got = decode_batch_step(c).map_err(|e| e.to_string());
+            assert_eq!(got, want, "case {i}");
         }
     }
 

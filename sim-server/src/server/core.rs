@@ -12,7 +12,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use protocol::keys::{make_env_id, validate_env_id};
-use protocol::wire::{write_batch_env_info_head, write_batch_step_ok, write_nil, BatchEnvInfoRef};
+use protocol::wire::{
+    decode_batch_step, write_batch_env_info_head, write_batch_step_ok, write_nil, BatchEnvInfoRef,
+};
 use protocol::{
     decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
     Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
@@ -664,7 +666,7 @@ impl ServerCore {
         gates: Gates,
         pubs: &mut Vec<Publication>,
     ) -> Result<Vec<u8>, ErrorReply> {
-        let req: BatchStep = decode(payload).map_err(bad)?;
+        let req: BatchStep = decode_batch_step(payload).map_err(bad)?;
         let k = req.env_ids.len();
         if k == 0 {
             return Err(bad("env_ids is empty"));
