@@ -748,9 +748,8 @@ impl ServerCore {
         let run = |envs: &mut [&mut Env], actions: &[[f64; 2]], mut out: BufMut<'_>| -> Part {
             let mut infos = Vec::with_capacity(envs.len() * 128);
             let mut pubs = Vec::new();
-            let rows = actions.chunks(n_ext.max(1));
-            for (i, (env, rows)) in envs.iter_mut().zip(rows).enumerate() {
-                let rows = if n_ext == 0 { &[][..] } else { rows };
+            for (i, env) in envs.iter_mut().enumerate() {
+                let rows = &actions[i * n_ext..(i + 1) * n_ext];
                 let meta = match env.step_into(rows, &mut out.slots(i), gates, &mut pubs) {
                     Ok(meta) => meta,
                     Err(e) => return (infos, pubs, Err(e)),
@@ -775,14 +774,13 @@ impl ServerCore {
             }
             (infos, pubs, Ok(()))
         };
-        let per_chunk = chunk * n_ext;
         let parts: Vec<Part> = if threads <= 1 {
             vec![run(&mut refs, &actions, buf.view())]
         } else {
             std::thread::scope(|sc| {
                 let mut work = refs
                     .chunks_mut(chunk)
-                    .zip(actions.chunks(per_chunk.max(1)))
+                    .zip((0..k).step_by(chunk).map(|i| &actions[i * n_ext..]))
                     .zip(buf.view().chunks(k, chunk));
                 let ((e0, a0), o0) = work.next().expect("k >= 1");
                 let handles: Vec<_> = work
