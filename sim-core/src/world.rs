@@ -455,6 +455,8 @@ pub struct World {
     workers: Vec<ObserveWorker>,
     /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
     threads: usize,
+    /// The observe pass's instruction-set variant (the widest the CPU runs, by default).
+    kernels: Kernels,
 }
 
 const NO_SLOT: u32 = u32::MAX;
@@ -582,6 +584,7 @@ impl World {
             forces_valid: false,
             workers: vec![ObserveWorker::new(n_total)],
             threads: 1,
+            kernels: Kernels::detect(),
         };
         let mut events = Vec::new();
         w.enter_pending(&mut events);
@@ -601,6 +604,14 @@ impl World {
     /// count. Not part of the world's parameters: a server running many worlds keeps 1.
     pub fn set_threads(&mut self, threads: usize) {
         self.threads = threads.max(1);
+    }
+
+    /// Runs the observe pass with the baseline instructions of the build target even where the
+    /// CPU has wider vector units (results are bit-identical either way; this is how the tests
+    /// check that).
+    #[doc(hidden)]
+    pub fn use_portable_kernels(&mut self) {
+        self.kernels = Kernels::Portable;
     }
 
     /// The thread count set by [`World::set_threads`].
@@ -876,6 +887,7 @@ impl World {
             schedule: &self.schedule,
             params: &self.params,
             r2: r * r,
+            kernels: self.kernels,
         };
         let workers = &mut self.workers[..threads];
         if threads == 1 {
@@ -1309,6 +1321,28 @@ struct ObserveInputs<'a> {
     schedule: &'a VarianceSchedule,
     params: &'a WorldParams,
     r2: f64,
+    kernels: Kernels,
+}
+
+/// Which compiled variant of the observe pass a world runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kernels {
+    /// Baseline instructions of the build target.
+    Portable,
+    /// AVX2 (x86-64 CPUs that report it at run time).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    Avx2,
+}
+
+impl Kernels {
+    /// The widest variant this CPU runs.
+    fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            return Kernels::Avx2;
+        }
+        Kernels::Portable
+    }
 }
 
 /// Social-force constants of one observing simulated pedestrian.
@@ -1392,6 +1426,31 @@ impl ObserveWorker {
     }
 
     fn run(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        #[cfg(target_arch = "x86_64")]
+        if inp.kernels == Kernels::Avx2 {
+            // SAFETY: `Kernels::Avx2` is only chosen when the CPU reports AVX2
+            // (`Kernels::detect`).
+            unsafe { self.run_avx2(inp, observers) };
+            return;
+        }
+        self.run_body(inp, observers);
+    }
+
+    /// [`ObserveWorker::run`] compiled for AVX2: the per-edge loops run four lanes wide. AVX2
+    /// alone, no FMA: every operation rounds as in the portable build, so results are
+    /// bit-identical.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_avx2(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        self.run_body(inp, observers);
+    }
+
+    /// The observe pass proper, inlined into each instruction-set variant of `run`.
+    #[inline(always)]
+    fn run_body(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
         let n = inp.agents.len();
         // Room for as many edges as these observers had last step, and some.
         let a = inp.agents;
@@ -1427,6 +1486,7 @@ impl ObserveWorker {
         }
     }
 
+    #[inline(always)]
     fn observer(&mut self, inp: &ObserveInputs, i: usize) {
         let a = inp.agents;
         let old = inp.old;
@@ -1612,6 +1672,7 @@ impl ObserveWorker {
 
 /// Sum in four interleaved lanes, then the lanes and the tail in a fixed order (vectorisable,
 /// deterministic).
+#[inline(always)]
 fn lane_sum(v: &[f64]) -> f64 {
     let mut acc = [0.0; 4];
     let chunks = v.chunks_exact(4);
@@ -1629,6 +1690,7 @@ fn lane_sum(v: &[f64]) -> f64 {
 }
 
 /// Largest of `v` and 0 (weights are non-negative), in four lanes.
+#[inline(always)]
 fn lane_max(v: &[f64]) -> f64 {
     let mut acc = [0.0f64; 4];
     let chunks = v.chunks_exact(4);
