@@ -231,9 +231,9 @@ impl EdgeStore {
         fresh(&mut self.u, total);
     }
 
-    /// Appends `m` zeroed edges (filled in place by the caller).
-    fn grow(&mut self, m: usize) {
-        let len = self.len() + m;
+    /// Resizes the store to `len` edges, zeroed past the old length (filled in place by the
+    /// caller).
+    fn resize(&mut self, len: usize) {
         self.target.resize(len, 0);
         self.slot.resize(len, 0);
         self.belief.resize(len, Belief::first_sight(Vec2::zeros()));
@@ -243,12 +243,17 @@ impl EdgeStore {
     }
 
     fn append(&mut self, other: &EdgeStore) {
-        self.target.extend_from_slice(&other.target);
-        self.slot.extend_from_slice(&other.slot);
-        self.belief.extend_from_slice(&other.belief);
-        self.clearance.extend_from_slice(&other.clearance);
-        self.psi.extend_from_slice(&other.psi);
-        self.u.extend_from_slice(&other.u);
+        self.append_first(other, other.len());
+    }
+
+    /// Appends the first `m` edges of `other`.
+    fn append_first(&mut self, other: &EdgeStore, m: usize) {
+        self.target.extend_from_slice(&other.target[..m]);
+        self.slot.extend_from_slice(&other.slot[..m]);
+        self.belief.extend_from_slice(&other.belief[..m]);
+        self.clearance.extend_from_slice(&other.clearance[..m]);
+        self.psi.extend_from_slice(&other.psi[..m]);
+        self.u.extend_from_slice(&other.u[..m]);
     }
 
     fn push(&mut self, e: Edge) {
@@ -451,6 +456,8 @@ pub struct World {
     rep_force: Vec<Vec2>,
     rep_max_w: Vec<f64>,
     forces_valid: bool,
+    /// Per slot, whether the observer has an edge of clearance `<= 0` (from the last observe).
+    contact: Vec<bool>,
     /// One scratch per observe worker (thread).
     workers: Vec<ObserveWorker>,
     /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
@@ -582,6 +589,7 @@ impl World {
             rep_force: Vec::new(),
             rep_max_w: Vec::new(),
             forces_valid: false,
+            contact: Vec::new(),
             workers: vec![ObserveWorker::new(n_total)],
             threads: 1,
             kernels: Kernels::detect(),
@@ -912,6 +920,7 @@ impl World {
         }
         self.rep_force.clear();
         self.rep_max_w.clear();
+        self.contact.clear();
         let a = &mut self.agents;
         let mut start = 0u32;
         let mut i = 0;
@@ -924,6 +933,7 @@ impl World {
             }
             self.rep_force.extend_from_slice(&w.force);
             self.rep_max_w.extend_from_slice(&w.max_w);
+            self.contact.extend_from_slice(&w.contact);
         }
         debug_assert_eq!(i, n);
         debug_assert_eq!(start as usize, self.edges.len());
@@ -1031,6 +1041,9 @@ impl World {
 
         // 5. Events and rewards.
         for i in 0..self.agents.len() {
+            if !self.contact[i] {
+                continue;
+            }
             let range = self.out_range(i);
             let (targets, clearances) = (
                 &self.edges.target[range.clone()],
@@ -1390,6 +1403,9 @@ struct ObserveWorker {
     epoch: u32,
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
+    /// The current observer's edges, filled in place (room for `n`) and then appended to
+    /// `edges` (a copy costs less than growing `edges` by zeroed entries first).
+    cur: EdgeStore,
     // Per edge of the current observer.
     dx: Vec<f64>,
     dy: Vec<f64>,
@@ -1405,14 +1421,14 @@ struct ObserveWorker {
     nnx: Vec<f64>,
     nny: Vec<f64>,
     rect: Vec<f64>,
-    /// `1 / dist` (1 for coincident centres), written by the risk loop.
-    inv_dist: Vec<f64>,
     fx: Vec<f64>,
     fy: Vec<f64>,
     w: Vec<f64>,
     // Output for the worker's observers, in order.
     edges: EdgeStore,
     len: Vec<u32>,
+    /// Whether some clearance of the observer's is `<= 0` (a collision event to report).
+    contact: Vec<bool>,
     force: Vec<Vec2>,
     max_w: Vec<f64>,
 }
@@ -1433,7 +1449,7 @@ impl ObserveWorker {
             unsafe { self.run_avx2(inp, observers) };
             return;
         }
-        self.run_body(inp, observers);
+        self.run_body::<false>(inp, observers);
     }
 
     /// [`ObserveWorker::run`] compiled for AVX2: the per-edge loops run four lanes wide. AVX2
@@ -1445,12 +1461,13 @@ impl ObserveWorker {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn run_avx2(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
-        self.run_body(inp, observers);
+        self.run_body::<true>(inp, observers);
     }
 
-    /// The observe pass proper, inlined into each instruction-set variant of `run`.
+    /// The observe pass proper, inlined into each instruction-set variant of `run` (`AVX2`: only
+    /// called where the CPU has AVX2).
     #[inline(always)]
-    fn run_body(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+    fn run_body<const AVX2: bool>(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
         let n = inp.agents.len();
         // Room for as many edges as these observers had last step, and some.
         let a = inp.agents;
@@ -1460,9 +1477,11 @@ impl ObserveWorker {
             .sum();
         self.edges.clear_with_capacity(last + last / 8 + 64);
         self.len.clear();
+        self.contact.clear();
         self.force.clear();
         self.max_w.clear();
         self.cand.resize(n, 0);
+        self.cur.resize(n);
         for v in [
             &mut self.dx,
             &mut self.dy,
@@ -1474,7 +1493,6 @@ impl ObserveWorker {
             &mut self.nnx,
             &mut self.nny,
             &mut self.rect,
-            &mut self.inv_dist,
             &mut self.fx,
             &mut self.fy,
             &mut self.w,
@@ -1482,12 +1500,12 @@ impl ObserveWorker {
             v.resize(n, 0.0);
         }
         for i in observers {
-            self.observer(inp, i);
+            self.observer::<AVX2>(inp, i);
         }
     }
 
     #[inline(always)]
-    fn observer(&mut self, inp: &ObserveInputs, i: usize) {
+    fn observer<const AVX2: bool>(&mut self, inp: &ObserveInputs, i: usize) {
         let a = inp.agents;
         let old = inp.old;
 
@@ -1511,25 +1529,24 @@ impl ObserveWorker {
         let cand = &mut self.cand[..];
         let mut m = 0;
         for &(lo, hi) in &ranges[..rows] {
-            for ((&x, &y), &j) in gx[lo..hi].iter().zip(&gy[lo..hi]).zip(&slots[lo..hi]) {
-                let (dx, dy) = (xi.x - x, xi.y - y);
-                let inside = (dx * dx + dy * dy <= r2) & (j as usize != i);
-                // Written unconditionally, kept by advancing `m` (m < candidates <= n).
-                cand[m] = j;
-                m += usize::from(inside);
+            let (gx, gy, slots) = (&gx[lo..hi], &gy[lo..hi], &slots[lo..hi]);
+            #[cfg(target_arch = "x86_64")]
+            if AVX2 {
+                // SAFETY: `observer::<true>` only runs where the CPU has AVX2 (`run_avx2`).
+                m = unsafe { gather_avx2(gx, gy, slots, xi, r2, i as u32, cand, m) };
+                continue;
             }
+            m = gather(gx, gy, slots, xi, r2, i as u32, cand, m);
         }
         let cand = &self.cand[..m];
 
         // 3. Targets' state, beliefs, clearances.
-        let base = self.edges.len();
-        self.edges.grow(m);
-        let e = &mut self.edges;
-        let e_target = &mut e.target[base..base + m];
-        let e_slot = &mut e.slot[base..base + m];
-        let e_belief = &mut e.belief[base..base + m];
-        let e_clear = &mut e.clearance[base..base + m];
-        let e_u = &mut e.u[base..base + m];
+        let e = &mut self.cur;
+        let e_target = &mut e.target[..m];
+        let e_slot = &mut e.slot[..m];
+        let e_belief = &mut e.belief[..m];
+        let e_clear = &mut e.clearance[..m];
+        let e_u = &mut e.u[..m];
         let dxs = &mut self.dx[..m];
         let dys = &mut self.dy[..m];
         let dists = &mut self.dist[..m];
@@ -1548,6 +1565,7 @@ impl ObserveWorker {
             position: xi,
             heading: a.heading[i],
         };
+        let mut contact = false;
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
@@ -1576,6 +1594,7 @@ impl ObserveWorker {
                 let (c, n) = clearance_and_normal(&placed_i, &placed_j);
                 (c, n, 1.0)
             };
+            contact |= clearance <= 0.0;
             e_target[c] = t.id;
             e_slot[c] = j as u32;
             e_belief[c] = belief;
@@ -1593,37 +1612,17 @@ impl ObserveWorker {
             rects[c] = rect;
         }
 
-        // 4. Physical risk (risk::risk_with, branch-free).
-        let e = &mut self.edges;
-        let psis = &mut e.psi[base..base + m];
-        let clears = &e.clearance[base..base + m];
-        let us = &e.u[base..base + m];
+        // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
+        // simulated pedestrian (pedestrian::total_force without the goal term, summed in four
+        // interleaved lanes), in one loop over the edges.
+        let e = &mut self.cur;
+        let psis = &mut e.psi[..m];
+        let clears = &e.clearance[..m];
+        let us = &e.u[..m];
         let (dxs, dys, dists) = (&self.dx[..m], &self.dy[..m], &self.dist[..m]);
         let (vxs, vys, accns) = (&self.vx[..m], &self.vy[..m], &self.accn[..m]);
-        let inv_dists = &mut self.inv_dist[..m];
         let gamma1 = inp.params.risk.gamma1;
         let two_gamma2 = 2.0 * inp.params.risk.gamma2;
-        for c in 0..m {
-            let along = vxs[c] * dxs[c] + vys[c] * dys[c];
-            // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
-            // division keeps the loop vectorisable.
-            let inv_dist = 1.0 / if dists[c] > 0.0 { dists[c] } else { 1.0 };
-            inv_dists[c] = inv_dist;
-            let radial_speed = along.abs() * inv_dist;
-            let k = if along > 0.0 { -1.0 } else { 1.0 };
-            let z = gamma1 * k * (radial_speed + accns[c]);
-            let one_plus_e = 1.0 + fastmath::exp(-2.0 * z);
-            let psi = one_plus_e / (one_plus_e + two_gamma2 * clears[c]);
-            // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
-            psis[c] = if one_plus_e == f64::INFINITY {
-                1.0
-            } else {
-                psi
-            };
-        }
-
-        // 5. Social forces on a simulated pedestrian (pedestrian::total_force without the goal
-        // term, summed in four interleaved lanes).
         let fc = match a.control[i] {
             Control::Model(model) => inp
                 .params
@@ -1633,15 +1632,24 @@ impl ObserveWorker {
             _ => None,
         };
         let (force, max_w) = match fc {
-            None => (Vec2::zeros(), 0.0),
+            None => {
+                for c in 0..m {
+                    let along = vxs[c] * dxs[c] + vys[c] * dys[c];
+                    psis[c] = edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]).0;
+                }
+                (Vec2::zeros(), 0.0)
+            }
             Some(fc) => {
                 let vehs = &self.veh[..m];
-                let (nnxs, nnys) = (&self.nnx[..m], &self.nny[..m]);
-                let (rects, inv_dists) = (&self.rect[..m], &self.inv_dist[..m]);
+                let (nnxs, nnys, rects) = (&self.nnx[..m], &self.nny[..m], &self.rect[..m]);
                 let fxs = &mut self.fx[..m];
                 let fys = &mut self.fy[..m];
                 let ws = &mut self.w[..m];
                 for c in 0..m {
+                    let along = vxs[c] * dxs[c] + vys[c] * dys[c];
+                    let (psi, inv_dist) =
+                        edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]);
+                    psis[c] = psi;
                     let veh = vehs[c] != 0.0;
                     let strength = if veh { fc.a_veh } else { fc.a_ped };
                     let neg_inv_range = if veh {
@@ -1650,10 +1658,10 @@ impl ObserveWorker {
                         fc.neg_inv_b_ped
                     };
                     let lambda = if veh { fc.lam_veh } else { fc.lam_ped };
-                    let weighted = psis[c] * (1.0 + lambda * us[c]);
+                    let weighted = psi * (1.0 + lambda * us[c]);
                     let w = if fc.unit_weight { 1.0 } else { weighted };
                     // Exactly `inv_dist` (rect = 0) or 1 (rect = 1), without a select on loads.
-                    let scale = rects[c] + (1.0 - rects[c]) * inv_dists[c];
+                    let scale = rects[c] + (1.0 - rects[c]) * inv_dist;
                     let nx = nnxs[c] * scale;
                     let ny = nnys[c] * scale;
                     let rep = strength * fastmath::exp(clears[c] * neg_inv_range);
@@ -1664,10 +1672,141 @@ impl ObserveWorker {
                 (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
             }
         };
+        self.edges.append_first(&self.cur, m);
         self.len.push(m as u32);
+        self.contact.push(contact);
         self.force.push(force);
         self.max_w.push(max_w);
     }
+}
+
+/// Appends to `cand[m..]` the slots `slots[k]` other than `i` whose positions `(xs[k], ys[k])`
+/// lie within `sqrt(r2)` of `xi`, in order; returns the new count. `cand` has room for every
+/// slot (`m + slots.len() <= cand.len()`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn gather(
+    xs: &[f64],
+    ys: &[f64],
+    slots: &[u32],
+    xi: Vec2,
+    r2: f64,
+    i: u32,
+    cand: &mut [u32],
+    mut m: usize,
+) -> usize {
+    for ((&x, &y), &j) in xs.iter().zip(ys).zip(slots) {
+        let (dx, dy) = (xi.x - x, xi.y - y);
+        let inside = (dx * dx + dy * dy <= r2) & (j != i);
+        // Written unconditionally, kept by advancing `m` (m < candidates <= n).
+        cand[m] = j;
+        m += usize::from(inside);
+    }
+    m
+}
+
+/// For each of the 16 masks of four lanes, the lanes that are set, in order (the rest 0): the
+/// permutation that packs the kept slots of a group of four to its front.
+#[cfg(target_arch = "x86_64")]
+const PACK: [[i32; 4]; 16] = {
+    let mut t = [[0; 4]; 16];
+    let mut mask = 0;
+    while mask < 16 {
+        let (mut lane, mut k) = (0, 0);
+        while lane < 4 {
+            if mask & (1 << lane) != 0 {
+                t[mask][k] = lane;
+                k += 1;
+            }
+            lane += 1;
+        }
+        mask += 1;
+    }
+    t
+};
+
+/// [`gather`] four candidates at a time: the same distance test (same operations, no FMA), the
+/// kept slots of each group packed by a permutation and stored as one vector.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+#[allow(clippy::too_many_arguments)]
+unsafe fn gather_avx2(
+    xs: &[f64],
+    ys: &[f64],
+    slots: &[u32],
+    xi: Vec2,
+    r2: f64,
+    i: u32,
+    cand: &mut [u32],
+    mut m: usize,
+) -> usize {
+    use std::arch::x86_64::*;
+    let n = slots.len();
+    assert!(xs.len() == n && ys.len() == n && m + n <= cand.len());
+    let (px, py, pr2) = (
+        _mm256_set1_pd(xi.x),
+        _mm256_set1_pd(xi.y),
+        _mm256_set1_pd(r2),
+    );
+    let me = _mm_set1_epi32(i as i32);
+    let groups = n / 4;
+    for g in 0..groups {
+        let o = 4 * g;
+        // SAFETY: lanes `o..o + 4` are in bounds of `xs`, `ys` and `slots` (`o + 4 <= n`), and
+        // the store writes `cand[m..m + 4]` with `m <= m_0 + o` (at most one kept per
+        // candidate), so `m + 4 <= m_0 + n <= cand.len()` (asserted above).
+        let (x, y, j) = (
+            _mm256_loadu_pd(xs.as_ptr().add(o)),
+            _mm256_loadu_pd(ys.as_ptr().add(o)),
+            _mm_loadu_si128(slots.as_ptr().add(o).cast()),
+        );
+        let dx = _mm256_sub_pd(px, x);
+        let dy = _mm256_sub_pd(py, y);
+        let d2 = _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy));
+        let inside = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, pr2));
+        let is_me = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(j, me)));
+        let keep = (inside & !is_me) as usize;
+        let perm = _mm_loadu_si128(PACK[keep].as_ptr().cast());
+        let packed = _mm_permutevar_ps(_mm_castsi128_ps(j), perm);
+        _mm_storeu_si128(cand.as_mut_ptr().add(m).cast(), _mm_castps_si128(packed));
+        m += keep.count_ones() as usize;
+    }
+    let o = 4 * groups;
+    gather(&xs[o..], &ys[o..], &slots[o..], xi, r2, i, cand, m)
+}
+
+/// Physical risk `psi` of one edge (risk::risk_with, branch-free) and `1 / dist` (1 for
+/// coincident centres), from `along = v_j . (x_i - x_j)`, the centre distance, the target's
+/// acceleration norm and the clearance. A function rather than a closure, so that it is inlined
+/// into (and compiled for) each instruction-set variant of the observe pass.
+#[inline(always)]
+fn edge_risk(
+    gamma1: f64,
+    two_gamma2: f64,
+    along: f64,
+    dist: f64,
+    acc_norm: f64,
+    clearance: f64,
+) -> (f64, f64) {
+    // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
+    // division keeps the loop vectorisable.
+    let inv_dist = 1.0 / if dist > 0.0 { dist } else { 1.0 };
+    let radial_speed = along.abs() * inv_dist;
+    let k = if along > 0.0 { -1.0 } else { 1.0 };
+    let z = gamma1 * k * (radial_speed + acc_norm);
+    let one_plus_e = 1.0 + fastmath::exp(-2.0 * z);
+    let psi = one_plus_e / (one_plus_e + two_gamma2 * clearance);
+    // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
+    let psi = if one_plus_e == f64::INFINITY {
+        1.0
+    } else {
+        psi
+    };
+    (psi, inv_dist)
 }
 
 /// Sum in four interleaved lanes, then the lanes and the tail in a fixed order (vectorisable,
