@@ -6,27 +6,57 @@
 //! cargo run --release -p scenarios --example step_timing -- time N [SECONDS]
 //! cargo run --release -p scenarios --example step_timing -- steps N STEPS   # for callgrind
 //! cargo run --release -p scenarios --example step_timing -- dump FILE [portable]  # trajectories
+//! cargo run --release -p scenarios --example step_timing -- allocs N STEPS  # heap use per step
 //! ```
 //!
 //! `dump` writes the bits of every agent's state and every graph edge after each step of a fixed
 //! set of episodes (synthetic scenes of several sizes, layouts, models and seeds, and the
 //! embedded HBS pool): two builds that step identically write identical files (one SHA-256 per episode).
 
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Write;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
 use scenarios::embedded::default_pool;
-use scenarios::synthetic::{generate, Layout, SyntheticConfig};
+use scenarios::synthetic::{generate, Layout as SceneLayout, SyntheticConfig};
 use sha2::{Digest, Sha256};
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::Scenario;
 use sim_core::world::{EpisodeConfig, World};
 
+/// The system allocator, counting allocations (for `allocs`).
+struct Counting;
+
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+static ALLOC_BYTES: AtomicU64 = AtomicU64::new(0);
+
+// SAFETY: forwards every call unchanged to the system allocator; the counters have no effect on
+// the memory handed out.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        ALLOC_BYTES.fetch_add(layout.size() as u64, Ordering::Relaxed);
+        System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        ALLOC_BYTES.fetch_add(new_size as u64, Ordering::Relaxed);
+        System.realloc(ptr, layout, new_size)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
 /// Steps taken before timing, as `sim-server`'s `step_timing::WARM_UP_STEPS`.
 const WARM_UP_STEPS: u32 = 3;
 
-fn scene(layout: Layout, n: usize, seed: u64) -> Arc<Scenario> {
+fn scene(layout: SceneLayout, n: usize, seed: u64) -> Arc<Scenario> {
     Arc::new(generate(&SyntheticConfig::new(layout, n, seed)).expect("valid scene"))
 }
 
@@ -41,7 +71,7 @@ fn step_once(world: &mut World) {
 /// The world `sim-server bench-step` times (seed 0): warmed up, or, when the AV's episode ended
 /// during warm-up, the same scene with the AV replayed.
 fn bench_world(n: usize) -> World {
-    let scenario = scene(Layout::Random, n, 0);
+    let scenario = scene(SceneLayout::Random, n, 0);
     let config = EpisodeConfig::ego_external(&scenario, PedestrianModel::CrSfm);
     let mut world = World::new(scenario, WorldParams::default(), config).expect("world");
     for _ in 0..WARM_UP_STEPS {
@@ -94,6 +124,27 @@ fn steps(n: usize, k: u64) {
     let base = bench_world(n);
     run_steps(&base, k);
     println!("N={n}: {k} steps, {} edges", base.edge_count());
+}
+
+/// Allocations (and bytes) made by each of `k` steps from a clone of the warmed-up world.
+fn allocs(n: usize, k: u32) {
+    let base = bench_world(n);
+    let mut w = base.clone();
+    for s in 0..k {
+        if w.is_over() {
+            break;
+        }
+        let (a0, b0) = (
+            ALLOCS.load(Ordering::Relaxed),
+            ALLOC_BYTES.load(Ordering::Relaxed),
+        );
+        step_once(&mut w);
+        let (a1, b1) = (
+            ALLOCS.load(Ordering::Relaxed),
+            ALLOC_BYTES.load(Ordering::Relaxed),
+        );
+        println!("step {s}: {} allocations, {} bytes", a1 - a0, b1 - b0);
+    }
 }
 
 fn record(out: &mut Vec<u8>, w: &World) {
@@ -168,7 +219,7 @@ fn dump(path: &str, portable: bool) {
     };
     for (n, steps, seeds) in [(3, 400, 3), (10, 400, 3), (100, 300, 3), (1000, 40, 2)] {
         for seed in 0..seeds {
-            for layout in Layout::ALL {
+            for layout in SceneLayout::ALL {
                 let s = scene(layout, n, seed);
                 let cfg = EpisodeConfig::ego_external(&s, PedestrianModel::CrSfm);
                 episode(portable, &mut out, s.clone(), short, cfg, steps);
@@ -215,10 +266,11 @@ fn main() {
             s.map_or(3.0, |s| s.parse().expect("seconds")),
         ),
         (Some("steps"), Some(n), Some(k)) => steps(n.parse().expect("N"), k.parse().expect("K")),
+        (Some("allocs"), Some(n), Some(k)) => allocs(n.parse().expect("N"), k.parse().expect("K")),
         (Some("dump"), Some(path), None) => dump(path, false),
         (Some("dump"), Some(path), Some("portable")) => dump(path, true),
         _ => {
-            eprintln!("usage: step_timing time N [SECONDS] | steps N STEPS | dump FILE [portable]");
+            eprintln!("usage: step_timing time N [SECONDS] | steps N STEPS | allocs N STEPS | dump FILE [portable]");
             std::process::exit(2);
         }
     }

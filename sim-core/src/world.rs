@@ -186,7 +186,7 @@ pub(crate) struct Edge {
 
 /// Every edge of the risk graph, structure of arrays (one entry per edge in each), grouped by
 /// observer in slot order. The observe pass writes each field as one contiguous run.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 struct EdgeStore {
     target: Vec<AgentId>,
     slot: Vec<u32>,
@@ -194,6 +194,24 @@ struct EdgeStore {
     clearance: Vec<f64>,
     psi: Vec<f64>,
     u: Vec<f64>,
+}
+
+/// Room an edge store is given beyond `len` edges when (re)allocated: the graph of the next
+/// steps is about as large, and a store that is short must be allocated afresh (megabytes of
+/// untouched pages at large `N`).
+fn edge_room(len: usize) -> usize {
+    len + len / 4 + 64
+}
+
+impl Clone for EdgeStore {
+    /// A copy with room to grow (see [`edge_room`]), so that stepping a cloned world does not
+    /// reallocate its stores.
+    fn clone(&self) -> Self {
+        let mut e = Self::default();
+        e.clear_with_capacity(self.len());
+        e.append(self);
+        e
+    }
 }
 
 impl EdgeStore {
@@ -214,21 +232,21 @@ impl EdgeStore {
         self.u.truncate(len);
     }
 
-    /// Empties the store and makes room for `total` edges without reallocating (a fresh
-    /// allocation, not a copy, when the capacity is short: the old contents are dead).
-    fn clear_with_capacity(&mut self, total: usize) {
-        fn fresh<T>(v: &mut Vec<T>, total: usize) {
+    /// Empties the store and makes room for about `len` edges, and some, without reallocating
+    /// (a fresh allocation, not a copy, when the capacity is short: the old contents are dead).
+    fn clear_with_capacity(&mut self, len: usize) {
+        fn fresh<T>(v: &mut Vec<T>, len: usize) {
             v.clear();
-            if v.capacity() < total {
-                *v = Vec::with_capacity(total);
+            if v.capacity() < len + len / 16 + 64 {
+                *v = Vec::with_capacity(edge_room(len));
             }
         }
-        fresh(&mut self.target, total);
-        fresh(&mut self.slot, total);
-        fresh(&mut self.belief, total);
-        fresh(&mut self.clearance, total);
-        fresh(&mut self.psi, total);
-        fresh(&mut self.u, total);
+        fresh(&mut self.target, len);
+        fresh(&mut self.slot, len);
+        fresh(&mut self.belief, len);
+        fresh(&mut self.clearance, len);
+        fresh(&mut self.psi, len);
+        fresh(&mut self.u, len);
     }
 
     /// Resizes the store to `len` edges, zeroed past the old length (filled in place by the
@@ -458,6 +476,8 @@ pub struct World {
     forces_valid: bool,
     /// Per slot, whether the observer has an edge of clearance `<= 0` (from the last observe).
     contact: Vec<bool>,
+    /// Per external agent moved by the step: whether its action was clipped, and its yaw rate.
+    clipped_of: Vec<(AgentId, bool, f64)>,
     /// One scratch per observe worker (thread).
     workers: Vec<ObserveWorker>,
     /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
@@ -590,6 +610,7 @@ impl World {
             rep_max_w: Vec::new(),
             forces_valid: false,
             contact: Vec::new(),
+            clipped_of: Vec::new(),
             workers: vec![ObserveWorker::new(n_total)],
             threads: 1,
             kernels: Kernels::detect(),
@@ -982,7 +1003,8 @@ impl World {
         // 2. Move every agent from t to t + 1.
         let dt = self.params.dt;
         let n = self.agents.len();
-        let mut clipped_of: Vec<(AgentId, bool, f64)> = Vec::with_capacity(actions.len());
+        let mut clipped_of = std::mem::take(&mut self.clipped_of);
+        clipped_of.clear();
         let mut next = std::mem::take(&mut self.next);
         next.clone_from(&self.agents);
         for i in 0..n {
@@ -1058,7 +1080,7 @@ impl World {
         }
         let mut outcome = StepOutcome {
             step: self.step,
-            agents: Vec::new(),
+            agents: Vec::with_capacity(self.externals.len()),
             events,
             episode_over: false,
         };
@@ -1076,6 +1098,7 @@ impl World {
                 self.external_outcome(k, clipped, omega, truncated, &mut outcome.events);
             outcome.agents.push(agent_outcome);
         }
+        self.clipped_of = clipped_of;
         // Over when every external agent has entered and finished (one whose record starts
         // later keeps the episode running until it enters), or at the horizon.
         let all_finished = !self.externals.is_empty()
@@ -1475,7 +1498,7 @@ impl ObserveWorker {
             .iter()
             .map(|&l| l as usize)
             .sum();
-        self.edges.clear_with_capacity(last + last / 8 + 64);
+        self.edges.clear_with_capacity(last);
         self.len.clear();
         self.contact.clear();
         self.force.clear();
