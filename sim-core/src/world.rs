@@ -13,6 +13,7 @@
 //! 4. observe at `t + 1`: beliefs (`u_{t+1}`), clearances, `psi_{t+1}`, the graph;
 //! 5. events (collisions, arrivals) and every reward term of the transition.
 
+use std::mem::MaybeUninit;
 use std::ops::Range;
 use std::sync::Arc;
 
@@ -249,29 +250,36 @@ impl EdgeStore {
         fresh(&mut self.u, len);
     }
 
-    /// Resizes the store to `len` edges, zeroed past the old length (filled in place by the
-    /// caller).
-    fn resize(&mut self, len: usize) {
-        self.target.resize(len, 0);
-        self.slot.resize(len, 0);
-        self.belief.resize(len, Belief::first_sight(Vec2::zeros()));
-        self.clearance.resize(len, 0.0);
-        self.psi.resize(len, 0.0);
-        self.u.resize(len, 0.0);
-    }
-
     fn append(&mut self, other: &EdgeStore) {
-        self.append_first(other, other.len());
+        self.target.extend_from_slice(&other.target);
+        self.slot.extend_from_slice(&other.slot);
+        self.belief.extend_from_slice(&other.belief);
+        self.clearance.extend_from_slice(&other.clearance);
+        self.psi.extend_from_slice(&other.psi);
+        self.u.extend_from_slice(&other.u);
     }
 
-    /// Appends the first `m` edges of `other`.
-    fn append_first(&mut self, other: &EdgeStore, m: usize) {
-        self.target.extend_from_slice(&other.target[..m]);
-        self.slot.extend_from_slice(&other.slot[..m]);
-        self.belief.extend_from_slice(&other.belief[..m]);
-        self.clearance.extend_from_slice(&other.clearance[..m]);
-        self.psi.extend_from_slice(&other.psi[..m]);
-        self.u.extend_from_slice(&other.u[..m]);
+    /// Makes room for `m` more edges in every field.
+    fn reserve(&mut self, m: usize) {
+        self.target.reserve(m);
+        self.slot.reserve(m);
+        self.belief.reserve(m);
+        self.clearance.reserve(m);
+        self.psi.reserve(m);
+        self.u.reserve(m);
+    }
+
+    /// Sets the length of every field but `psi` to `len`.
+    ///
+    /// # Safety
+    /// Entries up to `len` of those fields must be initialised (written through
+    /// `spare_capacity_mut`).
+    unsafe fn commit_all_but_psi(&mut self, len: usize) {
+        self.target.set_len(len);
+        self.slot.set_len(len);
+        self.belief.set_len(len);
+        self.clearance.set_len(len);
+        self.u.set_len(len);
     }
 
     fn push(&mut self, e: Edge) {
@@ -1426,9 +1434,6 @@ struct ObserveWorker {
     epoch: u32,
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
-    /// The current observer's edges, filled in place (room for `n`) and then appended to
-    /// `edges` (a copy costs less than growing `edges` by zeroed entries first).
-    cur: EdgeStore,
     // Per edge of the current observer.
     dx: Vec<f64>,
     dy: Vec<f64>,
@@ -1504,7 +1509,6 @@ impl ObserveWorker {
         self.force.clear();
         self.max_w.clear();
         self.cand.resize(n, 0);
-        self.cur.resize(n);
         for v in [
             &mut self.dx,
             &mut self.dy,
@@ -1540,8 +1544,25 @@ impl ObserveWorker {
         self.epoch += 1;
         let epoch = self.epoch;
         let s = a.edge_start[i] as usize;
-        for (k, &t) in old.target[s..s + a.edge_len[i] as usize].iter().enumerate() {
+        let old_range = s..s + a.edge_len[i] as usize;
+        for (k, &t) in old.target[old_range.clone()].iter().enumerate() {
             self.stamp[t as usize] = (epoch, (s + k) as u32);
+        }
+        // The update below reads these beliefs in the new grid order: start fetching them
+        // now (the old graph is megabytes at large N, out of the nearer caches).
+        #[cfg(target_arch = "x86_64")]
+        {
+            let beliefs = &old.belief[old_range];
+            let start = beliefs.as_ptr().cast::<i8>();
+            for offset in (0..std::mem::size_of_val(beliefs)).step_by(64) {
+                // SAFETY: a prefetch only hints the cache (it never faults); the address lies
+                // inside `beliefs`.
+                unsafe {
+                    std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                        start.add(offset),
+                    )
+                };
+            }
         }
 
         // 2. Every agent within the radius, in grid order.
@@ -1563,13 +1584,16 @@ impl ObserveWorker {
         }
         let cand = &self.cand[..m];
 
-        // 3. Targets' state, beliefs, clearances.
-        let e = &mut self.cur;
-        let e_target = &mut e.target[..m];
-        let e_slot = &mut e.slot[..m];
-        let e_belief = &mut e.belief[..m];
-        let e_clear = &mut e.clearance[..m];
-        let e_u = &mut e.u[..m];
+        // 3. Targets' state, beliefs, clearances. The edges are written straight into the
+        // store's spare capacity (no zero-fill or copy first), made visible by `commit`.
+        let e = &mut self.edges;
+        let base = e.len();
+        e.reserve(m);
+        let e_target = &mut e.target.spare_capacity_mut()[..m];
+        let e_slot = &mut e.slot.spare_capacity_mut()[..m];
+        let e_belief = &mut e.belief.spare_capacity_mut()[..m];
+        let e_clear = &mut e.clearance.spare_capacity_mut()[..m];
+        let e_u = &mut e.u.spare_capacity_mut()[..m];
         let dxs = &mut self.dx[..m];
         let dys = &mut self.dy[..m];
         let dists = &mut self.dist[..m];
@@ -1618,11 +1642,11 @@ impl ObserveWorker {
                 (c, n, 1.0)
             };
             contact |= clearance <= 0.0;
-            e_target[c] = t.id;
-            e_slot[c] = j as u32;
-            e_belief[c] = belief;
-            e_clear[c] = clearance;
-            e_u[c] = u;
+            e_target[c] = MaybeUninit::new(t.id);
+            e_slot[c] = MaybeUninit::new(j as u32);
+            e_belief[c] = MaybeUninit::new(belief);
+            e_clear[c] = MaybeUninit::new(clearance);
+            e_u[c] = MaybeUninit::new(u);
             dxs[c] = d.x;
             dys[c] = d.y;
             dists[c] = dist;
@@ -1638,10 +1662,13 @@ impl ObserveWorker {
         // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
         // simulated pedestrian (pedestrian::total_force without the goal term, summed in four
         // interleaved lanes), in one loop over the edges.
-        let e = &mut self.cur;
-        let psis = &mut e.psi[..m];
-        let clears = &e.clearance[..m];
-        let us = &e.u[..m];
+        let e = &mut self.edges;
+        // SAFETY: the loop above wrote entries `base..base + m` of these fields (each `c` in
+        // `0..m` once).
+        unsafe { e.commit_all_but_psi(base + m) };
+        let psis = &mut e.psi.spare_capacity_mut()[..m];
+        let clears = &e.clearance[base..base + m];
+        let us = &e.u[base..base + m];
         let (dxs, dys, dists) = (&self.dx[..m], &self.dy[..m], &self.dist[..m]);
         let (vxs, vys, accns) = (&self.vx[..m], &self.vy[..m], &self.accn[..m]);
         let gamma1 = inp.params.risk.gamma1;
@@ -1658,7 +1685,9 @@ impl ObserveWorker {
             None => {
                 for c in 0..m {
                     let along = vxs[c] * dxs[c] + vys[c] * dys[c];
-                    psis[c] = edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]).0;
+                    let (psi, _) =
+                        edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]);
+                    psis[c] = MaybeUninit::new(psi);
                 }
                 (Vec2::zeros(), 0.0)
             }
@@ -1672,7 +1701,7 @@ impl ObserveWorker {
                     let along = vxs[c] * dxs[c] + vys[c] * dys[c];
                     let (psi, inv_dist) =
                         edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]);
-                    psis[c] = psi;
+                    psis[c] = MaybeUninit::new(psi);
                     let veh = vehs[c] != 0.0;
                     let strength = if veh { fc.a_veh } else { fc.a_ped };
                     let neg_inv_range = if veh {
@@ -1695,7 +1724,8 @@ impl ObserveWorker {
                 (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
             }
         };
-        self.edges.append_first(&self.cur, m);
+        // SAFETY: both branches above wrote `psi` of entries `base..base + m`.
+        unsafe { self.edges.psi.set_len(base + m) };
         self.len.push(m as u32);
         self.contact.push(contact);
         self.force.push(force);
