@@ -205,13 +205,23 @@ fn edge_room(len: usize) -> usize {
 }
 
 impl Clone for EdgeStore {
-    /// A copy with room to grow (see [`edge_room`]), so that stepping a cloned world does not
-    /// reallocate its stores.
+    /// A copy with room to grow (see [`edge_room`]), and at least the original's, so that
+    /// stepping a cloned world does not reallocate its stores.
     fn clone(&self) -> Self {
-        let mut e = Self::default();
-        e.clear_with_capacity(self.len());
-        e.append(self);
-        e
+        fn copy<T: Copy>(v: &[T], capacity: usize) -> Vec<T> {
+            let mut c = Vec::with_capacity(capacity);
+            c.extend_from_slice(v);
+            c
+        }
+        let capacity = edge_room(self.len()).max(self.target.capacity());
+        Self {
+            target: copy(&self.target, capacity),
+            slot: copy(&self.slot, capacity),
+            belief: copy(&self.belief, capacity),
+            clearance: copy(&self.clearance, capacity),
+            psi: copy(&self.psi, capacity),
+            u: copy(&self.u, capacity),
+        }
     }
 }
 
@@ -345,7 +355,7 @@ struct ExternalTrack {
 }
 
 /// Structure-of-arrays state of the agents present at the current step.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 struct Agents {
     id: Vec<AgentId>,
     kind: Vec<AgentKind>,
@@ -366,34 +376,6 @@ struct Agents {
     edge_start: Vec<u32>,
     edge_len: Vec<u32>,
     leaving: Vec<bool>,
-}
-
-impl Clone for Agents {
-    fn clone(&self) -> Self {
-        let mut a = Self::default();
-        a.clone_from(self);
-        a
-    }
-
-    /// Field-wise, reusing the allocations (the step's `next` buffer is refilled every step).
-    fn clone_from(&mut self, src: &Self) {
-        self.id.clone_from(&src.id);
-        self.kind.clone_from(&src.kind);
-        self.control.clone_from(&src.control);
-        self.shape.clone_from(&src.shape);
-        self.pos.clone_from(&src.pos);
-        self.vel.clone_from(&src.vel);
-        self.acc.clone_from(&src.acc);
-        self.prev_acc.clone_from(&src.prev_acc);
-        self.speed.clone_from(&src.speed);
-        self.heading.clone_from(&src.heading);
-        self.goal.clone_from(&src.goal);
-        self.v0.clone_from(&src.v0);
-        self.initial_vel.clone_from(&src.initial_vel);
-        self.edge_start.clone_from(&src.edge_start);
-        self.edge_len.clone_from(&src.edge_len);
-        self.leaving.clone_from(&src.leaving);
-    }
 }
 
 impl Agents {
@@ -471,7 +453,8 @@ pub struct World {
     departed: Vec<(AgentId, Vec2)>,
     // Scratch reused by every step.
     grid: Grid,
-    next: Agents,
+    /// The new position, velocity, speed and heading of every agent, collected by the move.
+    moved: Vec<(Vec2, Vec2, f64, f64)>,
     next_edges: EdgeStore,
     keep: Vec<bool>,
     slot_map: Vec<u32>,
@@ -609,7 +592,7 @@ impl World {
             externals,
             departed: Vec::new(),
             grid: Grid::default(),
-            next: Agents::default(),
+            moved: Vec::new(),
             next_edges: EdgeStore::default(),
             keep: Vec::new(),
             slot_map: Vec::new(),
@@ -626,6 +609,9 @@ impl World {
         let mut events = Vec::new();
         w.enter_pending(&mut events);
         w.observe();
+        // The first step's observe fills the store the initial graph was built in (now the
+        // worker's): give it room now rather than in that step.
+        w.workers[0].edges.clear_with_capacity(w.edges.len());
         for e in &mut w.externals {
             e.active = w.agents.id.contains(&e.id);
         }
@@ -1013,8 +999,9 @@ impl World {
         let n = self.agents.len();
         let mut clipped_of = std::mem::take(&mut self.clipped_of);
         clipped_of.clear();
-        let mut next = std::mem::take(&mut self.next);
-        next.clone_from(&self.agents);
+        // Every move reads the state at `t`: the new states are collected first, then written.
+        let mut moved = std::mem::take(&mut self.moved);
+        moved.clear();
         for i in 0..n {
             let id = self.agents.id[i];
             let (pos, vel, speed, heading) = match self.agents.control[i] {
@@ -1029,7 +1016,8 @@ impl World {
                 Control::Replay => match self.replay_state(i, self.step + 1) {
                     Some(s) => s,
                     None => {
-                        next.leaving[i] = true;
+                        // Past its record: it stays where it was and leaves below.
+                        self.agents.leaving[i] = true;
                         (
                             self.agents.pos[i],
                             self.agents.vel[i],
@@ -1040,15 +1028,18 @@ impl World {
                 },
                 Control::Model(m) => self.move_pedestrian(i, m),
             };
-            next.prev_acc[i] = self.agents.acc[i];
-            next.acc[i] = (vel - self.agents.vel[i]) / dt;
-            next.pos[i] = pos;
-            next.vel[i] = vel;
-            next.speed[i] = speed;
-            next.heading[i] = heading;
+            moved.push((pos, vel, speed, heading));
         }
-        std::mem::swap(&mut self.agents, &mut next);
-        self.next = next;
+        let a = &mut self.agents;
+        for (i, &(pos, vel, speed, heading)) in moved.iter().enumerate() {
+            a.prev_acc[i] = a.acc[i];
+            a.acc[i] = (vel - a.vel[i]) / dt;
+            a.pos[i] = pos;
+            a.vel[i] = vel;
+            a.speed[i] = speed;
+            a.heading[i] = heading;
+        }
+        self.moved = moved;
         self.step += 1;
 
         // 3. Arrivals and departures of pedestrians, entries.
@@ -1508,6 +1499,17 @@ impl ObserveWorker {
         self.contact.clear();
         self.force.clear();
         self.max_w.clear();
+        if self.cand.len() != n {
+            self.resize_scratch(n);
+        }
+        for i in observers {
+            self.observer::<AVX2>(inp, i);
+        }
+    }
+
+    /// Sizes the per-edge scratch for `n` agents (an observer has fewer than `n` edges).
+    #[cold]
+    fn resize_scratch(&mut self, n: usize) {
         self.cand.resize(n, 0);
         for v in [
             &mut self.dx,
@@ -1525,9 +1527,6 @@ impl ObserveWorker {
             &mut self.w,
         ] {
             v.resize(n, 0.0);
-        }
-        for i in observers {
-            self.observer::<AVX2>(inp, i);
         }
     }
 
