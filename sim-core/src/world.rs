@@ -891,7 +891,11 @@ impl World {
                 Shape::Rect { .. } => f64::NAN,
             },
             id: a.id[j],
-            is_vehicle: a.kind[j] == AgentKind::Vehicle,
+            veh: if a.kind[j] == AgentKind::Vehicle {
+                1.0
+            } else {
+                0.0
+            },
         }));
         let threads = if n >= PARALLEL_MIN_AGENTS {
             self.threads.min(n)
@@ -1344,7 +1348,8 @@ struct TargetInfo {
     /// Disc radius; NaN for a rectangle.
     radius: f64,
     id: AgentId,
-    is_vehicle: bool,
+    /// 1 for a vehicle, 0 for a pedestrian (as the force loop selects on it).
+    veh: f64,
 }
 
 /// What every observe worker reads: the state, the previous edges (beliefs), the grid.
@@ -1426,11 +1431,9 @@ struct ObserveWorker {
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
     // Per edge of the current observer.
-    dx: Vec<f64>,
-    dy: Vec<f64>,
+    /// `v_j . (x_i - x_j)`: the target's velocity along the centre offset.
+    along: Vec<f64>,
     dist: Vec<f64>,
-    vx: Vec<f64>,
-    vy: Vec<f64>,
     accn: Vec<f64>,
     /// 1 when the target is a vehicle.
     veh: Vec<f64>,
@@ -1512,11 +1515,8 @@ impl ObserveWorker {
     fn resize_scratch(&mut self, n: usize) {
         self.cand.resize(n, 0);
         for v in [
-            &mut self.dx,
-            &mut self.dy,
+            &mut self.along,
             &mut self.dist,
-            &mut self.vx,
-            &mut self.vy,
             &mut self.accn,
             &mut self.veh,
             &mut self.nnx,
@@ -1593,11 +1593,8 @@ impl ObserveWorker {
         let e_belief = &mut e.belief.spare_capacity_mut()[..m];
         let e_clear = &mut e.clearance.spare_capacity_mut()[..m];
         let e_u = &mut e.u.spare_capacity_mut()[..m];
-        let dxs = &mut self.dx[..m];
-        let dys = &mut self.dy[..m];
+        let alongs = &mut self.along[..m];
         let dists = &mut self.dist[..m];
-        let vxs = &mut self.vx[..m];
-        let vys = &mut self.vy[..m];
         let accns = &mut self.accn[..m];
         let vehs = &mut self.veh[..m];
         let nnxs = &mut self.nnx[..m];
@@ -1646,13 +1643,10 @@ impl ObserveWorker {
             e_belief[c] = MaybeUninit::new(belief);
             e_clear[c] = MaybeUninit::new(clearance);
             e_u[c] = MaybeUninit::new(u);
-            dxs[c] = d.x;
-            dys[c] = d.y;
+            alongs[c] = vj.x * d.x + vj.y * d.y;
             dists[c] = dist;
-            vxs[c] = vj.x;
-            vys[c] = vj.y;
             accns[c] = t.acc_norm;
-            vehs[c] = if t.is_vehicle { 1.0 } else { 0.0 };
+            vehs[c] = t.veh;
             nnxs[c] = normal.x;
             nnys[c] = normal.y;
             rects[c] = rect;
@@ -1668,8 +1662,7 @@ impl ObserveWorker {
         let psis = &mut e.psi.spare_capacity_mut()[..m];
         let clears = &e.clearance[base..base + m];
         let us = &e.u[base..base + m];
-        let (dxs, dys, dists) = (&self.dx[..m], &self.dy[..m], &self.dist[..m]);
-        let (vxs, vys, accns) = (&self.vx[..m], &self.vy[..m], &self.accn[..m]);
+        let (alongs, dists, accns) = (&self.along[..m], &self.dist[..m], &self.accn[..m]);
         let gamma1 = inp.params.risk.gamma1;
         let two_gamma2 = 2.0 * inp.params.risk.gamma2;
         let fc = match a.control[i] {
@@ -1683,9 +1676,8 @@ impl ObserveWorker {
         let (force, max_w) = match fc {
             None => {
                 for c in 0..m {
-                    let along = vxs[c] * dxs[c] + vys[c] * dys[c];
                     let (psi, _) =
-                        edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]);
+                        edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
                     psis[c] = MaybeUninit::new(psi);
                 }
                 (Vec2::zeros(), 0.0)
@@ -1697,9 +1689,8 @@ impl ObserveWorker {
                 let fys = &mut self.fy[..m];
                 let ws = &mut self.w[..m];
                 for c in 0..m {
-                    let along = vxs[c] * dxs[c] + vys[c] * dys[c];
                     let (psi, inv_dist) =
-                        edge_risk(gamma1, two_gamma2, along, dists[c], accns[c], clears[c]);
+                        edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
                     psis[c] = MaybeUninit::new(psi);
                     let veh = vehs[c] != 0.0;
                     let strength = if veh { fc.a_veh } else { fc.a_ped };
