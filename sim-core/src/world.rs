@@ -915,6 +915,13 @@ impl World {
             params: &self.params,
             r2: r * r,
             kernels: self.kernels,
+            forces: PedestrianModel::ALL.map(|m| {
+                debug_assert_eq!(PedestrianModel::ALL[model_index(m)], m);
+                self.params
+                    .pedestrians
+                    .for_model(m)
+                    .map(|p| ForceConsts::new(m, p))
+            }),
         };
         let workers = &mut self.workers[..threads];
         if threads == 1 {
@@ -1362,6 +1369,21 @@ struct ObserveInputs<'a> {
     params: &'a WorldParams,
     r2: f64,
     kernels: Kernels,
+    /// Social-force constants per pedestrian model (by [`model_index`]), computed outside the
+    /// worker: in memory, the force loop selects between loaded constants (built in the loop,
+    /// `-1/B` was folded into one division per edge).
+    forces: [Option<ForceConsts>; PedestrianModel::ALL.len()],
+}
+
+/// Index of `model` in [`PedestrianModel::ALL`].
+fn model_index(model: PedestrianModel) -> usize {
+    match model {
+        PedestrianModel::Cv => 0,
+        PedestrianModel::Sfm => 1,
+        PedestrianModel::RaSfm => 2,
+        PedestrianModel::CrSfm => 3,
+        PedestrianModel::Replay => 4,
+    }
 }
 
 /// Which compiled variant of the observe pass a world runs.
@@ -1666,11 +1688,7 @@ impl ObserveWorker {
         let gamma1 = inp.params.risk.gamma1;
         let two_gamma2 = 2.0 * inp.params.risk.gamma2;
         let fc = match a.control[i] {
-            Control::Model(model) => inp
-                .params
-                .pedestrians
-                .for_model(model)
-                .map(|p| ForceConsts::new(model, p)),
+            Control::Model(model) => inp.forces[model_index(model)],
             _ => None,
         };
         let (force, max_w) = match fc {
