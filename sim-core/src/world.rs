@@ -1368,6 +1368,7 @@ struct ObserveInputs<'a> {
     schedule: &'a VarianceSchedule,
     params: &'a WorldParams,
     r2: f64,
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     kernels: Kernels,
     /// Social-force constants per pedestrian model (by [`model_index`]), computed outside the
     /// worker: in memory, the force loop selects between loaded constants (built in the loop,
@@ -1441,9 +1442,11 @@ impl ForceConsts {
 /// Scratch and output of one observe worker: it handles a contiguous range of observers.
 ///
 /// Each observer is done in three passes over its edges: a gather of the candidates within the
-/// perception radius (branch-free compaction), a scalar pass that reads the targets' state and
-/// updates the beliefs (random access), and branch-free loops over structure-of-arrays scratch
-/// for the risk and the social forces, which the compiler vectorises (with [`fastmath::exp`]).
+/// perception radius (branch-free compaction; four at a time with AVX2), a scalar pass that
+/// reads the targets' state and updates the beliefs (random access), writing the edges straight
+/// into the edge store, and one branch-free loop over structure-of-arrays scratch for the risk
+/// and the social forces, which the compiler vectorises (with [`fastmath::exp`]). The whole
+/// pass is compiled twice, portable and AVX2 (chosen at run time), with identical arithmetic.
 #[derive(Debug, Clone, Default)]
 struct ObserveWorker {
     /// `stamp[id].0 == epoch` when the current observer had a belief about agent `id`, held by
