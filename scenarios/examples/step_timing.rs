@@ -9,9 +9,12 @@
 //! cargo run --release -p scenarios --example step_timing -- allocs N STEPS  # heap use per step
 //! ```
 //!
+//! `STEP_TIMING_PORTABLE=1` makes `time`, `steps` and `allocs` run the portable kernels.
+//!
 //! `dump` writes the bits of every agent's state and every graph edge after each step of a fixed
 //! set of episodes (synthetic scenes of several sizes, layouts, models and seeds, and the
-//! embedded HBS pool): two builds that step identically write identical files (one SHA-256 per episode).
+//! embedded HBS pool): two builds that step identically write identical files (one SHA-256 per
+//! episode).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Write;
@@ -69,8 +72,17 @@ fn step_once(world: &mut World) {
 }
 
 /// The world `sim-server bench-step` times (seed 0): warmed up, or, when the AV's episode ended
-/// during warm-up, the same scene with the AV replayed.
+/// during warm-up, the same scene with the AV replayed. With `STEP_TIMING_PORTABLE=1` in the
+/// environment it runs the portable kernels (what CPUs without AVX2 run).
 fn bench_world(n: usize) -> World {
+    let mut world = bench_world_default(n);
+    if std::env::var("STEP_TIMING_PORTABLE").is_ok_and(|v| v == "1") {
+        world.use_portable_kernels();
+    }
+    world
+}
+
+fn bench_world_default(n: usize) -> World {
     let scenario = scene(SceneLayout::Random, n, 0);
     let config = EpisodeConfig::ego_external(&scenario, PedestrianModel::CrSfm);
     let mut world = World::new(scenario, WorldParams::default(), config).expect("world");
