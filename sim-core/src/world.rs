@@ -13,6 +13,7 @@
 //! 4. observe at `t + 1`: beliefs (`u_{t+1}`), clearances, `psi_{t+1}`, the graph;
 //! 5. events (collisions, arrivals) and every reward term of the transition.
 
+use std::mem::MaybeUninit;
 use std::ops::Range;
 use std::sync::Arc;
 
@@ -186,7 +187,7 @@ pub(crate) struct Edge {
 
 /// Every edge of the risk graph, structure of arrays (one entry per edge in each), grouped by
 /// observer in slot order. The observe pass writes each field as one contiguous run.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 struct EdgeStore {
     target: Vec<AgentId>,
     slot: Vec<u32>,
@@ -194,6 +195,34 @@ struct EdgeStore {
     clearance: Vec<f64>,
     psi: Vec<f64>,
     u: Vec<f64>,
+}
+
+/// Room an edge store is given beyond `len` edges when (re)allocated: the graph of the next
+/// steps is about as large, and a store that is short must be allocated afresh (megabytes of
+/// untouched pages at large `N`).
+fn edge_room(len: usize) -> usize {
+    len + len / 4 + 64
+}
+
+impl Clone for EdgeStore {
+    /// A copy with room to grow (see [`edge_room`]), and at least the original's, so that
+    /// stepping a cloned world does not reallocate its stores.
+    fn clone(&self) -> Self {
+        fn copy<T: Copy>(v: &[T], capacity: usize) -> Vec<T> {
+            let mut c = Vec::with_capacity(capacity);
+            c.extend_from_slice(v);
+            c
+        }
+        let capacity = edge_room(self.len()).max(self.target.capacity());
+        Self {
+            target: copy(&self.target, capacity),
+            slot: copy(&self.slot, capacity),
+            belief: copy(&self.belief, capacity),
+            clearance: copy(&self.clearance, capacity),
+            psi: copy(&self.psi, capacity),
+            u: copy(&self.u, capacity),
+        }
+    }
 }
 
 impl EdgeStore {
@@ -214,32 +243,21 @@ impl EdgeStore {
         self.u.truncate(len);
     }
 
-    /// Empties the store and makes room for `total` edges without reallocating (a fresh
-    /// allocation, not a copy, when the capacity is short: the old contents are dead).
-    fn clear_with_capacity(&mut self, total: usize) {
-        fn fresh<T>(v: &mut Vec<T>, total: usize) {
+    /// Empties the store and makes room for about `len` edges, and some, without reallocating
+    /// (a fresh allocation, not a copy, when the capacity is short: the old contents are dead).
+    fn clear_with_capacity(&mut self, len: usize) {
+        fn fresh<T>(v: &mut Vec<T>, len: usize) {
             v.clear();
-            if v.capacity() < total {
-                *v = Vec::with_capacity(total);
+            if v.capacity() < len + len / 16 + 64 {
+                *v = Vec::with_capacity(edge_room(len));
             }
         }
-        fresh(&mut self.target, total);
-        fresh(&mut self.slot, total);
-        fresh(&mut self.belief, total);
-        fresh(&mut self.clearance, total);
-        fresh(&mut self.psi, total);
-        fresh(&mut self.u, total);
-    }
-
-    /// Appends `m` zeroed edges (filled in place by the caller).
-    fn grow(&mut self, m: usize) {
-        let len = self.len() + m;
-        self.target.resize(len, 0);
-        self.slot.resize(len, 0);
-        self.belief.resize(len, Belief::first_sight(Vec2::zeros()));
-        self.clearance.resize(len, 0.0);
-        self.psi.resize(len, 0.0);
-        self.u.resize(len, 0.0);
+        fresh(&mut self.target, len);
+        fresh(&mut self.slot, len);
+        fresh(&mut self.belief, len);
+        fresh(&mut self.clearance, len);
+        fresh(&mut self.psi, len);
+        fresh(&mut self.u, len);
     }
 
     fn append(&mut self, other: &EdgeStore) {
@@ -249,6 +267,29 @@ impl EdgeStore {
         self.clearance.extend_from_slice(&other.clearance);
         self.psi.extend_from_slice(&other.psi);
         self.u.extend_from_slice(&other.u);
+    }
+
+    /// Makes room for `m` more edges in every field.
+    fn reserve(&mut self, m: usize) {
+        self.target.reserve(m);
+        self.slot.reserve(m);
+        self.belief.reserve(m);
+        self.clearance.reserve(m);
+        self.psi.reserve(m);
+        self.u.reserve(m);
+    }
+
+    /// Sets the length of every field but `psi` to `len`.
+    ///
+    /// # Safety
+    /// Entries up to `len` of those fields must be initialised (written through
+    /// `spare_capacity_mut`).
+    unsafe fn commit_all_but_psi(&mut self, len: usize) {
+        self.target.set_len(len);
+        self.slot.set_len(len);
+        self.belief.set_len(len);
+        self.clearance.set_len(len);
+        self.u.set_len(len);
     }
 
     fn push(&mut self, e: Edge) {
@@ -314,7 +355,7 @@ struct ExternalTrack {
 }
 
 /// Structure-of-arrays state of the agents present at the current step.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 struct Agents {
     id: Vec<AgentId>,
     kind: Vec<AgentKind>,
@@ -335,34 +376,6 @@ struct Agents {
     edge_start: Vec<u32>,
     edge_len: Vec<u32>,
     leaving: Vec<bool>,
-}
-
-impl Clone for Agents {
-    fn clone(&self) -> Self {
-        let mut a = Self::default();
-        a.clone_from(self);
-        a
-    }
-
-    /// Field-wise, reusing the allocations (the step's `next` buffer is refilled every step).
-    fn clone_from(&mut self, src: &Self) {
-        self.id.clone_from(&src.id);
-        self.kind.clone_from(&src.kind);
-        self.control.clone_from(&src.control);
-        self.shape.clone_from(&src.shape);
-        self.pos.clone_from(&src.pos);
-        self.vel.clone_from(&src.vel);
-        self.acc.clone_from(&src.acc);
-        self.prev_acc.clone_from(&src.prev_acc);
-        self.speed.clone_from(&src.speed);
-        self.heading.clone_from(&src.heading);
-        self.goal.clone_from(&src.goal);
-        self.v0.clone_from(&src.v0);
-        self.initial_vel.clone_from(&src.initial_vel);
-        self.edge_start.clone_from(&src.edge_start);
-        self.edge_len.clone_from(&src.edge_len);
-        self.leaving.clone_from(&src.leaving);
-    }
 }
 
 impl Agents {
@@ -440,7 +453,8 @@ pub struct World {
     departed: Vec<(AgentId, Vec2)>,
     // Scratch reused by every step.
     grid: Grid,
-    next: Agents,
+    /// The new position, velocity, speed and heading of every agent, collected by the move.
+    moved: Vec<(Vec2, Vec2, f64, f64)>,
     next_edges: EdgeStore,
     keep: Vec<bool>,
     slot_map: Vec<u32>,
@@ -451,10 +465,16 @@ pub struct World {
     rep_force: Vec<Vec2>,
     rep_max_w: Vec<f64>,
     forces_valid: bool,
+    /// Per slot, whether the observer has an edge of clearance `<= 0` (from the last observe).
+    contact: Vec<bool>,
+    /// Per external agent moved by the step: whether its action was clipped, and its yaw rate.
+    clipped_of: Vec<(AgentId, bool, f64)>,
     /// One scratch per observe worker (thread).
     workers: Vec<ObserveWorker>,
     /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
     threads: usize,
+    /// The observe pass's instruction-set variant (the widest the CPU runs, by default).
+    kernels: Kernels,
 }
 
 const NO_SLOT: u32 = u32::MAX;
@@ -572,7 +592,7 @@ impl World {
             externals,
             departed: Vec::new(),
             grid: Grid::default(),
-            next: Agents::default(),
+            moved: Vec::new(),
             next_edges: EdgeStore::default(),
             keep: Vec::new(),
             slot_map: Vec::new(),
@@ -580,12 +600,18 @@ impl World {
             rep_force: Vec::new(),
             rep_max_w: Vec::new(),
             forces_valid: false,
+            contact: Vec::new(),
+            clipped_of: Vec::new(),
             workers: vec![ObserveWorker::new(n_total)],
             threads: 1,
+            kernels: Kernels::detect(),
         };
         let mut events = Vec::new();
         w.enter_pending(&mut events);
         w.observe();
+        // The first step's observe fills the store the initial graph was built in (now the
+        // worker's): give it room now rather than in that step.
+        w.workers[0].edges.clear_with_capacity(w.edges.len());
         for e in &mut w.externals {
             e.active = w.agents.id.contains(&e.id);
         }
@@ -601,6 +627,14 @@ impl World {
     /// count. Not part of the world's parameters: a server running many worlds keeps 1.
     pub fn set_threads(&mut self, threads: usize) {
         self.threads = threads.max(1);
+    }
+
+    /// Runs the observe pass with the baseline instructions of the build target even where the
+    /// CPU has wider vector units (results are bit-identical either way; this is how the tests
+    /// check that).
+    #[doc(hidden)]
+    pub fn use_portable_kernels(&mut self) {
+        self.kernels = Kernels::Portable;
     }
 
     /// The thread count set by [`World::set_threads`].
@@ -857,7 +891,11 @@ impl World {
                 Shape::Rect { .. } => f64::NAN,
             },
             id: a.id[j],
-            is_vehicle: a.kind[j] == AgentKind::Vehicle,
+            veh: if a.kind[j] == AgentKind::Vehicle {
+                1.0
+            } else {
+                0.0
+            },
         }));
         let threads = if n >= PARALLEL_MIN_AGENTS {
             self.threads.min(n)
@@ -876,6 +914,14 @@ impl World {
             schedule: &self.schedule,
             params: &self.params,
             r2: r * r,
+            kernels: self.kernels,
+            forces: PedestrianModel::ALL.map(|m| {
+                debug_assert_eq!(PedestrianModel::ALL[model_index(m)], m);
+                self.params
+                    .pedestrians
+                    .for_model(m)
+                    .map(|p| ForceConsts::new(m, p))
+            }),
         };
         let workers = &mut self.workers[..threads];
         if threads == 1 {
@@ -900,6 +946,7 @@ impl World {
         }
         self.rep_force.clear();
         self.rep_max_w.clear();
+        self.contact.clear();
         let a = &mut self.agents;
         let mut start = 0u32;
         let mut i = 0;
@@ -912,6 +959,7 @@ impl World {
             }
             self.rep_force.extend_from_slice(&w.force);
             self.rep_max_w.extend_from_slice(&w.max_w);
+            self.contact.extend_from_slice(&w.contact);
         }
         debug_assert_eq!(i, n);
         debug_assert_eq!(start as usize, self.edges.len());
@@ -960,9 +1008,11 @@ impl World {
         // 2. Move every agent from t to t + 1.
         let dt = self.params.dt;
         let n = self.agents.len();
-        let mut clipped_of: Vec<(AgentId, bool, f64)> = Vec::with_capacity(actions.len());
-        let mut next = std::mem::take(&mut self.next);
-        next.clone_from(&self.agents);
+        let mut clipped_of = std::mem::take(&mut self.clipped_of);
+        clipped_of.clear();
+        // Every move reads the state at `t`: the new states are collected first, then written.
+        let mut moved = std::mem::take(&mut self.moved);
+        moved.clear();
         for i in 0..n {
             let id = self.agents.id[i];
             let (pos, vel, speed, heading) = match self.agents.control[i] {
@@ -977,7 +1027,8 @@ impl World {
                 Control::Replay => match self.replay_state(i, self.step + 1) {
                     Some(s) => s,
                     None => {
-                        next.leaving[i] = true;
+                        // Past its record: it stays where it was and leaves below.
+                        self.agents.leaving[i] = true;
                         (
                             self.agents.pos[i],
                             self.agents.vel[i],
@@ -988,15 +1039,18 @@ impl World {
                 },
                 Control::Model(m) => self.move_pedestrian(i, m),
             };
-            next.prev_acc[i] = self.agents.acc[i];
-            next.acc[i] = (vel - self.agents.vel[i]) / dt;
-            next.pos[i] = pos;
-            next.vel[i] = vel;
-            next.speed[i] = speed;
-            next.heading[i] = heading;
+            moved.push((pos, vel, speed, heading));
         }
-        std::mem::swap(&mut self.agents, &mut next);
-        self.next = next;
+        let a = &mut self.agents;
+        for (i, &(pos, vel, speed, heading)) in moved.iter().enumerate() {
+            a.prev_acc[i] = a.acc[i];
+            a.acc[i] = (vel - a.vel[i]) / dt;
+            a.pos[i] = pos;
+            a.vel[i] = vel;
+            a.speed[i] = speed;
+            a.heading[i] = heading;
+        }
+        self.moved = moved;
         self.step += 1;
 
         // 3. Arrivals and departures of pedestrians, entries.
@@ -1019,6 +1073,9 @@ impl World {
 
         // 5. Events and rewards.
         for i in 0..self.agents.len() {
+            if !self.contact[i] {
+                continue;
+            }
             let range = self.out_range(i);
             let (targets, clearances) = (
                 &self.edges.target[range.clone()],
@@ -1033,7 +1090,7 @@ impl World {
         }
         let mut outcome = StepOutcome {
             step: self.step,
-            agents: Vec::new(),
+            agents: Vec::with_capacity(self.externals.len()),
             events,
             episode_over: false,
         };
@@ -1051,6 +1108,7 @@ impl World {
                 self.external_outcome(k, clipped, omega, truncated, &mut outcome.events);
             outcome.agents.push(agent_outcome);
         }
+        self.clipped_of = clipped_of;
         // Over when every external agent has entered and finished (one whose record starts
         // later keeps the episode running until it enters), or at the horizon.
         let all_finished = !self.externals.is_empty()
@@ -1297,7 +1355,8 @@ struct TargetInfo {
     /// Disc radius; NaN for a rectangle.
     radius: f64,
     id: AgentId,
-    is_vehicle: bool,
+    /// 1 for a vehicle, 0 for a pedestrian (as the force loop selects on it).
+    veh: f64,
 }
 
 /// What every observe worker reads: the state, the previous edges (beliefs), the grid.
@@ -1309,6 +1368,44 @@ struct ObserveInputs<'a> {
     schedule: &'a VarianceSchedule,
     params: &'a WorldParams,
     r2: f64,
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    kernels: Kernels,
+    /// Social-force constants per pedestrian model (by [`model_index`]), computed outside the
+    /// worker: in memory, the force loop selects between loaded constants (built in the loop,
+    /// `-1/B` was folded into one division per edge).
+    forces: [Option<ForceConsts>; PedestrianModel::ALL.len()],
+}
+
+/// Index of `model` in [`PedestrianModel::ALL`].
+fn model_index(model: PedestrianModel) -> usize {
+    match model {
+        PedestrianModel::Cv => 0,
+        PedestrianModel::Sfm => 1,
+        PedestrianModel::RaSfm => 2,
+        PedestrianModel::CrSfm => 3,
+        PedestrianModel::Replay => 4,
+    }
+}
+
+/// Which compiled variant of the observe pass a world runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kernels {
+    /// Baseline instructions of the build target.
+    Portable,
+    /// AVX2 (x86-64 CPUs that report it at run time).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    Avx2,
+}
+
+impl Kernels {
+    /// The widest variant this CPU runs.
+    fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            return Kernels::Avx2;
+        }
+        Kernels::Portable
+    }
 }
 
 /// Social-force constants of one observing simulated pedestrian.
@@ -1345,9 +1442,11 @@ impl ForceConsts {
 /// Scratch and output of one observe worker: it handles a contiguous range of observers.
 ///
 /// Each observer is done in three passes over its edges: a gather of the candidates within the
-/// perception radius (branch-free compaction), a scalar pass that reads the targets' state and
-/// updates the beliefs (random access), and branch-free loops over structure-of-arrays scratch
-/// for the risk and the social forces, which the compiler vectorises (with [`fastmath::exp`]).
+/// perception radius (branch-free compaction; four at a time with AVX2), a scalar pass that
+/// reads the targets' state and updates the beliefs (random access), writing the edges straight
+/// into the edge store, and one branch-free loop over structure-of-arrays scratch for the risk
+/// and the social forces, which the compiler vectorises (with [`fastmath::exp`]). The whole
+/// pass is compiled twice, portable and AVX2 (chosen at run time), with identical arithmetic.
 #[derive(Debug, Clone, Default)]
 struct ObserveWorker {
     /// `stamp[id].0 == epoch` when the current observer had a belief about agent `id`, held by
@@ -1357,11 +1456,9 @@ struct ObserveWorker {
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
     // Per edge of the current observer.
-    dx: Vec<f64>,
-    dy: Vec<f64>,
+    /// `v_j . (x_i - x_j)`: the target's velocity along the centre offset.
+    along: Vec<f64>,
     dist: Vec<f64>,
-    vx: Vec<f64>,
-    vy: Vec<f64>,
     accn: Vec<f64>,
     /// 1 when the target is a vehicle.
     veh: Vec<f64>,
@@ -1371,14 +1468,14 @@ struct ObserveWorker {
     nnx: Vec<f64>,
     nny: Vec<f64>,
     rect: Vec<f64>,
-    /// `1 / dist` (1 for coincident centres), written by the risk loop.
-    inv_dist: Vec<f64>,
     fx: Vec<f64>,
     fy: Vec<f64>,
     w: Vec<f64>,
     // Output for the worker's observers, in order.
     edges: EdgeStore,
     len: Vec<u32>,
+    /// Whether some clearance of the observer's is `<= 0` (a collision event to report).
+    contact: Vec<bool>,
     force: Vec<Vec2>,
     max_w: Vec<f64>,
 }
@@ -1392,6 +1489,32 @@ impl ObserveWorker {
     }
 
     fn run(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        #[cfg(target_arch = "x86_64")]
+        if inp.kernels == Kernels::Avx2 {
+            // SAFETY: `Kernels::Avx2` is only chosen when the CPU reports AVX2
+            // (`Kernels::detect`).
+            unsafe { self.run_avx2(inp, observers) };
+            return;
+        }
+        self.run_body::<false>(inp, observers);
+    }
+
+    /// [`ObserveWorker::run`] compiled for AVX2: the per-edge loops run four lanes wide. AVX2
+    /// alone, no FMA: every operation rounds as in the portable build, so results are
+    /// bit-identical.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_avx2(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        self.run_body::<true>(inp, observers);
+    }
+
+    /// The observe pass proper, inlined into each instruction-set variant of `run` (`AVX2`: only
+    /// called where the CPU has AVX2).
+    #[inline(always)]
+    fn run_body<const AVX2: bool>(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
         let n = inp.agents.len();
         // Room for as many edges as these observers had last step, and some.
         let a = inp.agents;
@@ -1399,35 +1522,41 @@ impl ObserveWorker {
             .iter()
             .map(|&l| l as usize)
             .sum();
-        self.edges.clear_with_capacity(last + last / 8 + 64);
+        self.edges.clear_with_capacity(last);
         self.len.clear();
+        self.contact.clear();
         self.force.clear();
         self.max_w.clear();
+        if self.cand.len() != n {
+            self.resize_scratch(n);
+        }
+        for i in observers {
+            self.observer::<AVX2>(inp, i);
+        }
+    }
+
+    /// Sizes the per-edge scratch for `n` agents (an observer has fewer than `n` edges).
+    #[cold]
+    fn resize_scratch(&mut self, n: usize) {
         self.cand.resize(n, 0);
         for v in [
-            &mut self.dx,
-            &mut self.dy,
+            &mut self.along,
             &mut self.dist,
-            &mut self.vx,
-            &mut self.vy,
             &mut self.accn,
             &mut self.veh,
             &mut self.nnx,
             &mut self.nny,
             &mut self.rect,
-            &mut self.inv_dist,
             &mut self.fx,
             &mut self.fy,
             &mut self.w,
         ] {
             v.resize(n, 0.0);
         }
-        for i in observers {
-            self.observer(inp, i);
-        }
     }
 
-    fn observer(&mut self, inp: &ObserveInputs, i: usize) {
+    #[inline(always)]
+    fn observer<const AVX2: bool>(&mut self, inp: &ObserveInputs, i: usize) {
         let a = inp.agents;
         let old = inp.old;
 
@@ -1439,8 +1568,25 @@ impl ObserveWorker {
         self.epoch += 1;
         let epoch = self.epoch;
         let s = a.edge_start[i] as usize;
-        for (k, &t) in old.target[s..s + a.edge_len[i] as usize].iter().enumerate() {
+        let old_range = s..s + a.edge_len[i] as usize;
+        for (k, &t) in old.target[old_range.clone()].iter().enumerate() {
             self.stamp[t as usize] = (epoch, (s + k) as u32);
+        }
+        // The update below reads these beliefs in the new grid order: start fetching them
+        // now (the old graph is megabytes at large N, out of the nearer caches).
+        #[cfg(target_arch = "x86_64")]
+        {
+            let beliefs = &old.belief[old_range];
+            let start = beliefs.as_ptr().cast::<i8>();
+            for offset in (0..std::mem::size_of_val(beliefs)).step_by(64) {
+                // SAFETY: a prefetch only hints the cache (it never faults); the address lies
+                // inside `beliefs`.
+                unsafe {
+                    std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                        start.add(offset),
+                    )
+                };
+            }
         }
 
         // 2. Every agent within the radius, in grid order.
@@ -1451,30 +1597,29 @@ impl ObserveWorker {
         let cand = &mut self.cand[..];
         let mut m = 0;
         for &(lo, hi) in &ranges[..rows] {
-            for ((&x, &y), &j) in gx[lo..hi].iter().zip(&gy[lo..hi]).zip(&slots[lo..hi]) {
-                let (dx, dy) = (xi.x - x, xi.y - y);
-                let inside = (dx * dx + dy * dy <= r2) & (j as usize != i);
-                // Written unconditionally, kept by advancing `m` (m < candidates <= n).
-                cand[m] = j;
-                m += usize::from(inside);
+            let (gx, gy, slots) = (&gx[lo..hi], &gy[lo..hi], &slots[lo..hi]);
+            #[cfg(target_arch = "x86_64")]
+            if AVX2 {
+                // SAFETY: `observer::<true>` only runs where the CPU has AVX2 (`run_avx2`).
+                m = unsafe { gather_avx2(gx, gy, slots, xi, r2, i as u32, cand, m) };
+                continue;
             }
+            m = gather(gx, gy, slots, xi, r2, i as u32, cand, m);
         }
         let cand = &self.cand[..m];
 
-        // 3. Targets' state, beliefs, clearances.
-        let base = self.edges.len();
-        self.edges.grow(m);
+        // 3. Targets' state, beliefs, clearances. The edges are written straight into the
+        // store's spare capacity (no zero-fill or copy first), made visible by `commit`.
         let e = &mut self.edges;
-        let e_target = &mut e.target[base..base + m];
-        let e_slot = &mut e.slot[base..base + m];
-        let e_belief = &mut e.belief[base..base + m];
-        let e_clear = &mut e.clearance[base..base + m];
-        let e_u = &mut e.u[base..base + m];
-        let dxs = &mut self.dx[..m];
-        let dys = &mut self.dy[..m];
+        let base = e.len();
+        e.reserve(m);
+        let e_target = &mut e.target.spare_capacity_mut()[..m];
+        let e_slot = &mut e.slot.spare_capacity_mut()[..m];
+        let e_belief = &mut e.belief.spare_capacity_mut()[..m];
+        let e_clear = &mut e.clearance.spare_capacity_mut()[..m];
+        let e_u = &mut e.u.spare_capacity_mut()[..m];
+        let alongs = &mut self.along[..m];
         let dists = &mut self.dist[..m];
-        let vxs = &mut self.vx[..m];
-        let vys = &mut self.vy[..m];
         let accns = &mut self.accn[..m];
         let vehs = &mut self.veh[..m];
         let nnxs = &mut self.nnx[..m];
@@ -1488,6 +1633,7 @@ impl ObserveWorker {
             position: xi,
             heading: a.heading[i],
         };
+        let mut contact = false;
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
@@ -1516,72 +1662,57 @@ impl ObserveWorker {
                 let (c, n) = clearance_and_normal(&placed_i, &placed_j);
                 (c, n, 1.0)
             };
-            e_target[c] = t.id;
-            e_slot[c] = j as u32;
-            e_belief[c] = belief;
-            e_clear[c] = clearance;
-            e_u[c] = u;
-            dxs[c] = d.x;
-            dys[c] = d.y;
+            contact |= clearance <= 0.0;
+            e_target[c] = MaybeUninit::new(t.id);
+            e_slot[c] = MaybeUninit::new(j as u32);
+            e_belief[c] = MaybeUninit::new(belief);
+            e_clear[c] = MaybeUninit::new(clearance);
+            e_u[c] = MaybeUninit::new(u);
+            alongs[c] = vj.x * d.x + vj.y * d.y;
             dists[c] = dist;
-            vxs[c] = vj.x;
-            vys[c] = vj.y;
             accns[c] = t.acc_norm;
-            vehs[c] = if t.is_vehicle { 1.0 } else { 0.0 };
+            vehs[c] = t.veh;
             nnxs[c] = normal.x;
             nnys[c] = normal.y;
             rects[c] = rect;
         }
 
-        // 4. Physical risk (risk::risk_with, branch-free).
+        // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
+        // simulated pedestrian (pedestrian::total_force without the goal term, summed in four
+        // interleaved lanes), in one loop over the edges.
         let e = &mut self.edges;
-        let psis = &mut e.psi[base..base + m];
+        // SAFETY: the loop above wrote entries `base..base + m` of these fields (each `c` in
+        // `0..m` once).
+        unsafe { e.commit_all_but_psi(base + m) };
+        let psis = &mut e.psi.spare_capacity_mut()[..m];
         let clears = &e.clearance[base..base + m];
         let us = &e.u[base..base + m];
-        let (dxs, dys, dists) = (&self.dx[..m], &self.dy[..m], &self.dist[..m]);
-        let (vxs, vys, accns) = (&self.vx[..m], &self.vy[..m], &self.accn[..m]);
-        let inv_dists = &mut self.inv_dist[..m];
+        let (alongs, dists, accns) = (&self.along[..m], &self.dist[..m], &self.accn[..m]);
         let gamma1 = inp.params.risk.gamma1;
         let two_gamma2 = 2.0 * inp.params.risk.gamma2;
-        for c in 0..m {
-            let along = vxs[c] * dxs[c] + vys[c] * dys[c];
-            // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
-            // division keeps the loop vectorisable.
-            let inv_dist = 1.0 / if dists[c] > 0.0 { dists[c] } else { 1.0 };
-            inv_dists[c] = inv_dist;
-            let radial_speed = along.abs() * inv_dist;
-            let k = if along > 0.0 { -1.0 } else { 1.0 };
-            let z = gamma1 * k * (radial_speed + accns[c]);
-            let one_plus_e = 1.0 + fastmath::exp(-2.0 * z);
-            let psi = one_plus_e / (one_plus_e + two_gamma2 * clears[c]);
-            // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
-            psis[c] = if one_plus_e == f64::INFINITY {
-                1.0
-            } else {
-                psi
-            };
-        }
-
-        // 5. Social forces on a simulated pedestrian (pedestrian::total_force without the goal
-        // term, summed in four interleaved lanes).
         let fc = match a.control[i] {
-            Control::Model(model) => inp
-                .params
-                .pedestrians
-                .for_model(model)
-                .map(|p| ForceConsts::new(model, p)),
+            Control::Model(model) => inp.forces[model_index(model)],
             _ => None,
         };
         let (force, max_w) = match fc {
-            None => (Vec2::zeros(), 0.0),
+            None => {
+                for c in 0..m {
+                    let (psi, _) =
+                        edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
+                    psis[c] = MaybeUninit::new(psi);
+                }
+                (Vec2::zeros(), 0.0)
+            }
             Some(fc) => {
                 let vehs = &self.veh[..m];
-                let (nnxs, nnys) = (&self.nnx[..m], &self.nny[..m]);
-                let (rects, inv_dists) = (&self.rect[..m], &self.inv_dist[..m]);
+                let (nnxs, nnys, rects) = (&self.nnx[..m], &self.nny[..m], &self.rect[..m]);
                 let fxs = &mut self.fx[..m];
                 let fys = &mut self.fy[..m];
                 let ws = &mut self.w[..m];
                 for c in 0..m {
+                    let (psi, inv_dist) =
+                        edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
+                    psis[c] = MaybeUninit::new(psi);
                     let veh = vehs[c] != 0.0;
                     let strength = if veh { fc.a_veh } else { fc.a_ped };
                     let neg_inv_range = if veh {
@@ -1590,10 +1721,10 @@ impl ObserveWorker {
                         fc.neg_inv_b_ped
                     };
                     let lambda = if veh { fc.lam_veh } else { fc.lam_ped };
-                    let weighted = psis[c] * (1.0 + lambda * us[c]);
+                    let weighted = psi * (1.0 + lambda * us[c]);
                     let w = if fc.unit_weight { 1.0 } else { weighted };
                     // Exactly `inv_dist` (rect = 0) or 1 (rect = 1), without a select on loads.
-                    let scale = rects[c] + (1.0 - rects[c]) * inv_dists[c];
+                    let scale = rects[c] + (1.0 - rects[c]) * inv_dist;
                     let nx = nnxs[c] * scale;
                     let ny = nnys[c] * scale;
                     let rep = strength * fastmath::exp(clears[c] * neg_inv_range);
@@ -1604,14 +1735,147 @@ impl ObserveWorker {
                 (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
             }
         };
+        // SAFETY: both branches above wrote `psi` of entries `base..base + m`.
+        unsafe { self.edges.psi.set_len(base + m) };
         self.len.push(m as u32);
+        self.contact.push(contact);
         self.force.push(force);
         self.max_w.push(max_w);
     }
 }
 
+/// Appends to `cand[m..]` the slots `slots[k]` other than `i` whose positions `(xs[k], ys[k])`
+/// lie within `sqrt(r2)` of `xi`, in order; returns the new count. `cand` has room for every
+/// slot (`m + slots.len() <= cand.len()`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn gather(
+    xs: &[f64],
+    ys: &[f64],
+    slots: &[u32],
+    xi: Vec2,
+    r2: f64,
+    i: u32,
+    cand: &mut [u32],
+    mut m: usize,
+) -> usize {
+    for ((&x, &y), &j) in xs.iter().zip(ys).zip(slots) {
+        let (dx, dy) = (xi.x - x, xi.y - y);
+        let inside = (dx * dx + dy * dy <= r2) & (j != i);
+        // Written unconditionally, kept by advancing `m` (m < candidates <= n).
+        cand[m] = j;
+        m += usize::from(inside);
+    }
+    m
+}
+
+/// For each of the 16 masks of four lanes, the lanes that are set, in order (the rest 0): the
+/// permutation that packs the kept slots of a group of four to its front.
+#[cfg(target_arch = "x86_64")]
+const PACK: [[i32; 4]; 16] = {
+    let mut t = [[0; 4]; 16];
+    let mut mask = 0;
+    while mask < 16 {
+        let (mut lane, mut k) = (0, 0);
+        while lane < 4 {
+            if mask & (1 << lane) != 0 {
+                t[mask][k] = lane;
+                k += 1;
+            }
+            lane += 1;
+        }
+        mask += 1;
+    }
+    t
+};
+
+/// [`gather`] four candidates at a time: the same distance test (same operations, no FMA), the
+/// kept slots of each group packed by a permutation and stored as one vector.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+#[allow(clippy::too_many_arguments)]
+unsafe fn gather_avx2(
+    xs: &[f64],
+    ys: &[f64],
+    slots: &[u32],
+    xi: Vec2,
+    r2: f64,
+    i: u32,
+    cand: &mut [u32],
+    mut m: usize,
+) -> usize {
+    use std::arch::x86_64::*;
+    let n = slots.len();
+    assert!(xs.len() == n && ys.len() == n && m + n <= cand.len());
+    let (px, py, pr2) = (
+        _mm256_set1_pd(xi.x),
+        _mm256_set1_pd(xi.y),
+        _mm256_set1_pd(r2),
+    );
+    let me = _mm_set1_epi32(i as i32);
+    let groups = n / 4;
+    for g in 0..groups {
+        let o = 4 * g;
+        // SAFETY: lanes `o..o + 4` are in bounds of `xs`, `ys` and `slots` (`o + 4 <= n`), and
+        // the store writes `cand[m..m + 4]` with `m <= m_0 + o` (at most one kept per
+        // candidate), so `m + 4 <= m_0 + n <= cand.len()` (asserted above).
+        let (x, y, j) = (
+            _mm256_loadu_pd(xs.as_ptr().add(o)),
+            _mm256_loadu_pd(ys.as_ptr().add(o)),
+            _mm_loadu_si128(slots.as_ptr().add(o).cast()),
+        );
+        let dx = _mm256_sub_pd(px, x);
+        let dy = _mm256_sub_pd(py, y);
+        let d2 = _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy));
+        let inside = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, pr2));
+        let is_me = _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(j, me)));
+        let keep = (inside & !is_me) as usize;
+        let perm = _mm_loadu_si128(PACK[keep].as_ptr().cast());
+        let packed = _mm_permutevar_ps(_mm_castsi128_ps(j), perm);
+        _mm_storeu_si128(cand.as_mut_ptr().add(m).cast(), _mm_castps_si128(packed));
+        m += keep.count_ones() as usize;
+    }
+    let o = 4 * groups;
+    gather(&xs[o..], &ys[o..], &slots[o..], xi, r2, i, cand, m)
+}
+
+/// Physical risk `psi` of one edge (risk::risk_with, branch-free) and `1 / dist` (1 for
+/// coincident centres), from `along = v_j . (x_i - x_j)`, the centre distance, the target's
+/// acceleration norm and the clearance. A function rather than a closure, so that it is inlined
+/// into (and compiled for) each instruction-set variant of the observe pass.
+#[inline(always)]
+fn edge_risk(
+    gamma1: f64,
+    two_gamma2: f64,
+    along: f64,
+    dist: f64,
+    acc_norm: f64,
+    clearance: f64,
+) -> (f64, f64) {
+    // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
+    // division keeps the loop vectorisable.
+    let inv_dist = 1.0 / if dist > 0.0 { dist } else { 1.0 };
+    let radial_speed = along.abs() * inv_dist;
+    let k = if along > 0.0 { -1.0 } else { 1.0 };
+    let z = gamma1 * k * (radial_speed + acc_norm);
+    let one_plus_e = 1.0 + fastmath::exp(-2.0 * z);
+    let psi = one_plus_e / (one_plus_e + two_gamma2 * clearance);
+    // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
+    let psi = if one_plus_e == f64::INFINITY {
+        1.0
+    } else {
+        psi
+    };
+    (psi, inv_dist)
+}
+
 /// Sum in four interleaved lanes, then the lanes and the tail in a fixed order (vectorisable,
 /// deterministic).
+#[inline(always)]
 fn lane_sum(v: &[f64]) -> f64 {
     let mut acc = [0.0; 4];
     let chunks = v.chunks_exact(4);
@@ -1629,6 +1893,7 @@ fn lane_sum(v: &[f64]) -> f64 {
 }
 
 /// Largest of `v` and 0 (weights are non-negative), in four lanes.
+#[inline(always)]
 fn lane_max(v: &[f64]) -> f64 {
     let mut acc = [0.0f64; 4];
     let chunks = v.chunks_exact(4);

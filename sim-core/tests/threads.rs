@@ -1,4 +1,5 @@
-//! A step split over several threads gives bit-identical results to the single-threaded step.
+//! A step split over several threads, or run with the portable instead of the widest vector
+//! instructions of the CPU, gives bit-identical results to the single-threaded step.
 
 mod common;
 
@@ -76,6 +77,27 @@ fn thread_count_does_not_change_any_bit() {
     for t in 0..12 {
         let prints: Vec<_> = worlds.iter().map(fingerprint).collect();
         assert!(prints[0].len() > 10_000, "a dense graph");
+        for p in &prints[1..] {
+            assert!(p == &prints[0], "diverged at step {t}");
+        }
+        for w in &mut worlds {
+            if w.is_over() {
+                return;
+            }
+            let actions: Vec<_> = w.active_externals().map(|id| (id, [0.3, 0.1])).collect();
+            w.step(&actions).unwrap();
+        }
+    }
+}
+
+#[test]
+fn vector_instruction_set_does_not_change_any_bit() {
+    let mut portable = world(1);
+    portable.use_portable_kernels();
+    let mut worlds = [world(1), portable, world(2)];
+    worlds[2].use_portable_kernels();
+    for t in 0..12 {
+        let prints: Vec<_> = worlds.iter().map(fingerprint).collect();
         for p in &prints[1..] {
             assert!(p == &prints[0], "diverged at step {t}");
         }
