@@ -17,7 +17,7 @@ use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, Worl
 
 use protocol::wire::{self, AgentDescRef, BatchArrays, ObsRef, ResetResultRef};
 
-use super::pools::{ScenarioSequence, ServedPool};
+use super::pools::{ScenarioSequence, ServedPool, ServedScenario};
 
 /// Which publications somebody listens to (decided by the network layer from zenoh matching
 /// status); a topic nobody matches is neither encoded nor sent.
@@ -617,25 +617,18 @@ impl Env {
     pub fn reset_result(&mut self) -> Result<ResetResult, ErrorReply> {
         let world = self.world.as_ref().expect("reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
-        let mut agents: Vec<AgentDesc> = world
-            .agents()
-            .map(|a| {
-                let (length, width) = match a.shape {
-                    Shape::Rect { length, width } => (Some(length), Some(width)),
-                    Shape::Disc { .. } => (None, None),
-                };
-                AgentDesc {
-                    id: a.id,
-                    name: served.names[a.id as usize].clone(),
-                    kind: to_wire_kind(a.kind),
-                    external: self.ext_ids.contains(&a.id),
-                    radius: a.shape.bounding_radius(),
-                    length,
-                    width,
-                }
+        let agents: Vec<AgentDesc> = agent_descs(world, served, &self.ext_ids)
+            .into_iter()
+            .map(|a| AgentDesc {
+                id: a.id,
+                name: a.name.to_string(),
+                kind: a.kind,
+                external: a.external,
+                radius: a.radius,
+                length: a.length,
+                width: a.width,
             })
             .collect();
-        agents.sort_by_key(|a| a.id);
         let m = self.spec.max_agents as usize;
         let mut buf = std::mem::take(&mut self.reset_obs);
         buf.resize(1, self.spec.n_ext(), m);
@@ -663,25 +656,7 @@ impl Env {
             .expect("write_reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
         let ext_ids = &self.ext_ids;
-        let mut agents: Vec<AgentDescRef<'_>> = world
-            .agents()
-            .map(|a| {
-                let (length, width) = match a.shape {
-                    Shape::Rect { length, width } => (Some(length), Some(width)),
-                    Shape::Disc { .. } => (None, None),
-                };
-                AgentDescRef {
-                    id: a.id,
-                    name: &served.names[a.id as usize],
-                    kind: to_wire_kind(a.kind),
-                    external: ext_ids.contains(&a.id),
-                    radius: a.shape.bounding_radius(),
-                    length,
-                    width,
-                }
-            })
-            .collect();
-        agents.sort_by_key(|a| a.id);
+        let agents = agent_descs(world, served, ext_ids);
         let m = self.spec.max_agents as usize;
         let n_ext = self.spec.n_ext();
         let buf = &mut self.reset_obs;
@@ -1024,4 +999,32 @@ impl Env {
             push(EnvTopic::Events, encode(&msg));
         }
     }
+}
+
+/// The `ResetResult::agents` entries of `world` (borrowed names), in id order.
+fn agent_descs<'a>(
+    world: &World,
+    served: &'a ServedScenario,
+    ext_ids: &[AgentId],
+) -> Vec<AgentDescRef<'a>> {
+    let mut agents: Vec<AgentDescRef<'a>> = world
+        .agents()
+        .map(|a| {
+            let (length, width) = match a.shape {
+                Shape::Rect { length, width } => (Some(length), Some(width)),
+                Shape::Disc { .. } => (None, None),
+            };
+            AgentDescRef {
+                id: a.id,
+                name: &served.names[a.id as usize],
+                kind: to_wire_kind(a.kind),
+                external: ext_ids.contains(&a.id),
+                radius: a.shape.bounding_radius(),
+                length,
+                width,
+            }
+        })
+        .collect();
+    agents.sort_by_key(|a| a.id);
+    agents
 }
