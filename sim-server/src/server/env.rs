@@ -292,21 +292,6 @@ impl Buffers {
         }
     }
 
-    /// Appends the envs of `other` (same `n_ext` and `m`) after those of `self`'s buffers;
-    /// `self.k` is left to the caller.
-    pub fn append(&mut self, other: Buffers) {
-        self.features.extend(other.features);
-        self.adjacency.extend(other.adjacency);
-        self.mask.extend(other.mask);
-        self.node_ids.extend(other.node_ids);
-        self.reward.extend(other.reward);
-        for (a, b) in self.terms.iter_mut().zip(other.terms) {
-            a.extend(b);
-        }
-        self.terminated.extend(other.terminated);
-        self.truncated.extend(other.truncated);
-    }
-
     /// The slots of env `i`.
     pub fn slots(&mut self, i: usize) -> Slots<'_> {
         self.view().into_slots(i)
@@ -331,39 +316,32 @@ impl Buffers {
         }
     }
 
-    fn shape(&self, batched: bool, rest: &[usize]) -> Vec<u32> {
-        let mut s = Vec::with_capacity(rest.len() + 1);
-        if batched {
-            s.push(self.k as u32);
-        }
-        s.extend(rest.iter().map(|&d| d as u32));
-        s
+    fn shape(rest: &[usize]) -> Vec<u32> {
+        rest.iter().map(|&d| d as u32).collect()
     }
 
     pub(crate) fn err(e: protocol::ArrayError) -> ErrorReply {
         ErrorReply::new(ErrorCode::Internal, format!("building arrays: {e}"))
     }
 
-    /// The observation arrays (with a leading K axis when `batched`).
-    pub fn obs(&self, batched: bool) -> Result<ObsBatch, ErrorReply> {
+    /// The observation arrays of a one-env buffer (`[n_ext, ...]`; batches are written by
+    /// [`protocol::wire`] instead).
+    pub fn obs(&self) -> Result<ObsBatch, ErrorReply> {
         let (n, m, f) = (self.n_ext, self.m, N_FEATURES as usize);
         Ok(ObsBatch {
-            features: F32Array::new(self.shape(batched, &[n, m, f]), &self.features)
+            features: F32Array::new(Self::shape(&[n, m, f]), &self.features)
                 .map_err(Self::err)?,
-            adjacency: F32Array::new(self.shape(batched, &[n, m, m]), &self.adjacency)
+            adjacency: F32Array::new(Self::shape(&[n, m, m]), &self.adjacency)
                 .map_err(Self::err)?,
-            mask: U8Array::new(self.shape(batched, &[n, m]), &self.mask).map_err(Self::err)?,
-            node_ids: U32Array::new(self.shape(batched, &[n, m]), &self.node_ids)
+            mask: U8Array::new(Self::shape(&[n, m]), &self.mask).map_err(Self::err)?,
+            node_ids: U32Array::new(Self::shape(&[n, m]), &self.node_ids)
                 .map_err(Self::err)?,
         })
     }
 
-    /// Reward, terms, terminated, truncated arrays.
-    pub fn rewards(
-        &self,
-        batched: bool,
-    ) -> Result<(F32Array, WireTerms, U8Array, U8Array), ErrorReply> {
-        let s = self.shape(batched, &[self.n_ext]);
+    /// Reward, terms, terminated, truncated arrays of a one-env buffer (`[n_ext]`).
+    pub fn rewards(&self) -> Result<(F32Array, WireTerms, U8Array, U8Array), ErrorReply> {
+        let s = Self::shape(&[self.n_ext]);
         let a = |v: &[f32]| F32Array::new(s.clone(), v).map_err(Self::err);
         Ok((
             a(&self.reward)?,
@@ -633,7 +611,7 @@ impl Env {
         let mut buf = std::mem::take(&mut self.reset_obs);
         buf.resize(1, self.spec.n_ext(), m);
         write_obs(world, &self.ext_ids, m, &mut buf.slots(0));
-        let obs = buf.obs(false);
+        let obs = buf.obs();
         self.reset_obs = buf;
         Ok(ResetResult {
             env_id: self.id.clone(),
@@ -838,14 +816,14 @@ impl Env {
     ) -> Result<StepResult, ErrorReply> {
         let mut buf = Buffers::new(1, self.spec.n_ext(), self.spec.max_agents as usize);
         let meta = self.step_into(actions, &mut buf.slots(0), gates, pubs)?;
-        let (reward, reward_terms, terminated, truncated) = buf.rewards(false)?;
+        let (reward, reward_terms, terminated, truncated) = buf.rewards()?;
         Ok(StepResult {
             env_id: self.id.clone(),
             episode: meta.episode,
             scenario: self.scenario_name(meta.scenario).to_string(),
             step: meta.step,
             t: meta.t,
-            obs: buf.obs(false)?,
+            obs: buf.obs()?,
             reward,
             reward_terms,
             terminated,
