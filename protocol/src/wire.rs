@@ -10,7 +10,7 @@
 use serde::Serialize;
 
 use crate::array::{shape_len, ArrayError, Element};
-use crate::messages::{AgentKind, EpisodeMetrics, Event, ResetResult};
+use crate::messages::{AgentKind, EpisodeMetrics, Event};
 
 fn put_u8s(out: &mut Vec<u8>, marker: u8, bytes: &[u8]) {
     out.push(marker);
@@ -148,12 +148,8 @@ pub fn write_array<T: Element>(
 #[derive(Debug, Clone, Copy)]
 pub struct BatchArrays<'a> {
     pub k: u32,
-    pub n_ext: u32,
-    pub m: u32,
-    pub features: &'a [f32],
-    pub adjacency: &'a [f32],
-    pub mask: &'a [u8],
-    pub node_ids: &'a [u32],
+    /// The `k` envs' observations, stacked (each array has a leading `k` axis).
+    pub obs: ObsRef<'a>,
     pub reward: &'a [f32],
     /// progress, success, collision, danger, comfort.
     pub terms: [&'a [f32]; 5],
@@ -164,15 +160,17 @@ pub struct BatchArrays<'a> {
 impl BatchArrays<'_> {
     /// Bytes of array data (a lower bound of the encoded size).
     pub fn data_bytes(&self) -> usize {
-        4 * (self.features.len() + self.adjacency.len() + self.node_ids.len())
-            + self.mask.len()
+        let o = &self.obs;
+        4 * (o.features.len() + o.adjacency.len() + o.node_ids.len())
+            + o.mask.len()
             + 4 * 6 * self.reward.len()
             + 2 * self.terminated.len()
     }
 }
 
 /// Writes a whole `Reply::Ok(BatchStepResult)`: `env_ids`, the arrays, and `envs`, which must be
-/// `env_ids.len()` entries already written with [`write_batch_env_info`], concatenated.
+/// `env_ids.len()` entries already written with [`write_batch_env_info_head`] and their
+/// `reset`, concatenated.
 /// Byte-identical to `encode(&Reply::Ok(result))` of the equivalent owned result.
 pub fn write_batch_step_ok(
     out: &mut Vec<u8>,
@@ -180,7 +178,7 @@ pub fn write_batch_step_ok(
     a: &BatchArrays<'_>,
     envs: &[u8],
 ) -> Result<(), ArrayError> {
-    let (k, n, m, f) = (a.k, a.n_ext, a.m, crate::N_FEATURES);
+    let (k, n) = (a.k, a.obs.n_ext);
     write_map_len(out, 1);
     write_str(out, "ok");
     write_map_len(out, 7);
@@ -190,15 +188,7 @@ pub fn write_batch_step_ok(
         write_str(out, id);
     }
     write_str(out, "obs");
-    write_map_len(out, 4);
-    write_str(out, "features");
-    write_array(out, &[k, n, m, f], a.features)?;
-    write_str(out, "adjacency");
-    write_array(out, &[k, n, m, m], a.adjacency)?;
-    write_str(out, "mask");
-    write_array(out, &[k, n, m], a.mask)?;
-    write_str(out, "node_ids");
-    write_array(out, &[k, n, m], a.node_ids)?;
+    write_obs(out, Some(k), &a.obs)?;
     write_str(out, "reward");
     write_array(out, &[k, n], a.reward)?;
     write_str(out, "reward_terms");
@@ -232,21 +222,9 @@ pub struct BatchEnvInfoRef<'a> {
     pub metrics: &'a [EpisodeMetrics],
 }
 
-/// Writes one `BatchEnvInfo` map (an element of `BatchStepResult::envs`).
-pub fn write_batch_env_info(
-    out: &mut Vec<u8>,
-    e: &BatchEnvInfoRef<'_>,
-    reset: Option<&ResetResult>,
-) {
-    write_batch_env_info_head(out, e);
-    match reset {
-        None => write_nil(out),
-        Some(r) => write_named(out, r),
-    }
-}
-
-/// [`write_batch_env_info`] up to the value of its last field, `reset`, which the caller
-/// writes next: [`write_nil`], or a `ResetResult` (e.g. with [`write_reset_result`]).
+/// One `BatchEnvInfo` map (an element of `BatchStepResult::envs`) up to the value of its last
+/// field, `reset`, which the caller writes next: [`write_nil`], or a `ResetResult` (e.g. with
+/// [`write_reset_result`]).
 pub fn write_batch_env_info_head(out: &mut Vec<u8>, e: &BatchEnvInfoRef<'_>) {
     // The constant runs of map headers and keys are pre-encoded (this runs once per env and
     // step); the tests check them against the serde encoding.
@@ -313,7 +291,7 @@ pub struct ObsRef<'a> {
     pub node_ids: &'a [u32],
 }
 
-/// The fields of a [`ResetResult`], borrowed (`step` and `t` are always 0).
+/// The fields of a [`ResetResult`](crate::ResetResult), borrowed (`step` and `t` are always 0).
 #[derive(Debug, Clone, Copy)]
 pub struct ResetResultRef<'a> {
     pub env_id: &'a str,
@@ -362,17 +340,25 @@ pub fn write_reset_result(out: &mut Vec<u8>, r: &ResetResultRef<'_>) -> Result<(
         out.extend_from_slice(b"\xa5width");
         write_opt_f64(out, a.width);
     }
-    let o = &r.obs;
+    out.extend_from_slice(b"\xa3obs");
+    write_obs(out, None, &r.obs)
+}
+
+/// Writes an observation map (`features`, `adjacency`, `mask`, `node_ids`), each array with a
+/// leading axis of `k` envs when given (a batch), else of one env's shape.
+fn write_obs(out: &mut Vec<u8>, k: Option<u32>, o: &ObsRef<'_>) -> Result<(), ArrayError> {
     let (n, m) = (o.n_ext, o.m);
-    out.extend_from_slice(b"\xa3obs\x84\xa8features");
-    write_array(out, &[n, m, crate::N_FEATURES], o.features)?;
+    // Room for the longest shape, [k, n, m, F]; `lead` skips the k axis of a single env.
+    let lead = usize::from(k.is_none());
+    let k = k.unwrap_or(0);
+    out.extend_from_slice(b"\x84\xa8features");
+    write_array(out, &[k, n, m, crate::N_FEATURES][lead..], o.features)?;
     out.extend_from_slice(b"\xa9adjacency");
-    write_array(out, &[n, m, m], o.adjacency)?;
+    write_array(out, &[k, n, m, m][lead..], o.adjacency)?;
     out.extend_from_slice(b"\xa4mask");
-    write_array(out, &[n, m], o.mask)?;
+    write_array(out, &[k, n, m][lead..], o.mask)?;
     out.extend_from_slice(b"\xa8node_ids");
-    write_array(out, &[n, m], o.node_ids)?;
-    Ok(())
+    write_array(out, &[k, n, m][lead..], o.node_ids)
 }
 
 /// [`decode`](crate::decode) of a [`BatchStep`](crate::BatchStep), with a direct reading of the
@@ -446,6 +432,20 @@ mod tests {
     use super::*;
     use crate::messages::*;
     use crate::{encode, F32Array, U32Array, U8Array};
+
+    /// One whole `BatchEnvInfo` map, `reset` through serde (the reference the direct writers
+    /// are checked against).
+    fn write_batch_env_info(
+        out: &mut Vec<u8>,
+        e: &BatchEnvInfoRef<'_>,
+        reset: Option<&ResetResult>,
+    ) {
+        write_batch_env_info_head(out, e);
+        match reset {
+            None => write_nil(out),
+            Some(r) => write_named(out, r),
+        }
+    }
 
     fn sample_result(k: usize, n: usize, m: usize, with_extras: bool) -> BatchStepResult {
         let f = N_FEATURES as usize;
@@ -571,12 +571,14 @@ mod tests {
         );
         let a = BatchArrays {
             k: shape[0],
-            n_ext: shape[1],
-            m: shape[2],
-            features: &features,
-            adjacency: &adjacency,
-            mask: &mask,
-            node_ids: &node_ids,
+            obs: ObsRef {
+                n_ext: shape[1],
+                m: shape[2],
+                features: &features,
+                adjacency: &adjacency,
+                mask: &mask,
+                node_ids: &node_ids,
+            },
             reward: &reward,
             terms: [&terms[0], &terms[1], &terms[2], &terms[3], &terms[4]],
             terminated: &terminated,

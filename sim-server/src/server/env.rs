@@ -274,17 +274,24 @@ impl Buffers {
         self.truncated.resize(e, 0);
     }
 
-    /// Borrowed view of the arrays for writing a batch reply (see [`protocol::wire`]).
-    pub fn arrays(&self) -> BatchArrays<'_> {
-        let [t0, t1, t2, t3, t4] = &self.terms;
-        BatchArrays {
-            k: self.k as u32,
+    /// Borrowed view of the observation arrays (all envs, stacked).
+    pub fn obs_ref(&self) -> ObsRef<'_> {
+        ObsRef {
             n_ext: self.n_ext as u32,
             m: self.m as u32,
             features: &self.features,
             adjacency: &self.adjacency,
             mask: &self.mask,
             node_ids: &self.node_ids,
+        }
+    }
+
+    /// Borrowed view of the arrays for writing a batch reply (see [`protocol::wire`]).
+    pub fn arrays(&self) -> BatchArrays<'_> {
+        let [t0, t1, t2, t3, t4] = &self.terms;
+        BatchArrays {
+            k: self.k as u32,
+            obs: self.obs_ref(),
             reward: &self.reward,
             terms: [t0, t1, t2, t3, t4],
             terminated: &self.terminated,
@@ -329,13 +336,11 @@ impl Buffers {
     pub fn obs(&self) -> Result<ObsBatch, ErrorReply> {
         let (n, m, f) = (self.n_ext, self.m, N_FEATURES as usize);
         Ok(ObsBatch {
-            features: F32Array::new(Self::shape(&[n, m, f]), &self.features)
-                .map_err(Self::err)?,
+            features: F32Array::new(Self::shape(&[n, m, f]), &self.features).map_err(Self::err)?,
             adjacency: F32Array::new(Self::shape(&[n, m, m]), &self.adjacency)
                 .map_err(Self::err)?,
             mask: U8Array::new(Self::shape(&[n, m]), &self.mask).map_err(Self::err)?,
-            node_ids: U32Array::new(Self::shape(&[n, m]), &self.node_ids)
-                .map_err(Self::err)?,
+            node_ids: U32Array::new(Self::shape(&[n, m]), &self.node_ids).map_err(Self::err)?,
         })
     }
 
@@ -590,9 +595,22 @@ impl Env {
         Ok(())
     }
 
+    /// Writes the current episode's first observation into `reset_obs` (right after a reset
+    /// or an autoreset).
+    fn fill_reset_obs(&mut self) {
+        let world = self
+            .world
+            .as_ref()
+            .expect("a first observation after a reset");
+        let m = self.spec.max_agents as usize;
+        self.reset_obs.resize(1, self.spec.n_ext(), m);
+        write_obs(world, &self.ext_ids, m, &mut self.reset_obs.slots(0));
+    }
+
     /// The `ResetResult` of the current episode's first state (right after a reset or an
     /// autoreset).
     pub fn reset_result(&mut self) -> Result<ResetResult, ErrorReply> {
+        self.fill_reset_obs();
         let world = self.world.as_ref().expect("reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
         let agents: Vec<AgentDesc> = agent_descs(world, served, &self.ext_ids)
@@ -607,12 +625,7 @@ impl Env {
                 width: a.width,
             })
             .collect();
-        let m = self.spec.max_agents as usize;
-        let mut buf = std::mem::take(&mut self.reset_obs);
-        buf.resize(1, self.spec.n_ext(), m);
-        write_obs(world, &self.ext_ids, m, &mut buf.slots(0));
-        let obs = buf.obs();
-        self.reset_obs = buf;
+        let obs = self.reset_obs.obs();
         Ok(ResetResult {
             env_id: self.id.clone(),
             episode: self.episode,
@@ -628,18 +641,13 @@ impl Env {
     /// [`Env::reset_result`] written straight into `out` (MessagePack, the same bytes as its
     /// encoding), without building the owned result.
     pub fn write_reset_result(&mut self, out: &mut Vec<u8>) -> Result<(), ErrorReply> {
+        self.fill_reset_obs();
         let world = self
             .world
             .as_ref()
             .expect("write_reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
-        let ext_ids = &self.ext_ids;
-        let agents = agent_descs(world, served, ext_ids);
-        let m = self.spec.max_agents as usize;
-        let n_ext = self.spec.n_ext();
-        let buf = &mut self.reset_obs;
-        buf.resize(1, n_ext, m);
-        write_obs(world, ext_ids, m, &mut buf.slots(0));
+        let agents = agent_descs(world, served, &self.ext_ids);
         wire::write_reset_result(
             out,
             &ResetResultRef {
@@ -648,14 +656,7 @@ impl Env {
                 scenario: &served.scenario.name,
                 horizon_steps: world.horizon(),
                 agents: &agents,
-                obs: ObsRef {
-                    n_ext: n_ext as u32,
-                    m: m as u32,
-                    features: &buf.features,
-                    adjacency: &buf.adjacency,
-                    mask: &buf.mask,
-                    node_ids: &buf.node_ids,
-                },
+                obs: self.reset_obs.obs_ref(),
             },
         )
         .map_err(Buffers::err)
