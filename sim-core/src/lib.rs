@@ -22,4 +22,4 @@ pub mod world;
 pub use geometry::{Shape, Vec2};
 pub use params::{PedestrianModel, WorldParams};
 pub use scenario::{AgentKind, Scenario, ScenarioPool, Split};
-pub use world::{AgentId, EpisodeConfig, StepError, StepOutcome, World, WorldError};
+pub use world::{AgentId, EpisodeConfig, StepError, StepOutcome, StepScratch, World, WorldError};

@@ -451,14 +451,8 @@ pub struct World {
     externals: Vec<ExternalTrack>,
     /// Agents removed during the last step, with their position when they left.
     departed: Vec<(AgentId, Vec2)>,
-    // Scratch reused by every step.
-    grid: Grid,
-    /// The new position, velocity, speed and heading of every agent, collected by the move.
-    moved: Vec<(Vec2, Vec2, f64, f64)>,
-    next_edges: EdgeStore,
-    keep: Vec<bool>,
-    slot_map: Vec<u32>,
-    targets: Vec<TargetInfo>,
+    /// The buffers [`World::step`] works in ([`World::step_in`] is given others).
+    scratch: StepScratch,
     /// Per slot, the sum of the weighted social-force repulsions on a simulated pedestrian and its
     /// largest repulsion weight, from the edges the last observe pass built (valid while
     /// `forces_valid`: until agents are removed).
@@ -469,8 +463,6 @@ pub struct World {
     contact: Vec<bool>,
     /// Per external agent moved by the step: whether its action was clipped, and its yaw rate.
     clipped_of: Vec<(AgentId, bool, f64)>,
-    /// One scratch per observe worker (thread).
-    workers: Vec<ObserveWorker>,
     /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
     threads: usize,
     /// The observe pass's instruction-set variant (the widest the CPU runs, by default).
@@ -478,6 +470,37 @@ pub struct World {
 }
 
 const NO_SLOT: u32 = u32::MAX;
+
+/// The buffers one step works in. They carry nothing from one step to the next, so any world
+/// may step in any scratch: a thread that steps many small worlds in turn (a server's batch)
+/// gives them one scratch ([`World::step_in`]), which stays in the nearer caches, instead of
+/// each world touching its own. Cloning gives an empty scratch.
+#[derive(Debug, Default)]
+pub struct StepScratch {
+    grid: Grid,
+    /// The new position, velocity, speed and heading of every agent, collected by the move.
+    moved: Vec<(Vec2, Vec2, f64, f64)>,
+    next_edges: EdgeStore,
+    keep: Vec<bool>,
+    slot_map: Vec<u32>,
+    targets: Vec<TargetInfo>,
+    /// One per observe worker (thread).
+    workers: Vec<ObserveWorker>,
+}
+
+impl Clone for StepScratch {
+    /// An empty scratch: the contents are dead between steps, so a cloned world (an autoreset
+    /// copies a fresh world every episode) need not copy them.
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl StepScratch {
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
 
 impl World {
     /// Starts an episode of `scenario` at its first step.
@@ -591,27 +614,23 @@ impl World {
             pending,
             externals,
             departed: Vec::new(),
-            grid: Grid::default(),
-            moved: Vec::new(),
-            next_edges: EdgeStore::default(),
-            keep: Vec::new(),
-            slot_map: Vec::new(),
-            targets: Vec::new(),
+            scratch: StepScratch::default(),
             rep_force: Vec::new(),
             rep_max_w: Vec::new(),
             forces_valid: false,
             contact: Vec::new(),
             clipped_of: Vec::new(),
-            workers: vec![ObserveWorker::new(n_total)],
             threads: 1,
             kernels: Kernels::detect(),
         };
         let mut events = Vec::new();
         w.enter_pending(&mut events);
-        w.observe();
+        let mut scratch = StepScratch::default();
+        w.observe(&mut scratch);
         // The first step's observe fills the store the initial graph was built in (now the
         // worker's): give it room now rather than in that step.
-        w.workers[0].edges.clear_with_capacity(w.edges.len());
+        scratch.workers[0].edges.clear_with_capacity(w.edges.len());
+        w.scratch = scratch;
         for e in &mut w.externals {
             e.active = w.agents.id.contains(&e.id);
         }
@@ -825,21 +844,21 @@ impl World {
 
     /// Removes the agents flagged `leaving`, keeping the graph consistent (edges to them dropped,
     /// target slots renumbered).
-    fn remove_leaving(&mut self, events: &mut Vec<Event>) {
+    fn remove_leaving(&mut self, s: &mut StepScratch, events: &mut Vec<Event>) {
         if !self.agents.leaving.iter().any(|&l| l) {
             return;
         }
         let n = self.agents.len();
-        self.keep.clear();
-        self.keep.extend(self.agents.leaving.iter().map(|&l| !l));
-        self.slot_map.clear();
+        s.keep.clear();
+        s.keep.extend(self.agents.leaving.iter().map(|&l| !l));
+        s.slot_map.clear();
         let mut next = 0u32;
         for i in 0..n {
-            if self.keep[i] {
-                self.slot_map.push(next);
+            if s.keep[i] {
+                s.slot_map.push(next);
                 next += 1;
             } else {
-                self.slot_map.push(NO_SLOT);
+                s.slot_map.push(NO_SLOT);
                 events.push(Event::Left {
                     agent: self.agents.id[i],
                 });
@@ -847,16 +866,16 @@ impl World {
             }
         }
         self.forces_valid = false;
-        self.next_edges.clear();
+        s.next_edges.clear();
         for i in 0..n {
-            let start = self.next_edges.len() as u32;
-            if self.keep[i] {
-                let s = self.agents.edge_start[i] as usize;
-                for k in s..s + self.agents.edge_len[i] as usize {
+            let start = s.next_edges.len() as u32;
+            if s.keep[i] {
+                let first = self.agents.edge_start[i] as usize;
+                for k in first..first + self.agents.edge_len[i] as usize {
                     let e = self.edges.get(k);
-                    let t = self.slot_map[e.target_slot as usize];
+                    let t = s.slot_map[e.target_slot as usize];
                     if t != NO_SLOT {
-                        self.next_edges.push(Edge {
+                        s.next_edges.push(Edge {
                             target_slot: t,
                             ..e
                         });
@@ -864,24 +883,22 @@ impl World {
                 }
             }
             self.agents.edge_start[i] = start;
-            self.agents.edge_len[i] = self.next_edges.len() as u32 - start;
+            self.agents.edge_len[i] = s.next_edges.len() as u32 - start;
         }
-        std::mem::swap(&mut self.edges, &mut self.next_edges);
-        let keep = std::mem::take(&mut self.keep);
-        self.agents.retain(&keep);
-        self.keep = keep;
+        std::mem::swap(&mut self.edges, &mut s.next_edges);
+        self.agents.retain(&s.keep);
     }
 
     /// Builds beliefs, clearances, risk and the graph for the current state (model.md 5b 1–2),
     /// and the social-force repulsions the next move will use (they depend only on the graph).
-    fn observe(&mut self) {
+    fn observe(&mut self, s: &mut StepScratch) {
         let n = self.agents.len();
         let r = self.params.perception_radius;
-        self.grid.rebuild(&self.agents.pos, r);
+        s.grid.rebuild(&self.agents.pos, r);
         let a = &self.agents;
         let dt = self.params.dt;
-        self.targets.clear();
-        self.targets.extend((0..n).map(|j| TargetInfo {
+        s.targets.clear();
+        s.targets.extend((0..n).map(|j| TargetInfo {
             pos: a.pos[j],
             vel: a.vel[j],
             last_change: a.prev_acc[j] * dt,
@@ -903,14 +920,17 @@ impl World {
             1
         };
         let n_total = self.scenario.agents.len();
-        while self.workers.len() < threads {
-            self.workers.push(ObserveWorker::new(n_total));
+        while s.workers.len() < threads {
+            s.workers.push(ObserveWorker::new(n_total));
+        }
+        for w in &mut s.workers[..threads] {
+            w.fit_agents(n_total);
         }
         let inputs = ObserveInputs {
-            targets: &self.targets,
+            targets: &s.targets,
             agents: &self.agents,
             old: &self.edges,
-            grid: &self.grid,
+            grid: &s.grid,
             schedule: &self.schedule,
             params: &self.params,
             r2: r * r,
@@ -923,7 +943,7 @@ impl World {
                     .map(|p| ForceConsts::new(m, p))
             }),
         };
-        let workers = &mut self.workers[..threads];
+        let workers = &mut s.workers[..threads];
         if threads == 1 {
             workers[0].run(&inputs, 0..n);
         } else {
@@ -940,8 +960,8 @@ impl World {
             });
         }
         // Concatenate the workers' outputs in observer order.
-        std::mem::swap(&mut self.edges, &mut self.workers[0].edges);
-        for w in &self.workers[1..threads] {
+        std::mem::swap(&mut self.edges, &mut s.workers[0].edges);
+        for w in &s.workers[1..threads] {
             self.edges.append(&w.edges);
         }
         self.rep_force.clear();
@@ -950,7 +970,7 @@ impl World {
         let a = &mut self.agents;
         let mut start = 0u32;
         let mut i = 0;
-        for w in &self.workers[..threads] {
+        for w in &s.workers[..threads] {
             for &len in &w.len {
                 a.edge_start[i] = start;
                 a.edge_len[i] = len;
@@ -972,6 +992,19 @@ impl World {
     /// `[forward, left]` acceleration in the ego frame for pedestrians. A refused step changes
     /// nothing.
     pub fn step(&mut self, actions: &[(AgentId, [f64; 2])]) -> Result<StepOutcome, StepError> {
+        let mut scratch = std::mem::take(&mut self.scratch);
+        let out = self.step_in(&mut scratch, actions);
+        self.scratch = scratch;
+        out
+    }
+
+    /// [`World::step`] working in `scratch` instead of the world's own buffers (same result, to
+    /// the bit): for a thread that steps many worlds in turn.
+    pub fn step_in(
+        &mut self,
+        scratch: &mut StepScratch,
+        actions: &[(AgentId, [f64; 2])],
+    ) -> Result<StepOutcome, StepError> {
         if self.over {
             return Err(StepError::EpisodeOver);
         }
@@ -1003,7 +1036,7 @@ impl World {
         let mut events = Vec::new();
         self.departed.clear();
         // 1. External agents whose episode ended last step leave now.
-        self.remove_leaving(&mut events);
+        self.remove_leaving(scratch, &mut events);
 
         // 2. Move every agent from t to t + 1.
         let dt = self.params.dt;
@@ -1011,7 +1044,7 @@ impl World {
         let mut clipped_of = std::mem::take(&mut self.clipped_of);
         clipped_of.clear();
         // Every move reads the state at `t`: the new states are collected first, then written.
-        let mut moved = std::mem::take(&mut self.moved);
+        let mut moved = std::mem::take(&mut scratch.moved);
         moved.clear();
         for i in 0..n {
             let id = self.agents.id[i];
@@ -1050,7 +1083,7 @@ impl World {
             a.speed[i] = speed;
             a.heading[i] = heading;
         }
-        self.moved = moved;
+        scratch.moved = moved;
         self.step += 1;
 
         // 3. Arrivals and departures of pedestrians, entries.
@@ -1065,11 +1098,11 @@ impl World {
                 });
             }
         }
-        self.remove_leaving(&mut events);
+        self.remove_leaving(scratch, &mut events);
         self.enter_pending(&mut events);
 
         // 4. Beliefs, risk and graph at t + 1.
-        self.observe();
+        self.observe(scratch);
 
         // 5. Events and rewards.
         for i in 0..self.agents.len() {
@@ -1488,6 +1521,14 @@ impl ObserveWorker {
         }
     }
 
+    /// Room in the stamp table for agent ids below `n_total` (a worker shared by worlds of
+    /// several sizes). New entries hold epoch 0, which no observer uses.
+    fn fit_agents(&mut self, n_total: usize) {
+        if self.stamp.len() < n_total {
+            self.stamp.resize(n_total, (0, 0));
+        }
+    }
+
     fn run(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
         #[cfg(target_arch = "x86_64")]
         if inp.kernels == Kernels::Avx2 {
@@ -1527,7 +1568,7 @@ impl ObserveWorker {
         self.contact.clear();
         self.force.clear();
         self.max_w.clear();
-        if self.cand.len() != n {
+        if self.cand.len() < n {
             self.resize_scratch(n);
         }
         for i in observers {
@@ -1535,7 +1576,8 @@ impl ObserveWorker {
         }
     }
 
-    /// Sizes the per-edge scratch for `n` agents (an observer has fewer than `n` edges).
+    /// Sizes the per-edge scratch for at least `n` agents (an observer has fewer than `n` edges;
+    /// a worker shared by several worlds keeps the largest size).
     #[cold]
     fn resize_scratch(&mut self, n: usize) {
         self.cand.resize(n, 0);

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{line, scenario, Rng};
+use common::{fingerprint, line, scenario, Rng};
 use sim_core::scenario::{AgentKind, AgentRecord};
 use sim_core::world::PARALLEL_MIN_AGENTS;
 use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
@@ -41,29 +41,6 @@ fn world(threads: usize) -> World {
     let mut w = World::new(scenario(0, agents), WorldParams::default(), config).unwrap();
     w.set_threads(threads);
     w
-}
-
-fn fingerprint(w: &World) -> Vec<u64> {
-    let mut f = vec![w.len() as u64];
-    for a in w.agents() {
-        f.push(u64::from(a.id));
-        for x in [
-            a.position.x,
-            a.position.y,
-            a.velocity.x,
-            a.velocity.y,
-            a.heading,
-        ] {
-            f.push(x.to_bits());
-        }
-    }
-    for e in w.graph_edges() {
-        f.push(u64::from(e.observer) << 32 | u64::from(e.target));
-        for x in [e.clearance, e.psi, e.u, e.a] {
-            f.push(x.to_bits());
-        }
-    }
-    f
 }
 
 /// Steps `worlds` side by side (same actions) for 12 steps or until one episode ends, asserting

@@ -150,6 +150,11 @@ async fn bench(secs: f64) {
     let (p_server, p_bare) = (free_port(), free_port());
     let cfg = ServerConfig {
         server_id: Some("bench".into()),
+        // BATCH_THREADS=N: the server's `batch_threads` (default 0: one per core).
+        batch_threads: std::env::var("BATCH_THREADS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0),
         zenoh: peer(p_server),
         ..ServerConfig::default()
     };

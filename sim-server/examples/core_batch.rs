@@ -74,16 +74,34 @@ fn main() {
         .join()
         .unwrap();
     }
+    // CORE_BATCH_POLLUTE=BYTES: between batches, write and read a buffer of that size (untimed),
+    // as a server's network threads move each reply through several copies between two batches:
+    // the envs' state is then no longer in the nearer caches when the next batch starts.
+    let pollute: usize = std::env::var("CORE_BATCH_POLLUTE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
     let measure = move || {
-        for _ in 0..20 {
+        let mut junk = vec![0u8; pollute];
+        let mut spoil = |round: usize| {
+            if pollute > 0 {
+                junk.fill(round as u8);
+                std::hint::black_box(junk.iter().map(|&x| x as u64).sum::<u64>());
+            }
+        };
+        for r in 0..20 {
             core.handle_batch(&b, Gates::NONE);
+            spoil(r);
         }
-        let t0 = Instant::now();
+        let mut timed = std::time::Duration::ZERO;
         let mut len = 0;
-        for _ in 0..iters {
+        for r in 0..iters {
+            let t0 = Instant::now();
             len += core.handle_batch(&b, Gates::NONE).reply.len();
+            timed += t0.elapsed();
+            spoil(r);
         }
-        (t0.elapsed().as_secs_f64() / iters as f64, len)
+        (timed.as_secs_f64() / iters as f64, len)
     };
     // CORE_BATCH_THREAD=1: measured on a spawned thread (as on a tokio worker).
     let (dt, len) = if std::env::var_os("CORE_BATCH_THREAD").is_some() {

@@ -82,3 +82,27 @@ impl Rng {
         lo + (hi - lo) * u
     }
 }
+
+/// The bits of every agent's state and every graph edge of `w`.
+pub fn fingerprint(w: &sim_core::World) -> Vec<u64> {
+    let mut f = vec![w.len() as u64];
+    for a in w.agents() {
+        f.push(u64::from(a.id));
+        for x in [
+            a.position.x,
+            a.position.y,
+            a.velocity.x,
+            a.velocity.y,
+            a.heading,
+        ] {
+            f.push(x.to_bits());
+        }
+    }
+    for e in w.graph_edges() {
+        f.push(u64::from(e.observer) << 32 | u64::from(e.target));
+        for x in [e.clearance, e.psi, e.u, e.a] {
+            f.push(x.to_bits());
+        }
+    }
+    f
+}

@@ -36,6 +36,9 @@ pub struct ServerConfig {
     pub pools: Vec<PathBuf>,
     /// World-parameter file (JSON5, docs/PARAMETERS.md); absent = defaults.
     pub params: Option<PathBuf>,
+    /// Most threads one `BatchStep` of at least 64 envs is stepped on; 0 (default) = one per
+    /// available core.
+    pub batch_threads: u32,
     /// Passed to `zenoh::Config::from_json5` after filling defaults: mode `peer`, listening on
     /// `tcp/127.0.0.1:7447` (peer and router), multicast scouting off.
     pub zenoh: Value,
@@ -53,6 +56,7 @@ impl Default for ServerConfig {
             trainer_grace_s: l.trainer_grace.as_secs_f64(),
             pools: Vec::new(),
             params: None,
+            batch_threads: 0,
             zenoh: Value::Object(Map::new()),
         }
     }
@@ -211,6 +215,14 @@ impl ServerConfig {
         }
     }
 
+    /// Threads a large batch is stepped on: `batch_threads`, or one per core when it is 0.
+    pub fn batch_threads(&self) -> usize {
+        match self.batch_threads {
+            0 => super::core::default_batch_threads(),
+            n => n as usize,
+        }
+    }
+
     /// The zenoh section with defaults filled in, as JSON text for `zenoh::Config::from_json5`.
     pub fn zenoh_json(&self) -> String {
         let mut z = self.zenoh.clone();
@@ -282,9 +294,11 @@ mod tests {
                 "max_batch:4".into(),
                 "zenoh/connect/endpoints:[\"tcp/127.0.0.1:7000\"]".into(),
                 "prefix:lab/run3".into(),
+                "batch_threads:3".into(),
             ],
         )
         .unwrap();
+        assert_eq!(c.batch_threads(), 3);
         assert_eq!(c.capacity, 8);
         assert_eq!(c.max_batch, 4);
         assert_eq!(c.prefix, "lab/run3");
@@ -301,8 +315,8 @@ mod tests {
         let c = ServerConfig::load(Some(&path), &[]).unwrap();
         let d = ServerConfig::default();
         assert_eq!(
-            (c.capacity, c.max_batch, c.max_agents),
-            (d.capacity, d.max_batch, d.max_agents)
+            (c.capacity, c.max_batch, c.max_agents, c.batch_threads),
+            (d.capacity, d.max_batch, d.max_agents, d.batch_threads)
         );
         assert_eq!(c.zenoh_json(), d.zenoh_json());
     }

@@ -26,6 +26,7 @@ use sim_core::params::{PedestrianModel, WorldParams};
 
 use crate::params_file::ModelParams;
 use sim_core::scenario::Split;
+use sim_core::world::StepScratch;
 
 use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication};
 use super::pools::ServedPool;
@@ -275,15 +276,18 @@ pub struct ServerCore {
     batch_threads: usize,
     /// Step buffers of finished batches, for reuse (a K=256 batch's are ~200 KB).
     scratch: Mutex<Vec<Buffers>>,
+    /// The worlds' step scratch of finished batches, one per batch thread: every world a
+    /// thread steps works in the same warm buffers instead of its own (sim-core `StepScratch`).
+    steppers: Mutex<Vec<StepScratch>>,
 }
 
-/// All but one of the available cores (the network runtime keeps one busy moving the
-/// replies), at least one: on two cores a batch is stepped on the calling thread, where
-/// spawning a helper costs more than it saves.
-fn default_batch_threads() -> usize {
+/// One thread per available core. A lockstep trainer's request has fully arrived before its
+/// batch is stepped and its reply is not sent until the batch is done, so the network threads
+/// are idle meanwhile: on two cores, two batch threads took a K = 256 batch from 1.10–1.35 ms
+/// to 0.72–0.81 ms in `core_batch` (docs/BENCHMARKS.md section 2).
+pub fn default_batch_threads() -> usize {
     std::thread::available_parallelism()
         .map_or(1, |n| n.get())
-        .saturating_sub(1)
         .max(1)
 }
 
@@ -311,11 +315,12 @@ impl ServerCore {
             reg: Mutex::new(Registry::default()),
             batch_threads: default_batch_threads(),
             scratch: Mutex::new(Vec::new()),
+            steppers: Mutex::new(Vec::new()),
         }
     }
 
     /// Sets the most threads a batch of at least [`PARALLEL_MIN_BATCH`] envs is stepped on
-    /// (default: the available cores less one, at least one).
+    /// (default: [`default_batch_threads`]).
     pub fn set_batch_threads(&mut self, threads: usize) {
         self.batch_threads = threads.max(1);
     }
@@ -745,12 +750,18 @@ impl ServerCore {
         let mut refs: Vec<&mut Env> = envs.iter_mut().map(|g| &mut **g).collect();
         // Per chunk: its envs' `BatchEnvInfo` maps, already encoded, and its publications.
         type Part = (Vec<u8>, Vec<Publication>, Result<(), ErrorReply>);
-        let run = |envs: &mut [&mut Env], actions: &[[f64; 2]], mut out: BufMut<'_>| -> Part {
+        let mut steppers = self.take_steppers(threads);
+        let run = |envs: &mut [&mut Env],
+                   actions: &[[f64; 2]],
+                   mut out: BufMut<'_>,
+                   scratch: &mut StepScratch|
+         -> Part {
             let mut infos = Vec::with_capacity(envs.len() * 128);
             let mut pubs = Vec::new();
             for (i, env) in envs.iter_mut().enumerate() {
                 let rows = &actions[i * n_ext..(i + 1) * n_ext];
-                let meta = match env.step_into(rows, &mut out.slots(i), gates, &mut pubs) {
+                let slots = &mut out.slots(i);
+                let meta = match env.step_into(rows, slots, gates, &mut pubs, Some(scratch)) {
                     Ok(meta) => meta,
                     Err(e) => return (infos, pubs, Err(e)),
                 };
@@ -775,19 +786,20 @@ impl ServerCore {
             (infos, pubs, Ok(()))
         };
         let parts: Vec<Part> = if threads <= 1 {
-            vec![run(&mut refs, &actions, buf.view())]
+            vec![run(&mut refs, &actions, buf.view(), &mut steppers[0])]
         } else {
             std::thread::scope(|sc| {
                 let mut work = refs
                     .chunks_mut(chunk)
                     .zip((0..k).step_by(chunk).map(|i| &actions[i * n_ext..]))
-                    .zip(buf.view().chunks(k, chunk));
-                let ((e0, a0), o0) = work.next().expect("k >= 1");
+                    .zip(buf.view().chunks(k, chunk))
+                    .zip(steppers.iter_mut());
+                let (((e0, a0), o0), s0) = work.next().expect("k >= 1");
                 let handles: Vec<_> = work
-                    .map(|((e, a), o)| sc.spawn(move || run(e, a, o)))
+                    .map(|(((e, a), o), s)| sc.spawn(move || run(e, a, o, s)))
                     .collect();
                 let mut parts = Vec::with_capacity(threads);
-                parts.push(run(e0, a0, o0));
+                parts.push(run(e0, a0, o0, s0));
                 parts.extend(handles.into_iter().map(|h| {
                     h.join().unwrap_or_else(|_| {
                         (
@@ -805,6 +817,7 @@ impl ServerCore {
         };
         drop(refs);
         drop(envs);
+        self.return_steppers(steppers);
         let mut infos = Vec::new();
         for (i, (inf, p, r)) in parts.into_iter().enumerate() {
             r?;
@@ -833,6 +846,23 @@ impl ServerCore {
         let mut buf = lock(&self.scratch).pop().unwrap_or_default();
         buf.resize(k, n_ext, m);
         buf
+    }
+
+    /// `n` step scratches, those of earlier batches first.
+    fn take_steppers(&self, n: usize) -> Vec<StepScratch> {
+        let mut pool = lock(&self.steppers);
+        let keep = pool.len().saturating_sub(n);
+        let mut out = pool.split_off(keep);
+        out.resize_with(n, StepScratch::new);
+        out
+    }
+
+    fn return_steppers(&self, steppers: Vec<StepScratch>) {
+        let mut pool = lock(&self.steppers);
+        // Enough for a few batches at once on every thread.
+        if pool.len() < 4 * self.batch_threads {
+            pool.extend(steppers);
+        }
     }
 
     fn return_buffers(&self, buf: Buffers) {

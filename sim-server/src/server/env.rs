@@ -13,7 +13,7 @@ use sim_core::geometry::Shape;
 use sim_core::metrics::EpisodeStatus;
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::{AgentKind, Split};
-use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, World};
+use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World};
 
 use protocol::wire::{self, AgentDescRef, BatchArrays, ObsRef, ResetResultRef};
 
@@ -688,13 +688,15 @@ impl Env {
     }
 
     /// One step with `actions` (one row per external agent, finite; checked by the caller).
-    /// Writes arrays into `slots`, publications into `pubs`.
+    /// Writes arrays into `slots`, publications into `pubs`. The world steps in `scratch` when
+    /// given (a batch thread's, shared by the envs it steps), else in its own.
     pub fn step_into(
         &mut self,
         actions: &[[f64; 2]],
         slots: &mut Slots<'_>,
         gates: Gates,
         pubs: &mut Vec<Publication>,
+        scratch: Option<&mut StepScratch>,
     ) -> Result<StepMeta, ErrorReply> {
         self.check_steppable(false)?;
         let n = self.spec.n_ext();
@@ -715,7 +717,11 @@ impl Env {
                     .position(|&x| x == id)
                     .map(|k| (id, actions[k]))
             }));
-        let out = world.step(&self.active).map_err(|e| {
+        let out = match scratch {
+            Some(s) => world.step_in(s, &self.active),
+            None => world.step(&self.active),
+        };
+        let out = out.map_err(|e| {
             let code = match e {
                 StepError::EpisodeOver => ErrorCode::NeedsReset,
                 StepError::NonFiniteAction { .. } => ErrorCode::NonFiniteAction,
@@ -816,7 +822,7 @@ impl Env {
         pubs: &mut Vec<Publication>,
     ) -> Result<StepResult, ErrorReply> {
         let mut buf = Buffers::new(1, self.spec.n_ext(), self.spec.max_agents as usize);
-        let meta = self.step_into(actions, &mut buf.slots(0), gates, pubs)?;
+        let meta = self.step_into(actions, &mut buf.slots(0), gates, pubs, None)?;
         let (reward, reward_terms, terminated, truncated) = buf.rewards()?;
         Ok(StepResult {
             env_id: self.id.clone(),

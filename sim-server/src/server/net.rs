@@ -241,13 +241,10 @@ impl Server {
         let server_id = cfg.server_id_or_random();
         let zcfg = zenoh::Config::from_json5(&cfg.zenoh_json()).map_err(zerr)?;
         let session = zenoh::open(zcfg).await.map_err(zerr)?;
-        let core = Arc::new(ServerCore::new(
-            server_id.clone(),
-            keys.clone(),
-            cfg.limits(),
-            pools,
-            params,
-        ));
+        let mut core =
+            ServerCore::new(server_id.clone(), keys.clone(), cfg.limits(), pools, params);
+        core.set_batch_threads(cfg.batch_threads());
+        let core = Arc::new(core);
         let (stop_tx, stop_rx) = watch::channel(false);
 
         // Publication gates: one wildcard publisher per topic, its matching status kept in a flag.
