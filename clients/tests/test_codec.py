@@ -305,3 +305,27 @@ def test_client_decode_result_names_a_malformed_array(field, value, says):
     reply["ok"][field] = value
     with pytest.raises(ProtocolError, match=says):
         decode_result(msgpack.packb(reply, use_bin_type=True))
+
+
+@pytest.mark.parametrize(
+    "mangle, says",
+    [
+        (lambda b: b + b"\x00", "trailing"),
+        (lambda b: b[:-3], "truncated"),
+        (lambda b: b"\xc1" + b, "malformed"),
+        (lambda b: b"", "empty reply"),
+    ],
+)
+def test_client_decode_result_refuses_undecodable_bytes(mangle, says):
+    from sharedspace.client import decode_result
+
+    with pytest.raises(ProtocolError, match=says):
+        decode_result(mangle((GOLDEN / "reply_step.msgpack").read_bytes()))
+
+
+@pytest.mark.parametrize("k", [1, 16, 300])
+def test_batch_step_head_plus_actions_is_the_whole_request(k):
+    ids = [f"srv-{i}" for i in range(k)]
+    actions = np.random.default_rng(k).uniform(-1, 1, (k, 1, 2)).astype(np.float32)
+    head = codec.batch_step_head(ids)
+    assert head + codec.encode(actions) == codec.encode_batch_step(ids, actions)

@@ -352,6 +352,13 @@ def encode_batch_step(env_ids: Iterable[str], actions: Any, n_ext: int | None = 
     return encode(batch_step(env_ids, actions, n_ext))
 
 
+def batch_step_head(env_ids: Iterable[str]) -> bytes:
+    """The bytes of a ``BatchStep`` before its actions array: a trainer stepping the same K envs
+    again and again encodes them once; ``batch_step_head(ids) + encode(encode_array(a))`` equals
+    ``encode_batch_step(ids, a)`` for a float32 array ``a``."""
+    return b"\x82" + encode("env_ids") + encode(list(env_ids)) + encode("actions")
+
+
 def encode_close() -> bytes:
     return encode(close())
 
