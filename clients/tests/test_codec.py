@@ -329,3 +329,9 @@ def test_batch_step_head_plus_actions_is_the_whole_request(k):
     actions = np.random.default_rng(k).uniform(-1, 1, (k, 1, 2)).astype(np.float32)
     head = codec.batch_step_head(ids)
     assert head + codec.encode(actions) == codec.encode_batch_step(ids, actions)
+
+
+@pytest.mark.parametrize("n_ext", [0, 1, 3])
+def test_step_head_plus_action_bytes_is_the_whole_request(n_ext):
+    actions = np.random.default_rng(n_ext).uniform(-1, 1, (n_ext, 2)).astype(np.float32)
+    assert codec.step_head(n_ext) + actions.tobytes() == codec.encode_step(actions)

@@ -31,7 +31,6 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import msgpack
 import msgspec
 import numpy as np
 
@@ -52,6 +51,9 @@ __all__ = ["SimClient", "VectorClient", "REWARD_TERMS"]
 log = logging.getLogger("sharedspace")
 
 REWARD_TERMS = ("progress", "success", "collision", "danger", "comfort")
+
+#: Seconds a request's liveliness pre-check may rely on the last read of the server watch.
+_ALIVE_MAX_AGE = 0.05
 
 
 _OBS_KEYS = ("features", "adjacency", "mask", "node_ids")
@@ -77,8 +79,8 @@ def _array(m: Any) -> np.ndarray:
                 count = 1
                 for d in shape:
                     count *= d
-                if type(count) is int and len(data) == count * size:
-                    return np.frombuffer(data, dtype).reshape(shape)
+                if type(count) is int and len(data) == count * size and min(shape) >= 0:
+                    return np.ndarray(shape, dtype, data)
     if not codec.is_array_map(m):
         raise ProtocolError(f"expected a binary-array map {{dtype, shape, data}}, got {m!r:.80}")
     return codec.decode_array(m)
@@ -177,6 +179,7 @@ class SimClient:
         self.env_n_ext: dict[str, int] = {}
         self._closed_envs: set[str] = set()
         self._step_keys: dict[str, str] = {}
+        self._step_heads: dict[int, bytes] = {}
 
     @property
     def client_id(self) -> str:
@@ -216,7 +219,9 @@ class SimClient:
         return ServerLost(server_id, reason, envs)
 
     def _check_alive(self, server_id: str) -> None:
-        if not self.transport.is_alive(server_id):
+        # Liveliness read at most _ALIVE_MAX_AGE ago is fresh enough here: a request to a
+        # server that is gone fails anyway, and the failure path reads it afresh.
+        if not self.transport.is_alive(server_id, max_age=_ALIVE_MAX_AGE):
             raise self._lost(server_id, "its liveliness token disappeared")
 
     def _request(self, server_id: str, key: str, payload: bytes, timeout: float | None = None):
@@ -342,11 +347,10 @@ class SimClient:
         key = self._step_keys.get(env_id)
         if key is None:
             key = self._step_keys[env_id] = self.transport.key("server", sid, "env", env_id, "step")
-        payload = msgpack.packb(
-            {"actions": {"dtype": "<f4", "shape": [n_ext, 2], "data": arr.tobytes()}},
-            use_bin_type=True,
-        )
-        return self._request(sid, key, payload)
+        head = self._step_heads.get(n_ext)
+        if head is None:
+            head = self._step_heads[n_ext] = codec.step_head(n_ext)
+        return self._request(sid, key, head + arr.tobytes())
 
     def batch_step(
         self, env_ids: Sequence[str], actions: Any, timeout: float | None = None

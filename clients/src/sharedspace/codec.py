@@ -52,6 +52,8 @@ __all__ = [
     "encode_reset",
     "encode_step",
     "encode_batch_step",
+    "step_head",
+    "batch_step_head",
     "encode_close",
     "encode_action_msg",
     "SharedspaceError",
@@ -350,6 +352,16 @@ def encode_step(actions: Any, n_ext: int | None = None) -> bytes:
 
 def encode_batch_step(env_ids: Iterable[str], actions: Any, n_ext: int | None = None) -> bytes:
     return encode(batch_step(env_ids, actions, n_ext))
+
+
+def step_head(n_ext: int) -> bytes:
+    """The bytes of a float32 ``Step`` of ``n_ext`` rows before its action data:
+    ``step_head(n) + a.tobytes()`` equals ``encode_step(a)`` for a float32 ``[n, 2]`` array
+    ``a`` (``data`` is the message's last field)."""
+    n = int(n_ext)
+    tail = 8 * n
+    full = encode({"actions": {"dtype": "<f4", "shape": [n, 2], "data": bytes(tail)}})
+    return full[:-tail] if tail else full
 
 
 def batch_step_head(env_ids: Iterable[str]) -> bytes:

@@ -197,6 +197,7 @@ class Transport:
                 f"cannot open a zenoh session to {self.endpoint!r} (mode {mode}): {e}",
             ) from e
         self._lock = threading.Lock()
+        self._drained_at = float("-inf")
         self._alive: set[str] = set()
         self._lost: set[str] = set()
         self._closed = False
@@ -240,10 +241,15 @@ class Transport:
                 self._lost.add(sid)
                 log.info("sharedspace: server %s liveliness token gone", sid)
 
-    def is_alive(self, server_id: str) -> bool:
-        """False once the server's liveliness token was seen disappearing."""
+    def is_alive(self, server_id: str, max_age: float = 0.0) -> bool:
+        """False once the server's liveliness token was seen disappearing. With ``max_age`` the
+        liveliness changes may have been read up to that many seconds ago (a request's
+        pre-check: reading them costs a lock and a call into zenoh, some microseconds)."""
+        if max_age > 0.0 and time.perf_counter() - self._drained_at < max_age:
+            return server_id not in self._lost
         with self._lock:
             self._drain_watch()
+            self._drained_at = time.perf_counter()
             return server_id not in self._lost
 
     def alive_servers(self) -> set[str]:

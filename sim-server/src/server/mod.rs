@@ -13,8 +13,9 @@
 //! * [`core`]: [`ServerCore`], the env registry (env id → `Arc<Mutex<Env>>`), trainers and
 //!   reaping, limits, and one handler per request taking payload bytes and returning reply bytes
 //!   plus the publications to send. Unit-testable without zenoh.
-//! * [`net`]: the tokio/zenoh layer — one queryable per request kind (each query handled in its
-//!   own tokio task, so steps of different envs run concurrently, serialised per env by the env's
+//! * [`net`]: the tokio/zenoh layer — one queryable per request kind (a single-env step or an
+//!   info query answered on the zenoh thread that delivered it, every other query in its own
+//!   tokio task, so steps of different envs run concurrently, serialised per env by the env's
 //!   mutex), the server's liveliness token, the trainers' liveliness subscriber, the realtime
 //!   action subscriber and one clock task per realtime env; [`run`] is the entry point.
 //! * [`config`]: the JSON5 configuration with `--cfg KEY:VALUE` overrides.
@@ -42,6 +43,9 @@
 //!   creation; after a `Reset` every tick steps with the latest action per agent (zero-order
 //!   hold, `[0, 0]` until the first one), publishes the `StepResult` on `{p}/env/{id}/result` and
 //!   the state publications. Missed ticks are delayed, not made up.
+//! * **Batches.** A `BatchStep` of at least 64 envs is split into consecutive chunks stepped on
+//!   up to `batch_threads` threads (default one per core), bit-identical to one thread; each
+//!   thread steps its envs' worlds in one shared `sim_core::StepScratch`.
 //! * **Errors.** Every query gets exactly one reply; decoding, validation, limits and state errors
 //!   map to the error codes of SPEC section 4 and never change any env. Batches lock their envs
 //!   in id order and check everything before stepping any.

@@ -11,12 +11,11 @@ use sim_core::params::WorldParams;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use zenoh::bytes::Encoding;
-use zenoh::handlers::FifoChannelHandler;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::SampleKind;
-use zenoh::Session;
+use zenoh::{Session, Wait};
 
 use super::config::{ConfigError, ServerConfig};
 use super::core::{reply_bytes, Response, ServerCore};
@@ -95,7 +94,63 @@ impl Ctx {
         }
     }
 
+    /// Whether `query` is answered on the network thread that delivered it (see
+    /// [`serve_query`]): a single-env step or an info query, each some microseconds of work.
+    fn answers_inline(&self, kind: Kind, query: &Query) -> bool {
+        match kind {
+            Kind::Info => true,
+            Kind::EnvOp => matches!(
+                self.keys
+                    .parse_env_op(self.core.server_id(), query.key_expr().as_str()),
+                Some((_, protocol::EnvOp::Step))
+            ),
+            Kind::Create | Kind::Batch => false,
+        }
+    }
+
+    /// Answers `query` on this thread: the reply and any publications are handed to zenoh
+    /// without waiting on the async runtime. Realtime clocks only start from `Create`, which is
+    /// never answered here.
+    fn handle_inline(&self, kind: Kind, query: Query) {
+        let (resp, reply_key) = self.respond(kind, &query);
+        debug_assert!(resp.realtime_envs.is_empty());
+        for p in resp.pubs {
+            if let Err(e) = self
+                .session
+                .put(p.key.as_str(), p.payload)
+                .encoding(msgpack())
+                .wait()
+            {
+                tracing::debug!(key = %p.key, error = %e, "publication failed");
+            }
+        }
+        if let Err(e) = query
+            .reply(reply_key.as_str(), resp.reply)
+            .encoding(msgpack())
+            .wait()
+        {
+            tracing::warn!(key = %reply_key, error = %e, "reply failed");
+        }
+    }
+
     async fn handle(self: Arc<Self>, kind: Kind, query: Query) {
+        let (resp, reply_key) = self.respond(kind, &query);
+        self.publish(resp.pubs).await;
+        for (env_id, period) in resp.realtime_envs {
+            let ctx = self.clone();
+            tokio::spawn(ctx.realtime_clock(env_id, period));
+        }
+        if let Err(e) = query
+            .reply(reply_key.as_str(), resp.reply)
+            .encoding(msgpack())
+            .await
+        {
+            tracing::warn!(key = %reply_key, error = %e, "reply failed");
+        }
+    }
+
+    /// The core's response to `query` and the key to reply on.
+    fn respond(&self, kind: Kind, query: &Query) -> (Response, String) {
         let payload: Vec<u8> = query
             .payload()
             .map(|p| p.to_bytes().into_owned())
@@ -124,11 +179,6 @@ impl Ctx {
                 },
             },
         };
-        self.publish(resp.pubs).await;
-        for (env_id, period) in resp.realtime_envs {
-            let ctx = self.clone();
-            tokio::spawn(ctx.realtime_clock(env_id, period));
-        }
         let reply_key = match kind {
             Kind::Info => self.keys.server_info(core.server_id()).ok(),
             Kind::Create => self.keys.env_create(core.server_id()).ok(),
@@ -136,13 +186,7 @@ impl Ctx {
             Kind::EnvOp => None,
         }
         .unwrap_or(key);
-        if let Err(e) = query
-            .reply(reply_key.as_str(), resp.reply)
-            .encoding(msgpack())
-            .await
-        {
-            tracing::warn!(key = %reply_key, error = %e, "reply failed");
-        }
+        (resp, reply_key)
     }
 
     /// Steps a realtime env every `period` until it is closed or the server stops.
@@ -166,24 +210,21 @@ impl Ctx {
     }
 }
 
-async fn serve_queryable(
-    ctx: Arc<Ctx>,
-    kind: Kind,
-    queryable: Queryable<FifoChannelHandler<Query>>,
-) {
-    let mut stop = ctx.stop.clone();
-    loop {
-        tokio::select! {
-            q = queryable.recv_async() => match q {
-                Ok(query) => {
-                    tokio::spawn(ctx.clone().handle(kind, query));
-                }
-                Err(_) => break,
-            },
-            _ = stop.changed() => break,
-        }
+/// Where a query is answered. Small requests (a single-env step, info) are answered on the zenoh
+/// thread that delivered them, as a bare queryable would: handing them to the async runtime
+/// first costs a thread wake-up or two, tens of microseconds on a loaded machine, several times
+/// the work itself. Everything else (create, reset, close, batches of up to `max_batch` envs)
+/// runs as a task, so that the network threads keep moving other trainers' traffic. Once the
+/// server stops, queries are no longer answered (they time out at the client).
+fn serve_query(ctx: &Arc<Ctx>, rt: &tokio::runtime::Handle, kind: Kind, query: Query) {
+    if *ctx.stop.borrow() {
+        return;
     }
-    let _ = queryable.undeclare().await;
+    if ctx.answers_inline(kind, &query) {
+        ctx.handle_inline(kind, query);
+    } else {
+        rt.spawn(ctx.clone().handle(kind, query));
+    }
 }
 
 /// A running server (see [`run`]).
@@ -193,6 +234,7 @@ pub struct Server {
     stop_tx: watch::Sender<bool>,
     tasks: Vec<JoinHandle<()>>,
     token: Option<LivelinessToken>,
+    queryables: Vec<Queryable<()>>,
     _gate_publishers: Vec<Publisher<'static>>,
     _actions: Option<Subscriber<()>>,
 }
@@ -294,14 +336,18 @@ impl Server {
             ),
             (keys.batch_step(sid), Kind::Batch),
         ];
+        let rt = tokio::runtime::Handle::current();
+        let mut served = Vec::with_capacity(queryables.len());
         for (key, kind) in queryables {
             let key = key.map_err(|e| ConfigError::Invalid(e.to_string()))?;
+            let (ctx, rt) = (ctx.clone(), rt.clone());
             let q = session
                 .declare_queryable(key)
                 .complete(true)
+                .callback(move |query| serve_query(&ctx, &rt, kind, query))
                 .await
                 .map_err(zerr)?;
-            tasks.push(tokio::spawn(serve_queryable(ctx.clone(), kind, q)));
+            served.push(q);
         }
 
         // Realtime actions.
@@ -396,6 +442,7 @@ impl Server {
             stop_tx,
             tasks,
             token: Some(token),
+            queryables: served,
             _gate_publishers: gate_publishers,
             _actions: Some(actions),
         })
@@ -414,6 +461,9 @@ impl Server {
         let _ = self.stop_tx.send(true);
         if let Some(t) = self.token.take() {
             let _ = t.undeclare().await;
+        }
+        for q in self.queryables.drain(..) {
+            let _ = q.undeclare().await;
         }
         for t in self.tasks.drain(..) {
             let _ = tokio::time::timeout(Duration::from_secs(5), t).await;
