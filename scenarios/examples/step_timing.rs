@@ -27,7 +27,7 @@ use scenarios::synthetic::{generate, Layout as SceneLayout, SyntheticConfig};
 use sha2::{Digest, Sha256};
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::Scenario;
-use sim_core::world::{EpisodeConfig, World};
+use sim_core::world::{AgentId, EpisodeConfig, StepScratch, World};
 
 /// The system allocator, counting allocations (for `allocs`).
 struct Counting;
@@ -63,12 +63,16 @@ fn scene(layout: SceneLayout, n: usize, seed: u64) -> Arc<Scenario> {
     Arc::new(generate(&SyntheticConfig::new(layout, n, seed)).expect("valid scene"))
 }
 
-fn step_once(world: &mut World) {
-    let actions: Vec<_> = world
+/// The AV holding a gentle constant action.
+fn hold(world: &World) -> Vec<(AgentId, [f64; 2])> {
+    world
         .active_externals()
         .map(|id| (id, [0.1, 0.0]))
-        .collect();
-    world.step(&actions).expect("step");
+        .collect()
+}
+
+fn step_once(world: &mut World) {
+    world.step(&hold(world)).expect("step");
 }
 
 /// The world `sim-server bench-step` times (seed 0): warmed up, or, when the AV's episode ended
@@ -101,8 +105,11 @@ fn bench_world_default(n: usize) -> World {
 
 /// Steps `k` times from clones of the warmed-up world, 10 steps per clone (as `bench-step`);
 /// returns the wall time spent stepping.
+/// Seconds for `k` steps from clones of `base` (ten steps each), in one scratch kept across the
+/// clones as a running world keeps its own (a clone starts with an empty one).
 fn run_steps(base: &World, k: u64) -> f64 {
     let (mut total, mut steps) = (0.0, 0u64);
+    let mut scratch = StepScratch::new();
     while steps < k {
         let mut w = base.clone();
         let t0 = Instant::now();
@@ -110,7 +117,7 @@ fn run_steps(base: &World, k: u64) -> f64 {
             if w.is_over() || steps == k {
                 break;
             }
-            step_once(&mut w);
+            w.step_in(&mut scratch, &hold(&w)).expect("step");
             steps += 1;
         }
         total += t0.elapsed().as_secs_f64();

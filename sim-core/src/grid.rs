@@ -58,6 +58,17 @@ impl Grid {
         self.nx = (extent.x / cell).floor() as usize + 1;
         self.ny = (extent.y / cell).floor() as usize + 1;
         let ncell = self.nx * self.ny;
+        if ncell == 1 {
+            // One cell (every scene smaller than the radius): the counting sort below would
+            // keep slot order, so the sorted order is the identity.
+            self.starts.clear();
+            self.starts.extend_from_slice(&[0, n as u32]);
+            self.cell_of.resize(n, 0);
+            self.sorted.extend(0..n as u32);
+            self.sorted_x.extend(positions.iter().map(|p| p.x));
+            self.sorted_y.extend(positions.iter().map(|p| p.y));
+            return;
+        }
         self.starts.clear();
         self.starts.resize(ncell + 1, 0);
         for p in positions {

@@ -2,7 +2,8 @@
 //! CR-SFM pedestrians at 0.25 pedestrians per square metre.
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
-use sim_server::step_timing::{bench_world_threads, step_once};
+use sim_core::world::StepScratch;
+use sim_server::step_timing::{bench_world_threads, step_once_in};
 
 fn world_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("world_step");
@@ -20,8 +21,14 @@ fn world_step(c: &mut Criterion) {
             } else {
                 format!("n={n}/threads={t}")
             };
+            // One scratch across the fresh clones, as a running world keeps its own.
+            let mut scratch = StepScratch::new();
             group.bench_function(name, |b| {
-                b.iter_batched_ref(|| base.clone(), step_once, BatchSize::LargeInput)
+                b.iter_batched_ref(
+                    || base.clone(),
+                    |w| step_once_in(w, &mut scratch),
+                    BatchSize::LargeInput,
+                )
             });
         }
     }

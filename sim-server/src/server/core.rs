@@ -599,7 +599,11 @@ impl ServerCore {
             let actions = req
                 .checked_actions(env.spec.n_ext() as u32)
                 .map_err(|e| e.with_env(env_id.to_string()))?;
-            env.step_single(&actions, gates, &mut pubs)
+            // A pooled scratch: an autoreset world starts every episode with an empty one.
+            let mut scratch = self.take_steppers(1);
+            let r = env.step_single(&actions, gates, &mut pubs, scratch.first_mut());
+            self.return_steppers(scratch);
+            r
         })();
         Response::of(r, pubs)
     }

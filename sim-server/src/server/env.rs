@@ -814,15 +814,16 @@ impl Env {
         })
     }
 
-    /// A single (unbatched) step result.
+    /// A single (unbatched) step result; the world steps in `scratch` (see [`Env::step_into`]).
     pub fn step_single(
         &mut self,
         actions: &[[f64; 2]],
         gates: Gates,
         pubs: &mut Vec<Publication>,
+        scratch: Option<&mut StepScratch>,
     ) -> Result<StepResult, ErrorReply> {
         let mut buf = Buffers::new(1, self.spec.n_ext(), self.spec.max_agents as usize);
-        let meta = self.step_into(actions, &mut buf.slots(0), gates, pubs, None)?;
+        let meta = self.step_into(actions, &mut buf.slots(0), gates, pubs, scratch)?;
         let (reward, reward_terms, terminated, truncated) = buf.rewards()?;
         Ok(StepResult {
             env_id: self.id.clone(),
@@ -879,7 +880,7 @@ impl Env {
             return None;
         }
         let held = self.held.clone();
-        let r = self.step_single(&held, gates, pubs);
+        let r = self.step_single(&held, gates, pubs, None);
         if gates.result {
             if let Ok(res) = &r {
                 if let Ok(key) = self.spec.keys.env_result(&self.id) {
