@@ -4,9 +4,8 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{line, scenario, track, Rng};
+use common::{fingerprint, line, scenario, track, Rng};
 use sim_core::scenario::{AgentKind, AgentRecord, Scenario};
-use sim_core::world::Event;
 use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
 
 const MODELS: [PedestrianModel; 4] = [
@@ -58,51 +57,6 @@ fn crowd(seed: u64) -> (Arc<Scenario>, EpisodeConfig) {
 fn action(t: u32) -> [f64; 2] {
     let t = t as f64;
     [0.6 * (0.37 * t).sin() + 0.1, 1.3 * (0.9 * t).cos()]
-}
-
-/// Every number of one step as bits (positions, velocities, accelerations, headings, graph
-/// clearance/psi/u/A, rewards) plus events.
-fn fingerprint(w: &World, out: Option<&sim_core::StepOutcome>) -> Vec<u64> {
-    let mut f = vec![u64::from(w.step_index()), w.len() as u64];
-    for a in w.agents() {
-        f.push(u64::from(a.id));
-        for x in [
-            a.position.x,
-            a.position.y,
-            a.velocity.x,
-            a.velocity.y,
-            a.acceleration.x,
-            a.acceleration.y,
-            a.heading,
-        ] {
-            f.push(x.to_bits());
-        }
-    }
-    for e in w.graph_edges() {
-        f.push(u64::from(e.observer) << 32 | u64::from(e.target));
-        for x in [e.clearance, e.psi, e.u, e.a] {
-            f.push(x.to_bits());
-        }
-    }
-    if let Some(out) = out {
-        for a in &out.agents {
-            let r = a.reward;
-            for x in [r.progress, r.success, r.collision, r.danger, r.comfort] {
-                f.push(x.to_bits());
-            }
-            f.push(u64::from(a.terminated) | u64::from(a.truncated) << 1);
-        }
-        for e in &out.events {
-            f.push(match *e {
-                Event::Collision { a, b } => 1 << 60 | u64::from(a) << 32 | u64::from(b),
-                Event::GoalReached { agent } => 2 << 60 | u64::from(agent),
-                Event::Entered { agent } => 3 << 60 | u64::from(agent),
-                Event::Left { agent } => 4 << 60 | u64::from(agent),
-            });
-        }
-        f.push(u64::from(out.episode_over));
-    }
-    f
 }
 
 fn new_world(seed: u64) -> World {

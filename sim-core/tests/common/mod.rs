@@ -83,9 +83,10 @@ impl Rng {
     }
 }
 
-/// The bits of every agent's state and every graph edge of `w`.
-pub fn fingerprint(w: &sim_core::World) -> Vec<u64> {
-    let mut f = vec![w.len() as u64];
+/// Every number of one step as bits (positions, velocities, accelerations, headings, graph
+/// clearance/psi/u/A, rewards) plus events.
+pub fn fingerprint(w: &sim_core::World, out: Option<&sim_core::StepOutcome>) -> Vec<u64> {
+    let mut f = vec![u64::from(w.step_index()), w.len() as u64];
     for a in w.agents() {
         f.push(u64::from(a.id));
         for x in [
@@ -93,6 +94,8 @@ pub fn fingerprint(w: &sim_core::World) -> Vec<u64> {
             a.position.y,
             a.velocity.x,
             a.velocity.y,
+            a.acceleration.x,
+            a.acceleration.y,
             a.heading,
         ] {
             f.push(x.to_bits());
@@ -103,6 +106,26 @@ pub fn fingerprint(w: &sim_core::World) -> Vec<u64> {
         for x in [e.clearance, e.psi, e.u, e.a] {
             f.push(x.to_bits());
         }
+    }
+    if let Some(out) = out {
+        for a in &out.agents {
+            let r = a.reward;
+            for x in [r.progress, r.success, r.collision, r.danger, r.comfort] {
+                f.push(x.to_bits());
+            }
+            f.push(u64::from(a.terminated) | u64::from(a.truncated) << 1);
+        }
+        for e in &out.events {
+            f.push(match *e {
+                sim_core::world::Event::Collision { a, b } => {
+                    1 << 60 | u64::from(a) << 32 | u64::from(b)
+                }
+                sim_core::world::Event::GoalReached { agent } => 2 << 60 | u64::from(agent),
+                sim_core::world::Event::Entered { agent } => 3 << 60 | u64::from(agent),
+                sim_core::world::Event::Left { agent } => 4 << 60 | u64::from(agent),
+            });
+        }
+        f.push(u64::from(out.episode_over));
     }
     f
 }
