@@ -329,6 +329,16 @@ impl ServerCore {
         &self.server_id
     }
 
+    /// The most agents any scenario of the served pools has (an upper bound on a world's size).
+    pub fn max_scene_agents(&self) -> usize {
+        self.pools
+            .iter()
+            .flat_map(|p| p.scenarios.iter())
+            .map(|s| s.scenario.agents.len())
+            .max()
+            .unwrap_or(0)
+    }
+
     pub fn keys(&self) -> &KeySpace {
         &self.keys
     }

@@ -13,8 +13,9 @@
 //! * [`core`]: [`ServerCore`], the env registry (env id → `Arc<Mutex<Env>>`), trainers and
 //!   reaping, limits, and one handler per request taking payload bytes and returning reply bytes
 //!   plus the publications to send. Unit-testable without zenoh.
-//! * [`net`]: the tokio/zenoh layer — one queryable per request kind (a single-env step or an
-//!   info query answered on the zenoh thread that delivered it, every other query in its own
+//! * [`net`]: the tokio/zenoh layer — one queryable per request kind (an info query, and a
+//!   single-env step while no served scenario has more than 64 agents, answered on the zenoh
+//!   thread that delivered it; every other query in its own
 //!   tokio task, so steps of different envs run concurrently, serialised per env by the env's
 //!   mutex), the server's liveliness token, the trainers' liveliness subscriber, the realtime
 //!   action subscriber and one clock task per realtime env; [`run`] is the entry point.
