@@ -103,10 +103,9 @@ fn bench_world_default(n: usize) -> World {
     world
 }
 
-/// Steps `k` times from clones of the warmed-up world, 10 steps per clone (as `bench-step`);
-/// returns the wall time spent stepping.
-/// Seconds for `k` steps from clones of `base` (ten steps each), in one scratch kept across the
-/// clones as a running world keeps its own (a clone starts with an empty one).
+/// Steps `k` times from clones of the warmed-up world, 10 steps per clone (as `bench-step`), in
+/// one scratch kept across the clones as a running world keeps its own (a clone starts with an
+/// empty one); returns the wall time spent stepping.
 fn run_steps(base: &World, k: u64) -> f64 {
     let (mut total, mut steps) = (0.0, 0u64);
     let mut scratch = StepScratch::new();

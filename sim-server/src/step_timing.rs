@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use scenarios::synthetic::{generate, Layout, SyntheticConfig};
 use sim_core::params::{PedestrianModel, WorldParams};
-use sim_core::world::{EpisodeConfig, StepScratch, World};
+use sim_core::world::{AgentId, EpisodeConfig, StepScratch, World};
 
 /// Steps taken before timing so that beliefs have a history (not all first sights).
 pub const WARM_UP_STEPS: u32 = 3;
@@ -44,14 +44,18 @@ pub fn bench_world_threads(n: usize, seed: u64, threads: usize) -> World {
     world
 }
 
+/// The AV holding a gentle constant action.
+fn hold(world: &World) -> Vec<(AgentId, [f64; 2])> {
+    world
+        .active_externals()
+        .map(|id| (id, [0.1, 0.0]))
+        .collect()
+}
+
 /// One step with the AV holding a gentle constant action.
 #[inline]
 pub fn step_once(world: &mut World) {
-    let actions: Vec<_> = world
-        .active_externals()
-        .map(|id| (id, [0.1, 0.0]))
-        .collect();
-    world.step(&actions).expect("benchmark step");
+    world.step(&hold(world)).expect("benchmark step");
 }
 
 /// [`step_once`] in `scratch`. The timed steps run in one scratch kept across the clones the
@@ -59,10 +63,7 @@ pub fn step_once(world: &mut World) {
 /// clone starts with an empty scratch, and its first step's allocations are not a step's cost.
 #[inline]
 pub fn step_once_in(world: &mut World, scratch: &mut StepScratch) {
-    let actions: Vec<_> = world
-        .active_externals()
-        .map(|id| (id, [0.1, 0.0]))
-        .collect();
+    let actions = hold(world);
     world.step_in(scratch, &actions).expect("benchmark step");
 }
 

@@ -610,9 +610,9 @@ impl ServerCore {
                 .checked_actions(env.spec.n_ext() as u32)
                 .map_err(|e| e.with_env(env_id.to_string()))?;
             // A pooled scratch: an autoreset world starts every episode with an empty one.
-            let mut scratch = self.take_steppers(1);
-            let r = env.step_single(&actions, gates, &mut pubs, scratch.first_mut());
-            self.return_steppers(scratch);
+            let mut scratch = self.take_stepper();
+            let r = env.step_single(&actions, gates, &mut pubs, Some(&mut scratch));
+            self.return_steppers(std::iter::once(scratch));
             r
         })();
         Response::of(r, pubs)
@@ -862,21 +862,22 @@ impl ServerCore {
         buf
     }
 
-    /// `n` step scratches, those of earlier batches first.
-    fn take_steppers(&self, n: usize) -> Vec<StepScratch> {
-        let mut pool = lock(&self.steppers);
-        let keep = pool.len().saturating_sub(n);
-        let mut out = pool.split_off(keep);
-        out.resize_with(n, StepScratch::new);
-        out
+    /// A step scratch of an earlier request, or a new one.
+    fn take_stepper(&self) -> StepScratch {
+        lock(&self.steppers).pop().unwrap_or_default()
     }
 
-    fn return_steppers(&self, steppers: Vec<StepScratch>) {
+    /// `n` step scratches for a batch's threads.
+    fn take_steppers(&self, n: usize) -> Vec<StepScratch> {
+        let mut pool = lock(&self.steppers);
+        (0..n).map(|_| pool.pop().unwrap_or_default()).collect()
+    }
+
+    fn return_steppers(&self, steppers: impl IntoIterator<Item = StepScratch>) {
         let mut pool = lock(&self.steppers);
         // Enough for a few batches at once on every thread.
-        if pool.len() < 4 * self.batch_threads {
-            pool.extend(steppers);
-        }
+        let room = (4 * self.batch_threads).saturating_sub(pool.len());
+        pool.extend(steppers.into_iter().take(room));
     }
 
     fn return_buffers(&self, buf: Buffers) {
