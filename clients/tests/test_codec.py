@@ -335,3 +335,24 @@ def test_batch_step_head_plus_actions_is_the_whole_request(k):
 def test_step_head_plus_action_bytes_is_the_whole_request(n_ext):
     actions = np.random.default_rng(n_ext).uniform(-1, 1, (n_ext, 2)).astype(np.float32)
     assert codec.step_head(n_ext) + actions.tobytes() == codec.encode_step(actions)
+
+
+@pytest.mark.parametrize(
+    "m",
+    [
+        {"dtype": "<f4", "shape": [], "data": np.float32(2.5).tobytes()},
+        {"dtype": "<u4", "shape": [2, 0, 3], "data": b""},
+        {"dtype": "|u1", "shape": [2, 3], "data": bytes(range(6))},
+    ],
+)
+def test_client_array_views_equal_codec_decode_array(m):
+    from sharedspace.client import _array
+
+    assert _same(_array(m), codec.decode_array(m))
+
+
+def test_client_array_refuses_negative_dims_of_a_matching_size():
+    from sharedspace.client import _array
+
+    with pytest.raises(ProtocolError, match="non-negative"):
+        _array({"dtype": "<f4", "shape": [-1, -1], "data": b"\0" * 4})

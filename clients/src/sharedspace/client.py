@@ -79,7 +79,7 @@ def _array(m: Any) -> np.ndarray:
                 count = 1
                 for d in shape:
                     count *= d
-                if type(count) is int and len(data) == count * size and min(shape) >= 0:
+                if type(count) is int and len(data) == count * size and min(shape, default=0) >= 0:
                     return np.ndarray(shape, dtype, data)
     if not codec.is_array_map(m):
         raise ProtocolError(f"expected a binary-array map {{dtype, shape, data}}, got {m!r:.80}")
