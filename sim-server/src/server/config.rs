@@ -78,6 +78,17 @@ pub enum ConfigError {
     Invalid(String),
 }
 
+/// The first top-level key of `root` whose value alone does not deserialize (serde_json's
+/// type errors, such as a negative count, do not say which field they are about).
+fn offending_key(root: &Value) -> Option<&str> {
+    root.as_object()?.iter().find_map(|(key, value)| {
+        let alone = Value::Object(Map::from_iter([(key.clone(), value.clone())]));
+        serde_json::from_value::<ServerConfig>(alone)
+            .is_err()
+            .then_some(key.as_str())
+    })
+}
+
 fn set_path(root: &mut Value, path: &str, value: Value) -> Result<(), String> {
     let parts: Vec<&str> = path.split('/').collect();
     if parts.iter().any(|p| p.is_empty()) {
@@ -160,10 +171,14 @@ impl ServerConfig {
         overrides: &[String],
     ) -> Result<Self, ConfigError> {
         let root = json5_with_overrides(text, origin, overrides)?;
-        let cfg: ServerConfig = serde_json::from_value(root).map_err(|e| ConfigError::Parse {
-            origin: origin.to_string(),
-            message: e.to_string(),
-        })?;
+        let cfg: ServerConfig =
+            serde_json::from_value(root.clone()).map_err(|e| ConfigError::Parse {
+                origin: origin.to_string(),
+                message: match offending_key(&root) {
+                    Some(key) => format!("{key}: {e}"),
+                    None => e.to_string(),
+                },
+            })?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -329,6 +344,10 @@ mod tests {
         assert!(e.to_string().contains("KEY:VALUE"), "{e}");
         let e = ServerConfig::load(None, &["capacity:0".into()]).unwrap_err();
         assert!(e.to_string().contains("capacity"), "{e}");
+        let e = ServerConfig::load(None, &["capacity:-1".into()]).unwrap_err();
+        assert!(e.to_string().contains("capacity"), "{e}");
+        let e = ServerConfig::load(None, &["batch_threads:-1".into()]).unwrap_err();
+        assert!(e.to_string().contains("batch_threads"), "{e}");
         let e = ServerConfig::load(None, &["prefix:a//b".into()]).unwrap_err();
         assert!(e.to_string().contains("prefix"), "{e}");
     }
