@@ -34,6 +34,15 @@ def _digest(obs) -> str:
     return h.hexdigest()
 
 
+def _reset_digests(res, k: int) -> list:
+    """Per env: the digest of its new episode's first observation, or None (no autoreset)."""
+    out: list = [None] * k
+    resets = res["resets"]
+    for j, i in enumerate(resets["index"]):
+        out[int(i)] = _digest({key: v[j] for key, v in resets["obs"].items()})
+    return out
+
+
 def _actions(t: int, k: int, n_ext: int) -> np.ndarray:
     a = np.zeros((k, n_ext, 2), np.float32)
     for i in range(k):
@@ -100,12 +109,11 @@ def main() -> int:
                     "reward": np.asarray(res["reward"]).tolist(),
                     "terminated": np.asarray(res["terminated"]).tolist(),
                     "truncated": np.asarray(res["truncated"]).tolist(),
-                    "envs": [[e["episode"], e["step"]] for e in res["envs"]],
-                    "obs": _digest(res["obs"]),
-                    "resets": [
-                        None if e.get("reset") is None else _digest(e["reset"]["obs"])
-                        for e in res["envs"]
+                    "envs": [
+                        [int(e), int(s)] for e, s in zip(res["episode"], res["step"], strict=True)
                     ],
+                    "obs": _digest(res["obs"]),
+                    "resets": _reset_digests(res, vec.num_envs),
                 }
             )
         result["failovers"] = vec.failovers

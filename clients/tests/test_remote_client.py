@@ -88,10 +88,22 @@ def test_vector_client_batch(sim_client):
         for t in range(80):
             res = vec.step(np.random.default_rng(t).uniform(-1, 1, (4, 1, 2)).astype(np.float32))
             assert res["obs"]["mask"].shape == (4, 1, 5)
-            for k, env in enumerate(res["envs"]):
-                if res["terminated"][k, 0] or res["truncated"][k, 0]:
-                    ends += 1
-                    assert env["reset"] is not None and env["reset"]["step"] == 0
+            ended = np.flatnonzero(res["terminated"][:, 0] | res["truncated"][:, 0])
+            ends += len(ended)
+            # Every ended env (and only those) restarted, with its new first observation
+            # as the next step's start.
+            resets = res["resets"]
+            np.testing.assert_array_equal(resets["index"], ended)
+            assert resets["obs"]["features"].shape == (len(ended), 1, 5, 11)
+            assert len(resets["scenario"]) == len(resets["agents"]) == len(ended)
+            assert all(e >= 1 for e in resets["episode"])
+            for j, k in enumerate(ended):
+                np.testing.assert_array_equal(
+                    vec._last_obs["features"][k], resets["obs"]["features"][j]
+                )
+            assert res["episode"].shape == res["step"].shape == res["t"].shape == (4,)
+            assert res["action_clipped"].shape == (4, 1) and len(res["scenario"]) == 4
+            assert all(0 <= m["index"] < 4 for m in res["metrics"] + res["events"])
         assert ends > 0
         with pytest.raises(WrongShape, match=r"\[K=4, n_ext=1, 2\]"):
             vec.step(np.zeros((3, 2), np.float32))

@@ -53,6 +53,7 @@ mod sealed {
     impl Sealed for f32 {}
     impl Sealed for f64 {}
     impl Sealed for u32 {}
+    impl Sealed for u64 {}
     impl Sealed for u8 {}
 }
 
@@ -103,6 +104,7 @@ macro_rules! impl_element {
 impl_element!(f32, "<f4", 4);
 impl_element!(f64, "<f8", 8);
 impl_element!(u32, "<u4", 4);
+impl_element!(u64, "<u8", 8);
 impl_element!(u8, "|u1", 1);
 
 /// Number of elements of `shape`, or an error on overflow.
@@ -129,6 +131,8 @@ pub type F32Array = NdArray<f32>;
 pub type F64Array = NdArray<f64>;
 /// `<u4` array.
 pub type U32Array = NdArray<u32>;
+/// `<u8` array.
+pub type U64Array = NdArray<u64>;
 /// `|u1` array (also used for booleans: 0 = false, 1 = true).
 pub type U8Array = NdArray<u8>;
 

@@ -6,7 +6,8 @@
 //!
 //! * [`keys`]: key-expression builders and parsers ([`KeySpace`]).
 //! * [`messages`]: requests, replies ([`Reply`] envelope, [`ErrorCode`]), publications.
-//! * [`mod@array`]: binary n-d arrays ([`F32Array`], [`F64Array`], [`U32Array`], [`U8Array`],
+//! * [`mod@array`]: binary n-d arrays ([`F32Array`], [`F64Array`], [`U32Array`], [`U64Array`],
+//!   [`U8Array`],
 //!   [`FloatArray`]).
 //! * [`codec`]: [`encode`] / [`decode`] (named-map MessagePack).
 //! * [`samples`]: the fixed example values behind the golden files in `tests/golden/`.
@@ -22,9 +23,11 @@ pub mod samples;
 pub mod wire;
 
 /// The protocol version. Bumped on every incompatible change (see `SPEC.md`, "Versioning").
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
-pub use array::{ArrayError, Element, F32Array, F64Array, FloatArray, NdArray, U32Array, U8Array};
+pub use array::{
+    ArrayError, Element, F32Array, F64Array, FloatArray, NdArray, U32Array, U64Array, U8Array,
+};
 pub use codec::{decode, decode_or_default, encode, try_encode};
 pub use error::ProtocolError;
 pub use keys::{EnvOp, EnvTopic, KeySpace, DEFAULT_PREFIX};

@@ -8,7 +8,9 @@ use serde::de::{self, DeserializeOwned, Deserializer, MapAccess, Visitor};
 use serde::ser::{SerializeMap, Serializer};
 use serde::{Deserialize, Serialize};
 
-use crate::array::{ArrayError, F32Array, F64Array, FloatArray, U32Array, U8Array};
+use crate::array::{
+    ArrayError, F32Array, F64Array, FloatArray, NdArray, U32Array, U64Array, U8Array,
+};
 use crate::keys;
 use crate::PROTOCOL_VERSION;
 
@@ -986,26 +988,46 @@ pub struct StepResult {
     pub reset: Option<ResetResult>,
 }
 
-/// Per-env parts of a `BatchStepResult` that are not stacked.
+/// An event of one env of a batch (`BatchStepResult::events`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BatchEnvInfo {
-    /// Episode counter.
-    pub episode: u64,
-    /// Scenario name.
-    pub scenario: String,
-    /// Step index after the transition.
-    pub step: u32,
-    /// Simulated time after the transition.
-    pub t: f64,
-    /// Details.
-    pub info: StepInfo,
-    /// With autoreset, when this step ended the episode: the new episode's reset result.
-    #[serde(default)]
-    pub reset: Option<ResetResult>,
+pub struct BatchEvent {
+    /// Position of the env in `env_ids`.
+    pub index: u32,
+    /// The event, as in `StepInfo::events`.
+    pub event: Event,
+}
+
+/// The metrics of one ended episode of a batch (`BatchStepResult::metrics`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchMetrics {
+    /// Position of the env in `env_ids`.
+    pub index: u32,
+    /// As in `StepInfo::metrics`.
+    pub metrics: EpisodeMetrics,
+}
+
+/// The autoresets of a batch step, stacked along a leading axis R (the envs whose episode ended
+/// at this step and restarted), in `env_ids` order. Each entry holds the fields of that env's
+/// `ResetResult` (`env_id` is `env_ids[index]`; `step` and `t` are 0).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchResets {
+    /// `[R]` `<u4`: positions of the reset envs in `env_ids`, increasing.
+    pub index: U32Array,
+    /// `[R]` `<u8`: the new episodes' counters.
+    pub episode: U64Array,
+    /// R scenario names.
+    pub scenario: Vec<String>,
+    /// `[R]` `<u4`: steps until truncation of each new episode.
+    pub horizon_steps: U32Array,
+    /// R lists: every agent of each new episode at its start.
+    pub agents: Vec<Vec<AgentDesc>>,
+    /// The new episodes' first observations, shapes `[R, n_ext, M, F]` etc.
+    pub obs: ObsBatch,
 }
 
 /// Reply to `BatchStep`: the K step results with arrays stacked along a leading K axis,
-/// in `env_ids` order.
+/// in `env_ids` order. Per-env values are columns (arrays of K); events, metrics and autoresets
+/// are listed only for the envs that have them, each naming its env by `index` in `env_ids`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BatchStepResult {
     /// The K envs, as requested.
@@ -1020,55 +1042,125 @@ pub struct BatchStepResult {
     pub terminated: U8Array,
     /// `[K, n_ext]` `|u1`.
     pub truncated: U8Array,
-    /// K entries.
-    pub envs: Vec<BatchEnvInfo>,
+    /// `[K]` `<u8`: episode counter of each env's transition.
+    pub episode: U64Array,
+    /// K scenario names (of each env's transition).
+    pub scenario: Vec<String>,
+    /// `[K]` `<u4`: step index after the transition.
+    pub step: U32Array,
+    /// `[K]` `<f8`: simulated time after the transition, s.
+    pub t: F64Array,
+    /// `[K, n_ext]` `|u1`: 1 where the agent's action was clipped into range.
+    pub action_clipped: U8Array,
+    /// Events of this step, env by env in `env_ids` order.
+    pub events: Vec<BatchEvent>,
+    /// Metrics of the episodes that ended at this step, in `env_ids` order.
+    pub metrics: Vec<BatchMetrics>,
+    /// With autoreset: the envs that restarted at this step (R = 0 when none did).
+    pub resets: BatchResets,
 }
 
 impl BatchStepResult {
     /// Stacks per-env step results (which must have equal shapes).
     pub fn from_results(results: Vec<StepResult>) -> Result<Self, ArrayError> {
+        fn stack<T: crate::Element>(
+            results: &[StepResult],
+            f: impl Fn(&StepResult) -> &NdArray<T>,
+        ) -> Result<NdArray<T>, ArrayError> {
+            NdArray::stack(&results.iter().map(|r| f(r).clone()).collect::<Vec<_>>())
+        }
         let obs = ObsBatch::stack(&results.iter().map(|r| r.obs.clone()).collect::<Vec<_>>())?;
-        let reward =
-            F32Array::stack(&results.iter().map(|r| r.reward.clone()).collect::<Vec<_>>())?;
+        let reward = stack(&results, |r| &r.reward)?;
         let reward_terms = RewardTerms::stack(
             &results
                 .iter()
                 .map(|r| r.reward_terms.clone())
                 .collect::<Vec<_>>(),
         )?;
-        let terminated = U8Array::stack(
-            &results
-                .iter()
-                .map(|r| r.terminated.clone())
-                .collect::<Vec<_>>(),
-        )?;
-        let truncated = U8Array::stack(
-            &results
-                .iter()
-                .map(|r| r.truncated.clone())
-                .collect::<Vec<_>>(),
-        )?;
-        let mut env_ids = Vec::with_capacity(results.len());
-        let mut envs = Vec::with_capacity(results.len());
-        for r in results {
-            env_ids.push(r.env_id);
-            envs.push(BatchEnvInfo {
-                episode: r.episode,
-                scenario: r.scenario,
-                step: r.step,
-                t: r.t,
-                info: r.info,
-                reset: r.reset,
-            });
-        }
-        Ok(Self {
-            env_ids,
+        let terminated = stack(&results, |r| &r.terminated)?;
+        let truncated = stack(&results, |r| &r.truncated)?;
+        let k = results.len() as u32;
+        let n_ext = results.first().map_or(0, |r| r.info.action_clipped.len()) as u32;
+        let clipped: Vec<u8> = results
+            .iter()
+            .flat_map(|r| r.info.action_clipped.iter().map(|&c| u8::from(c)))
+            .collect();
+        let mut out = Self {
+            env_ids: Vec::with_capacity(results.len()),
             obs,
             reward,
             reward_terms,
             terminated,
             truncated,
-            envs,
+            episode: U64Array::from_slice(&results.iter().map(|r| r.episode).collect::<Vec<_>>()),
+            scenario: Vec::with_capacity(results.len()),
+            step: U32Array::from_slice(&results.iter().map(|r| r.step).collect::<Vec<_>>()),
+            t: F64Array::from_slice(&results.iter().map(|r| r.t).collect::<Vec<_>>()),
+            action_clipped: U8Array::new(vec![k, n_ext], &clipped)?,
+            events: Vec::new(),
+            metrics: Vec::new(),
+            resets: match results.first() {
+                Some(r) => BatchResets::default_for(&r.obs)?,
+                None => BatchResets::default_for(&ObsBatch::empty(0, 0)?)?,
+            },
+        };
+        let mut resets: Vec<(u32, ResetResult)> = Vec::new();
+        for (i, r) in results.into_iter().enumerate() {
+            let index = i as u32;
+            out.env_ids.push(r.env_id);
+            out.scenario.push(r.scenario);
+            out.events.extend(
+                r.info
+                    .events
+                    .into_iter()
+                    .map(|event| BatchEvent { index, event }),
+            );
+            out.metrics.extend(
+                r.info
+                    .metrics
+                    .into_iter()
+                    .map(|metrics| BatchMetrics { index, metrics }),
+            );
+            if let Some(reset) = r.reset {
+                resets.push((index, reset));
+            }
+        }
+        if !resets.is_empty() {
+            out.resets = BatchResets {
+                index: U32Array::from_slice(&resets.iter().map(|r| r.0).collect::<Vec<_>>()),
+                episode: U64Array::from_slice(
+                    &resets.iter().map(|r| r.1.episode).collect::<Vec<_>>(),
+                ),
+                scenario: resets.iter().map(|r| r.1.scenario.clone()).collect(),
+                horizon_steps: U32Array::from_slice(
+                    &resets.iter().map(|r| r.1.horizon_steps).collect::<Vec<_>>(),
+                ),
+                agents: resets.iter().map(|r| r.1.agents.clone()).collect(),
+                obs: ObsBatch::stack(&resets.iter().map(|r| r.1.obs.clone()).collect::<Vec<_>>())?,
+            };
+        }
+        Ok(out)
+    }
+}
+
+impl BatchResets {
+    /// No resets, for envs whose observations have the shapes of `like` (one env's).
+    pub fn default_for(like: &ObsBatch) -> Result<Self, ArrayError> {
+        let zero_lead = |shape: &[u32]| -> Vec<u32> {
+            std::iter::once(0).chain(shape.iter().copied()).collect()
+        };
+        Ok(Self {
+            index: U32Array::zeros(vec![0])?,
+            episode: U64Array::zeros(vec![0])?,
+            scenario: Vec::new(),
+            horizon_steps: U32Array::zeros(vec![0])?,
+            agents: Vec::new(),
+            obs: ObsBatch {
+                features: F32Array::zeros(zero_lead(like.features.shape()))?,
+                adjacency: F32Array::zeros(zero_lead(like.adjacency.shape()))?,
+                mask: U8Array::zeros(zero_lead(like.mask.shape()))?,
+                node_ids: U32Array::zeros(zero_lead(like.node_ids.shape()))?,
+            },
         })
     }
 }

@@ -295,9 +295,15 @@ pub fn step_result_done() -> StepResult {
     }
 }
 
-/// The sample `BatchStepResult` (K = 2: `step_result()` and `step_result_done()`).
+/// The step results the sample `BatchStepResult` stacks: `step_result()` and
+/// `step_result_done()`.
+pub fn batch_steps() -> Vec<StepResult> {
+    vec![step_result(), step_result_done()]
+}
+
+/// The sample `BatchStepResult` (K = 2, [`batch_steps`]).
 pub fn batch_step_result() -> BatchStepResult {
-    BatchStepResult::from_results(vec![step_result(), step_result_done()]).expect("equal shapes")
+    BatchStepResult::from_results(batch_steps()).expect("equal shapes")
 }
 
 /// The sample `ServerInfo`.
@@ -410,7 +416,7 @@ pub fn all() -> Vec<Sample> {
         Sample::new(
             "info_request",
             "sharedspace/server/s1/info",
-            "InfoRequest with protocol_version 1.",
+            "InfoRequest with protocol_version 2.",
             InfoRequest {
                 protocol_version: Some(PROTOCOL_VERSION),
             },

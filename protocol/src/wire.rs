@@ -2,10 +2,10 @@
 //!
 //! [`encode`](crate::encode) of a `Reply<BatchStepResult>` needs the arrays as owned
 //! [`NdArray`](crate::NdArray)s (one copy of every element into little-endian bytes) and the
-//! per-env parts as owned [`BatchEnvInfo`](crate::BatchEnvInfo)s, and then copies everything
-//! once more into the output. The writers here take borrowed slices and write the same bytes
-//! straight into the output buffer: every function produces exactly what `rmp_serde`'s named
-//! encoding of the corresponding message produces (the tests compare the two byte for byte).
+//! per-env columns as owned arrays, and then copies everything once more into the output. The
+//! writers here take borrowed slices and write the same bytes straight into the output buffer:
+//! every function produces exactly what `rmp_serde`'s named encoding of the corresponding
+//! message produces (the tests compare the two byte for byte).
 
 use serde::Serialize;
 
@@ -168,20 +168,25 @@ impl BatchArrays<'_> {
     }
 }
 
-/// Writes a whole `Reply::Ok(BatchStepResult)`: `env_ids`, the arrays, and `envs`, which must be
-/// `env_ids.len()` entries already written with [`write_batch_env_info_head`] and their
-/// `reset`, concatenated.
+/// Writes a whole `Reply::Ok(BatchStepResult)` from the stacked arrays and the per-env
+/// columns (`cols` holds exactly `env_ids.len()` envs).
 /// Byte-identical to `encode(&Reply::Ok(result))` of the equivalent owned result.
 pub fn write_batch_step_ok(
     out: &mut Vec<u8>,
     env_ids: &[String],
     a: &BatchArrays<'_>,
-    envs: &[u8],
+    cols: &BatchColumns,
 ) -> Result<(), ArrayError> {
     let (k, n) = (a.k, a.obs.n_ext);
+    if cols.len() != env_ids.len() || cols.action_clipped.len() != cols.len() * n as usize {
+        return Err(ArrayError::WrongShape {
+            expected: format!("columns of {} envs with {n} agents each", env_ids.len()),
+            actual: vec![cols.len() as u32, cols.action_clipped.len() as u32],
+        });
+    }
     write_map_len(out, 1);
     write_str(out, "ok");
-    write_map_len(out, 7);
+    write_map_len(out, 14);
     write_str(out, "env_ids");
     write_array_len(out, env_ids.len());
     for id in env_ids {
@@ -204,15 +209,56 @@ pub fn write_batch_step_ok(
     write_array(out, &[k, n], a.terminated)?;
     write_str(out, "truncated");
     write_array(out, &[k, n], a.truncated)?;
-    write_str(out, "envs");
-    write_array_len(out, env_ids.len());
-    out.extend_from_slice(envs);
-    Ok(())
+    write_str(out, "episode");
+    write_array(out, &[k], &cols.episode)?;
+    write_str(out, "scenario");
+    write_array_len(out, cols.len());
+    out.extend_from_slice(&cols.scenarios);
+    write_str(out, "step");
+    write_array(out, &[k], &cols.step)?;
+    write_str(out, "t");
+    write_array(out, &[k], &cols.t)?;
+    write_str(out, "action_clipped");
+    write_array(out, &[k, n], &cols.action_clipped)?;
+    write_str(out, "events");
+    write_array_len(out, cols.n_events);
+    out.extend_from_slice(&cols.events);
+    write_str(out, "metrics");
+    write_array_len(out, cols.n_metrics);
+    out.extend_from_slice(&cols.metrics);
+    write_str(out, "resets");
+    let r = &cols.resets;
+    let rn = r.index.len() as u32;
+    out.extend_from_slice(b"\x86\xa5index");
+    write_array(out, &[rn], &r.index)?;
+    out.extend_from_slice(b"\xa7episode");
+    write_array(out, &[rn], &r.episode)?;
+    out.extend_from_slice(b"\xa8scenario");
+    write_array_len(out, r.index.len());
+    out.extend_from_slice(&r.scenarios);
+    out.extend_from_slice(b"\xadhorizon_steps");
+    write_array(out, &[rn], &r.horizon_steps)?;
+    out.extend_from_slice(b"\xa6agents");
+    write_array_len(out, r.index.len());
+    out.extend_from_slice(&r.agents);
+    out.extend_from_slice(b"\xa3obs");
+    write_obs(
+        out,
+        Some(rn),
+        &ObsRef {
+            n_ext: n,
+            m: a.obs.m,
+            features: &r.features,
+            adjacency: &r.adjacency,
+            mask: &r.mask,
+            node_ids: &r.node_ids,
+        },
+    )
 }
 
-/// The fields of one [`BatchEnvInfo`](crate::BatchEnvInfo), borrowed, but for `reset`.
+/// What a batch reply says of one env besides its stacked arrays, borrowed.
 #[derive(Debug, Clone, Copy)]
-pub struct BatchEnvInfoRef<'a> {
+pub struct BatchEnvRef<'a> {
     pub episode: u64,
     pub scenario: &'a str,
     pub step: u32,
@@ -222,38 +268,138 @@ pub struct BatchEnvInfoRef<'a> {
     pub metrics: &'a [EpisodeMetrics],
 }
 
-/// One `BatchEnvInfo` map (an element of `BatchStepResult::envs`) up to the value of its last
-/// field, `reset`, which the caller writes next: [`write_nil`], or a `ResetResult` (e.g. with
-/// [`write_reset_result`]).
-pub fn write_batch_env_info_head(out: &mut Vec<u8>, e: &BatchEnvInfoRef<'_>) {
-    // The constant runs of map headers and keys are pre-encoded (this runs once per env and
-    // step); the tests check them against the serde encoding.
-    out.extend_from_slice(b"\x86\xa7episode");
-    write_uint(out, e.episode);
-    out.extend_from_slice(b"\xa8scenario");
-    write_str(out, e.scenario);
-    out.extend_from_slice(b"\xa4step");
-    write_uint(out, u64::from(e.step));
-    out.extend_from_slice(b"\xa1t");
-    write_f64(out, e.t);
-    out.extend_from_slice(b"\xa4info\x83\xaeaction_clipped");
-    write_array_len(out, e.action_clipped.len());
-    for &c in e.action_clipped {
-        write_bool(out, c);
+/// The per-env columns and the sparse lists (events, metrics, autoresets) of a batch reply
+/// (`BatchStepResult`), gathered env by env in `env_ids` order with [`BatchColumns::push_env`]
+/// and [`BatchColumns::push_reset`]. Envs stepped in chunks on several threads each fill a
+/// `BatchColumns` made with the position of their first env, joined with
+/// [`BatchColumns::append`]. Strings and maps are kept already encoded.
+#[derive(Debug, Clone, Default)]
+pub struct BatchColumns {
+    /// Position in `env_ids` of the first env pushed.
+    base: u32,
+    episode: Vec<u64>,
+    scenarios: Vec<u8>,
+    step: Vec<u32>,
+    t: Vec<f64>,
+    action_clipped: Vec<u8>,
+    events: Vec<u8>,
+    n_events: usize,
+    metrics: Vec<u8>,
+    n_metrics: usize,
+    resets: ResetColumns,
+}
+
+#[derive(Debug, Clone, Default)]
+struct ResetColumns {
+    index: Vec<u32>,
+    episode: Vec<u64>,
+    scenarios: Vec<u8>,
+    horizon_steps: Vec<u32>,
+    agents: Vec<u8>,
+    features: Vec<f32>,
+    adjacency: Vec<f32>,
+    mask: Vec<u8>,
+    node_ids: Vec<u32>,
+}
+
+impl BatchColumns {
+    /// Empty columns whose first env is `env_ids[base]`.
+    pub fn starting_at(base: u32) -> Self {
+        Self {
+            base,
+            ..Self::default()
+        }
     }
-    out.extend_from_slice(b"\xa6events");
-    if e.events.is_empty() {
-        write_array_len(out, 0);
-    } else {
-        write_named(out, e.events);
+
+    /// Envs pushed so far.
+    pub fn len(&self) -> usize {
+        self.episode.len()
     }
-    out.extend_from_slice(b"\xa7metrics");
-    if e.metrics.is_empty() {
-        write_array_len(out, 0);
-    } else {
-        write_named(out, e.metrics);
+
+    pub fn is_empty(&self) -> bool {
+        self.episode.is_empty()
     }
-    out.extend_from_slice(b"\xa5reset");
+
+    /// Appends the next env.
+    pub fn push_env(&mut self, e: &BatchEnvRef<'_>) {
+        let index = self.base + self.episode.len() as u32;
+        self.episode.push(e.episode);
+        write_str(&mut self.scenarios, e.scenario);
+        self.step.push(e.step);
+        self.t.push(e.t);
+        self.action_clipped
+            .extend(e.action_clipped.iter().map(|&c| u8::from(c)));
+        for ev in e.events {
+            self.events.extend_from_slice(b"\x82\xa5index");
+            write_uint(&mut self.events, u64::from(index));
+            self.events.extend_from_slice(b"\xa5event");
+            write_named(&mut self.events, ev);
+        }
+        self.n_events += e.events.len();
+        for m in e.metrics {
+            self.metrics.extend_from_slice(b"\x82\xa5index");
+            write_uint(&mut self.metrics, u64::from(index));
+            self.metrics.extend_from_slice(b"\xa7metrics");
+            write_named(&mut self.metrics, m);
+        }
+        self.n_metrics += e.metrics.len();
+    }
+
+    /// Records that the env pushed last restarted with `r` (its `env_id` is not written: the
+    /// reply names the env by position). The observation must have the batch's shapes.
+    pub fn push_reset(&mut self, r: &ResetResultRef<'_>) {
+        debug_assert!(!self.is_empty(), "push_reset before push_env");
+        let index = self.base + self.episode.len().saturating_sub(1) as u32;
+        let c = &mut self.resets;
+        c.index.push(index);
+        c.episode.push(r.episode);
+        write_str(&mut c.scenarios, r.scenario);
+        c.horizon_steps.push(r.horizon_steps);
+        write_agent_descs(&mut c.agents, r.agents);
+        c.features.extend_from_slice(r.obs.features);
+        c.adjacency.extend_from_slice(r.obs.adjacency);
+        c.mask.extend_from_slice(r.obs.mask);
+        c.node_ids.extend_from_slice(r.obs.node_ids);
+    }
+
+    /// Appends the envs of `next`, which must start where these end.
+    pub fn append(&mut self, next: &BatchColumns) {
+        debug_assert_eq!(next.base as usize, self.base as usize + self.len());
+        self.episode.extend_from_slice(&next.episode);
+        self.scenarios.extend_from_slice(&next.scenarios);
+        self.step.extend_from_slice(&next.step);
+        self.t.extend_from_slice(&next.t);
+        self.action_clipped.extend_from_slice(&next.action_clipped);
+        self.events.extend_from_slice(&next.events);
+        self.n_events += next.n_events;
+        self.metrics.extend_from_slice(&next.metrics);
+        self.n_metrics += next.n_metrics;
+        let (c, n) = (&mut self.resets, &next.resets);
+        c.index.extend_from_slice(&n.index);
+        c.episode.extend_from_slice(&n.episode);
+        c.scenarios.extend_from_slice(&n.scenarios);
+        c.horizon_steps.extend_from_slice(&n.horizon_steps);
+        c.agents.extend_from_slice(&n.agents);
+        c.features.extend_from_slice(&n.features);
+        c.adjacency.extend_from_slice(&n.adjacency);
+        c.mask.extend_from_slice(&n.mask);
+        c.node_ids.extend_from_slice(&n.node_ids);
+    }
+
+    /// Bytes the columns add to a reply, roughly (for reserving the output).
+    pub fn encoded_bytes(&self) -> usize {
+        let r = &self.resets;
+        32 * self.len()
+            + self.scenarios.len()
+            + self.events.len()
+            + self.metrics.len()
+            + r.scenarios.len()
+            + r.agents.len()
+            + 4 * (r.features.len() + r.adjacency.len() + r.node_ids.len())
+            + r.mask.len()
+            + 16 * r.index.len()
+            + 1024
+    }
 }
 
 /// MessagePack nil (an absent optional value).
@@ -317,8 +463,15 @@ pub fn write_reset_result(out: &mut Vec<u8>, r: &ResetResultRef<'_>) -> Result<(
     out.extend_from_slice(b"\xadhorizon_steps");
     write_uint(out, u64::from(r.horizon_steps));
     out.extend_from_slice(b"\xa6agents");
-    write_array_len(out, r.agents.len());
-    for a in r.agents {
+    write_agent_descs(out, r.agents);
+    out.extend_from_slice(b"\xa3obs");
+    write_obs(out, None, &r.obs)
+}
+
+/// An array of `AgentDesc` maps.
+fn write_agent_descs(out: &mut Vec<u8>, agents: &[AgentDescRef<'_>]) {
+    write_array_len(out, agents.len());
+    for a in agents {
         out.extend_from_slice(b"\x87\xa2id");
         write_uint(out, u64::from(a.id));
         out.extend_from_slice(b"\xa4name");
@@ -340,8 +493,6 @@ pub fn write_reset_result(out: &mut Vec<u8>, r: &ResetResultRef<'_>) -> Result<(
         out.extend_from_slice(b"\xa5width");
         write_opt_f64(out, a.width);
     }
-    out.extend_from_slice(b"\xa3obs");
-    write_obs(out, None, &r.obs)
 }
 
 /// Writes an observation map (`features`, `adjacency`, `mask`, `node_ids`), each array with a
@@ -433,80 +584,71 @@ mod tests {
     use crate::messages::*;
     use crate::{encode, F32Array, U32Array, U8Array};
 
-    /// One whole `BatchEnvInfo` map, `reset` through serde (the reference the direct writers
-    /// are checked against).
-    fn write_batch_env_info(
-        out: &mut Vec<u8>,
-        e: &BatchEnvInfoRef<'_>,
-        reset: Option<&ResetResult>,
-    ) {
-        write_batch_env_info_head(out, e);
-        match reset {
-            None => write_nil(out),
-            Some(r) => write_named(out, r),
-        }
-    }
-
-    fn sample_result(k: usize, n: usize, m: usize, with_extras: bool) -> BatchStepResult {
+    /// The K step results a batch sample stacks (`with_extras`: events, metrics and autoresets
+    /// on some envs).
+    fn sample_steps(k: usize, n: usize, m: usize, with_extras: bool) -> Vec<StepResult> {
         let f = N_FEATURES as usize;
-        let e = k * n;
         let fl = |len: usize, s: f32| -> Vec<f32> {
             (0..len).map(|i| (i as f32 * 0.37 + s).sin()).collect()
         };
-        let sh = |rest: &[usize]| -> Vec<u32> {
-            std::iter::once(k as u32)
-                .chain(rest.iter().map(|&d| d as u32))
-                .collect()
-        };
+        let sh = |rest: &[usize]| -> Vec<u32> { rest.iter().map(|&d| d as u32).collect() };
         let reset = crate::samples::reset_result();
-        BatchStepResult {
-            env_ids: (0..k)
-                .map(|i| format!("srv-{}", i * 1000 + i * 7))
-                .collect(),
-            obs: ObsBatch {
-                features: F32Array::new(sh(&[n, m, f]), &fl(e * m * f, 0.1)).unwrap(),
-                adjacency: F32Array::new(sh(&[n, m, m]), &fl(e * m * m, 0.2)).unwrap(),
-                mask: U8Array::new(sh(&[n, m]), &vec![1; e * m]).unwrap(),
-                node_ids: U32Array::new(
-                    sh(&[n, m]),
-                    &(0..e * m)
-                        .map(|i| {
-                            if i % 3 == 0 {
-                                PAD_NODE_ID
-                            } else {
-                                i as u32 * 977
-                            }
-                        })
-                        .collect::<Vec<_>>(),
-                )
-                .unwrap(),
-            },
-            reward: F32Array::new(sh(&[n]), &fl(e, 0.3)).unwrap(),
-            reward_terms: RewardTerms {
-                progress: F32Array::new(sh(&[n]), &fl(e, 0.4)).unwrap(),
-                success: F32Array::new(sh(&[n]), &fl(e, 0.5)).unwrap(),
-                collision: F32Array::new(sh(&[n]), &fl(e, 0.6)).unwrap(),
-                danger: F32Array::new(sh(&[n]), &fl(e, 0.7)).unwrap(),
-                comfort: F32Array::new(sh(&[n]), &fl(e, 0.8)).unwrap(),
-            },
-            terminated: U8Array::new(sh(&[n]), &vec![0; e]).unwrap(),
-            truncated: U8Array::new(sh(&[n]), &vec![1; e]).unwrap(),
-            envs: (0..k)
-                .map(|i| BatchEnvInfo {
+        let reset_obs = |i: usize| ObsBatch {
+            features: F32Array::new(sh(&[n, m, f]), &fl(n * m * f, 0.9 + i as f32)).unwrap(),
+            adjacency: F32Array::new(sh(&[n, m, m]), &fl(n * m * m, 1.1)).unwrap(),
+            mask: U8Array::new(sh(&[n, m]), &vec![1; n * m]).unwrap(),
+            node_ids: U32Array::new(sh(&[n, m]), &vec![7; n * m]).unwrap(),
+        };
+        (0..k)
+            .map(|i| {
+                let s = i as f32;
+                StepResult {
+                    env_id: format!("srv-{}", i * 1000 + i * 7),
                     episode: (i as u64) << (i % 40),
                     scenario: "s".repeat(i % 300),
                     step: (i as u32).wrapping_mul(2_654_435_761),
                     t: i as f64 * 0.1,
+                    obs: ObsBatch {
+                        features: F32Array::new(sh(&[n, m, f]), &fl(n * m * f, 0.1 + s)).unwrap(),
+                        adjacency: F32Array::new(sh(&[n, m, m]), &fl(n * m * m, 0.2 + s)).unwrap(),
+                        mask: U8Array::new(sh(&[n, m]), &vec![1; n * m]).unwrap(),
+                        node_ids: U32Array::new(
+                            sh(&[n, m]),
+                            &(0..n * m)
+                                .map(|j| {
+                                    if j % 3 == 0 {
+                                        PAD_NODE_ID
+                                    } else {
+                                        (i * 31 + j) as u32 * 977
+                                    }
+                                })
+                                .collect::<Vec<_>>(),
+                        )
+                        .unwrap(),
+                    },
+                    reward: F32Array::new(sh(&[n]), &fl(n, 0.3 + s)).unwrap(),
+                    reward_terms: RewardTerms {
+                        progress: F32Array::new(sh(&[n]), &fl(n, 0.4 + s)).unwrap(),
+                        success: F32Array::new(sh(&[n]), &fl(n, 0.5 + s)).unwrap(),
+                        collision: F32Array::new(sh(&[n]), &fl(n, 0.6 + s)).unwrap(),
+                        danger: F32Array::new(sh(&[n]), &fl(n, 0.7 + s)).unwrap(),
+                        comfort: F32Array::new(sh(&[n]), &fl(n, 0.8 + s)).unwrap(),
+                    },
+                    terminated: U8Array::new(sh(&[n]), &vec![(i % 2) as u8; n]).unwrap(),
+                    truncated: U8Array::new(sh(&[n]), &vec![1; n]).unwrap(),
                     info: StepInfo {
                         action_clipped: (0..n).map(|a| (a + i) % 2 == 0).collect(),
                         events: if with_extras && i % 2 == 0 {
-                            vec![Event {
-                                kind: EventKind::EpisodeEnd,
-                                step: 3,
-                                t: 0.3,
-                                agents: vec![1, 2],
-                                outcome: Some(Outcome::Collision),
-                            }]
+                            vec![
+                                Event {
+                                    kind: EventKind::EpisodeEnd,
+                                    step: 3,
+                                    t: 0.3,
+                                    agents: vec![1, 2],
+                                    outcome: Some(Outcome::Collision),
+                                };
+                                1 + i % 3
+                            ]
                         } else {
                             Vec::new()
                         },
@@ -525,31 +667,43 @@ mod tests {
                             Vec::new()
                         },
                     },
-                    reset: (with_extras && i % 4 == 1).then(|| reset.clone()),
-                })
-                .collect(),
-        }
+                    reset: (with_extras && i % 4 == 1).then(|| ResetResult {
+                        env_id: format!("srv-{}", i * 1000 + i * 7),
+                        episode: (i as u64) << (i % 40) | 1,
+                        scenario: "r".repeat(i % 40),
+                        obs: reset_obs(i),
+                        ..reset.clone()
+                    }),
+                }
+            })
+            .collect()
     }
 
-    fn direct(r: &BatchStepResult) -> Vec<u8> {
-        let mut envs = Vec::new();
-        for e in &r.envs {
-            let info = BatchEnvInfoRef {
-                episode: e.episode,
-                scenario: &e.scenario,
-                step: e.step,
-                t: e.t,
-                action_clipped: &e.info.action_clipped,
-                events: &e.info.events,
-                metrics: &e.info.metrics,
-            };
-            match &e.reset {
-                // Both ways of writing the reset result.
-                Some(r) if e.step % 2 == 0 => {
-                    write_batch_env_info_head(&mut envs, &info);
-                    write_reset_result(&mut envs, &reset_ref(r).as_ref()).unwrap();
+    /// The reply written directly from `steps`, in `chunks` envs at a time joined with
+    /// `BatchColumns::append` (as the server's batch threads do).
+    fn direct(steps: &[StepResult], chunk: usize) -> Vec<u8> {
+        let r = BatchStepResult::from_results(steps.to_vec()).unwrap();
+        let mut cols = BatchColumns::starting_at(0);
+        for (c, part) in steps.chunks(chunk).enumerate() {
+            let mut next = BatchColumns::starting_at((c * chunk) as u32);
+            for s in part {
+                next.push_env(&BatchEnvRef {
+                    episode: s.episode,
+                    scenario: &s.scenario,
+                    step: s.step,
+                    t: s.t,
+                    action_clipped: &s.info.action_clipped,
+                    events: &s.info.events,
+                    metrics: &s.info.metrics,
+                });
+                if let Some(reset) = &s.reset {
+                    next.push_reset(&reset_ref(reset).as_ref());
                 }
-                r => write_batch_env_info(&mut envs, &info, r.as_ref()),
+            }
+            if c == 0 {
+                cols = next;
+            } else {
+                cols.append(&next);
             }
         }
         let (o, t) = (&r.obs, &r.reward_terms);
@@ -585,7 +739,7 @@ mod tests {
             truncated: &truncated,
         };
         let mut out = Vec::new();
-        write_batch_step_ok(&mut out, &r.env_ids, &a, &envs).unwrap();
+        write_batch_step_ok(&mut out, &r.env_ids, &a, &cols).unwrap();
         out
     }
 
@@ -670,7 +824,8 @@ mod tests {
     #[test]
     fn batch_reply_is_byte_identical_to_the_serde_encoding() {
         // Sizes that cross every MessagePack length class used: fix/8/16/32-bit bin and
-        // array lengths, long scenario names, large episode and step numbers.
+        // array lengths, long scenario names, large episode and step numbers; written whole
+        // and in chunks.
         for (k, n, m, extras) in [
             (1, 1, 1, false),
             (1, 1, 8, true),
@@ -679,16 +834,82 @@ mod tests {
             (300, 1, 8, true),
             (64, 3, 20, false),
         ] {
-            let r = sample_result(k, n, m, extras);
-            let want = encode(&Reply::Ok(r.clone()));
-            assert_eq!(direct(&r), want, "k={k} n={n} m={m}");
+            let steps = sample_steps(k, n, m, extras);
+            let want = encode(&Reply::Ok(
+                BatchStepResult::from_results(steps.clone()).unwrap(),
+            ));
+            for chunk in [k, k.div_ceil(2), 7] {
+                assert_eq!(
+                    direct(&steps, chunk),
+                    want,
+                    "k={k} n={n} m={m} chunk={chunk}"
+                );
+            }
         }
     }
 
     #[test]
+    fn batch_columns_name_each_env_by_position() {
+        let steps = sample_steps(9, 2, 4, true);
+        let r = BatchStepResult::from_results(steps.clone()).unwrap();
+        assert_eq!(
+            r.episode.to_vec(),
+            steps.iter().map(|s| s.episode).collect::<Vec<_>>()
+        );
+        let events: Vec<u32> = r.events.iter().map(|e| e.index).collect();
+        // Envs 0, 2, 4, 6, 8 have 1 + i % 3 events each.
+        assert_eq!(events, [0, 2, 2, 2, 4, 4, 6, 8, 8, 8]);
+        let metrics: Vec<u32> = r.metrics.iter().map(|m| m.index).collect();
+        assert_eq!(metrics, [0, 3, 6]);
+        assert_eq!(r.resets.index.to_vec(), [1, 5]);
+        assert_eq!(r.resets.obs.features.shape(), [2, 2, 4, N_FEATURES]);
+        let second = steps[5].reset.as_ref().unwrap().obs.features.to_vec();
+        assert_eq!(r.resets.obs.features.to_vec()[second.len()..], second[..]);
+        assert_eq!(r.action_clipped.shape(), [9, 2]);
+        assert_eq!(r.action_clipped.to_vec()[..4], [1, 0, 0, 1]);
+    }
+
+    #[test]
+    fn columns_of_the_wrong_length_are_refused() {
+        let steps = sample_steps(3, 1, 4, false);
+        let mut full = direct(&steps, 3);
+        full.clear();
+        let r = BatchStepResult::from_results(steps).unwrap();
+        let empty = BatchColumns::starting_at(0);
+        let (f, a, mk, ids) = (
+            r.obs.features.to_vec(),
+            r.obs.adjacency.to_vec(),
+            r.obs.mask.to_vec(),
+            r.obs.node_ids.to_vec(),
+        );
+        let (rw, tm, tr) = (
+            r.reward.to_vec(),
+            r.terminated.to_vec(),
+            r.truncated.to_vec(),
+        );
+        let arrays = BatchArrays {
+            k: 3,
+            obs: ObsRef {
+                n_ext: 1,
+                m: 4,
+                features: &f,
+                adjacency: &a,
+                mask: &mk,
+                node_ids: &ids,
+            },
+            reward: &rw,
+            terms: [&rw, &rw, &rw, &rw, &rw],
+            terminated: &tm,
+            truncated: &tr,
+        };
+        assert!(write_batch_step_ok(&mut full, &r.env_ids, &arrays, &empty).is_err());
+    }
+
+    #[test]
     fn golden_batch_sample_is_reproduced() {
+        let steps = crate::samples::batch_steps();
         let r = crate::samples::batch_step_result();
-        assert_eq!(direct(&r), encode(&Reply::Ok(r.clone())));
+        assert_eq!(direct(&steps, 1), encode(&Reply::Ok(r)));
     }
 
     #[test]

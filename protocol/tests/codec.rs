@@ -45,7 +45,7 @@ where
 fn every_message_round_trips() {
     roundtrip(&InfoRequest::default());
     roundtrip(&InfoRequest {
-        protocol_version: Some(1),
+        protocol_version: Some(PROTOCOL_VERSION),
     });
     roundtrip(&samples::create_env());
     roundtrip(&CreateEnv::new("c"));
@@ -175,7 +175,7 @@ fn error_codes_snake_case() {
 #[test]
 fn create_env_defaults_from_minimal_map() {
     let minimal = to_bytes(&Value::Map(vec![
-        ("protocol_version".into(), Value::from(1)),
+        ("protocol_version".into(), Value::from(PROTOCOL_VERSION)),
         ("client_id".into(), Value::from("c1")),
     ]));
     let c: CreateEnv = decode(&minimal).unwrap();
@@ -187,7 +187,7 @@ fn create_env_defaults_from_minimal_map() {
 
     // Unknown fields are ignored (forward compatibility).
     let extra = to_bytes(&Value::Map(vec![
-        ("protocol_version".into(), Value::from(1)),
+        ("protocol_version".into(), Value::from(PROTOCOL_VERSION)),
         ("client_id".into(), Value::from("c1")),
         ("future_field".into(), Value::from(true)),
     ]));
@@ -205,7 +205,7 @@ fn create_env_defaults_from_minimal_map() {
 #[test]
 fn create_env_validation() {
     let mut c = CreateEnv::new("c1");
-    c.protocol_version = 2;
+    c.protocol_version = PROTOCOL_VERSION + 1;
     assert_eq!(c.validate().unwrap_err().code, ErrorCode::VersionMismatch);
     let mut c = CreateEnv::new("a/b");
     assert_eq!(c.validate().unwrap_err().code, ErrorCode::BadRequest);
@@ -376,7 +376,9 @@ fn obs_helpers() {
     assert_eq!(b.reward.shape(), &[2, 1]);
     assert_eq!(b.reward.to_vec(), vec![-1.125, 11.875]);
     assert_eq!(b.terminated.to_vec(), vec![0, 1]);
-    assert_eq!(b.envs[1].reset.as_ref().unwrap().episode, 4);
+    assert_eq!(b.resets.index.to_vec(), vec![1]);
+    assert_eq!(b.resets.episode.to_vec(), vec![4]);
+    b.resets.obs.check(Some(1), 1, samples::MAX_AGENTS).unwrap();
 }
 
 #[test]

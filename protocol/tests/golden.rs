@@ -115,6 +115,10 @@ fn render_array(entries: &[(Value, Value)]) -> Option<String> {
             .chunks_exact(4)
             .map(|c| u32::from_le_bytes(c.try_into().unwrap()).to_string())
             .collect(),
+        "<u8" => data
+            .chunks_exact(8)
+            .map(|c| u64::from_le_bytes(c.try_into().unwrap()).to_string())
+            .collect(),
         "|u1" => data.iter().map(|b| b.to_string()).collect(),
         _ => return None,
     };

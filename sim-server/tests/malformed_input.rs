@@ -85,24 +85,28 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
         (garbage.clone(), ErrorCode::BadRequest),
         (Vec::new(), ErrorCode::BadRequest),
         (
-            json_msgpack(json!({"protocol_version": 1})),
+            json_msgpack(json!({"protocol_version": protocol::PROTOCOL_VERSION})),
             ErrorCode::BadRequest,
         ), // no client_id
         (
-            json_msgpack(json!({"protocol_version": 1, "client_id": 5})),
+            json_msgpack(json!({"protocol_version": protocol::PROTOCOL_VERSION, "client_id": 5})),
             ErrorCode::BadRequest,
         ),
         (
-            json_msgpack(json!({"protocol_version": 1, "client_id": "a", "count": -1})),
+            json_msgpack(
+                json!({"protocol_version": protocol::PROTOCOL_VERSION, "client_id": "a", "count": -1}),
+            ),
             ErrorCode::BadRequest,
         ),
         (
-            json_msgpack(json!({"protocol_version": 1, "client_id": "a", "split": "dev"})),
+            json_msgpack(
+                json!({"protocol_version": protocol::PROTOCOL_VERSION, "client_id": "a", "split": "dev"}),
+            ),
             ErrorCode::BadRequest,
         ),
         (json_msgpack(json!([1, 2, 3])), ErrorCode::BadRequest),
         (
-            base(&|r| r.protocol_version = 2),
+            base(&|r| r.protocol_version = protocol::PROTOCOL_VERSION + 1),
             ErrorCode::VersionMismatch,
         ),
         (base(&|r| r.count = 0), ErrorCode::BadRequest),

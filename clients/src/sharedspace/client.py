@@ -18,8 +18,8 @@ parameters (same seed, so the scenario sequence restarts from the seed: the new 
 the sequence from its first episode, not from where the lost one was) on the least-loaded
 surviving server and resets them. With ``failover=True`` this happens inside ``step``: the
 step returns a synthetic transition in which every env is **truncated** (reward 0, ``obs`` = the
-last observation received before the loss), whose ``envs[k]["reset"]`` carries the new
-episode's ``ResetResult``, like an autoreset step, and ``result["failover"]`` is True. Each
+last observation received before the loss), whose ``resets`` lists every env with its new
+episode, like an autoreset step, and ``result["failover"]`` is True. Each
 failover increments :attr:`VectorClient.failovers` and logs a warning on the ``sharedspace``
 logger.
 """
@@ -58,6 +58,9 @@ _ALIVE_MAX_AGE = 0.05
 
 _OBS_KEYS = ("features", "adjacency", "mask", "node_ids")
 _RESULT_ARRAYS = ("reward", "terminated", "truncated")
+#: The per-env columns of a ``BatchStepResult``, and of its stacked ``resets``.
+_BATCH_COLUMNS = ("episode", "step", "t", "action_clipped")
+_RESET_COLUMNS = ("index", "episode", "horizon_steps")
 #: Wire dtype -> (numpy dtype, item size), resolved once: ``np.dtype("<f4")`` per array is a
 #: measurable share of decoding a small step reply.
 _WIRE_DTYPES = {name: (np.dtype(name), size) for name, size in codec.ARRAY_DTYPES.items()}
@@ -105,8 +108,9 @@ def decode_result(payload: bytes) -> Any:
     """Decodes a reply envelope like :func:`sharedspace.codec.decode_reply`, faster on the hot
     path: MessagePack is decoded by msgspec without a per-map hook and only the binary arrays of
     ``ResetResult``/``StepResult``/``BatchStepResult`` (``obs``, ``reward``, ``reward_terms``,
-    ``terminated``, ``truncated`` and the autoreset ``reset.obs``) become numpy views; any other
-    map is left as it is (``ServerInfo``, ``EnvCreated`` and ``Closed`` carry no arrays)."""
+    ``terminated``, ``truncated``, the autoreset ``reset.obs``, a batch's per-env columns and its
+    stacked ``resets``) become numpy views; any other map is left as it is (``ServerInfo``,
+    ``EnvCreated`` and ``Closed`` carry no arrays)."""
     if len(payload) == 0:
         raise ProtocolError("empty reply payload")
     try:
@@ -123,10 +127,16 @@ def decode_result(payload: bytes) -> Any:
         if type(terms) is dict:
             for k, v in terms.items():
                 terms[k] = _array(v)
-        _obs_in(r.get("reset"))
-        for env in r.get("envs") or ():
-            if type(env) is dict and env.get("reset") is not None:
-                _obs_in(env["reset"])
+        reset = r.get("reset")
+        if "env_ids" in r:  # BatchStepResult: per-env columns, stacked autoresets
+            for k in _BATCH_COLUMNS:
+                if k in r:
+                    r[k] = _array(r[k])
+            if type(reset := r.get("resets")) is dict:
+                for k in _RESET_COLUMNS:
+                    if k in reset:
+                        reset[k] = _array(reset[k])
+        _obs_in(reset)
     return r
 
 
@@ -594,9 +604,14 @@ class VectorClient:
 
     def step(self, actions: Any) -> dict[str, Any]:
         """One ``BatchStep`` of the K envs: ``actions`` ``[K, n_ext, 2]`` (a ``[K, 2]`` array is
-        accepted when ``n_ext`` is 1). Returns the ``BatchStepResult`` (numpy arrays ``obs``
-        ``features [K, n_ext, M, 11]`` etc., ``reward [K, n_ext]``, ``terminated``,
-        ``truncated``, per-env ``envs``)."""
+        accepted when ``n_ext`` is 1). Returns the ``BatchStepResult`` (SPEC 6.5): numpy arrays
+        ``obs`` ``features [K, n_ext, M, 11]`` etc., ``reward [K, n_ext]``, ``terminated``,
+        ``truncated``, the per-env columns ``episode``, ``step``, ``t`` ``[K]`` and
+        ``action_clipped [K, n_ext]``, ``scenario`` (K names), the ``events`` and ``metrics``
+        of the envs that have some (each naming its env by ``index``), and ``resets``: the
+        autoreset envs' ``index [R]`` and new episodes (``obs`` stacked ``[R, ...]``).
+        After an autoreset the next step starts from ``resets.obs``; this step's ``obs`` is
+        the terminal observation."""
         self._check_open()
         arr = np.asarray(actions, dtype=np.float32)
         if arr.ndim == 2 and self.n_ext == 1:
@@ -615,21 +630,24 @@ class VectorClient:
                 raise
             return self._failover_step()
         obs = res["obs"]
-        self._last_obs = {k: obs[k] for k in ("features", "adjacency", "mask", "node_ids")}
-        for k, env in enumerate(res["envs"]):
-            reset = env.get("reset")
-            if reset is not None:
-                for key in self._last_obs:
-                    if not self._last_obs[key].flags.writeable:
-                        self._last_obs[key] = self._last_obs[key].copy()
-                    self._last_obs[key][k] = reset["obs"][key]
+        self._last_obs = {k: obs[k] for k in _OBS_KEYS}
+        resets = res["resets"]
+        if len(resets["index"]):
+            # The next step starts from the new episodes' first observations.
+            idx, first = resets["index"], resets["obs"]
+            for key in _OBS_KEYS:
+                arr = self._last_obs[key]
+                if not arr.flags.writeable:
+                    arr = self._last_obs[key] = arr.copy()
+                arr[idx] = first[key]
         return res
 
     def _failover_step(self) -> dict[str, Any]:
         k, n = self.num_envs, self.n_ext
         prev = self._last_obs
         resets = self.recreate()
-        obs = prev if prev is not None else _stack_reset_obs(resets)
+        stacked = _stack_reset_obs(resets)
+        obs = prev if prev is not None else stacked
         zeros = np.zeros((k, n), dtype=np.float32)
         return {
             "env_ids": list(self.env_ids),
@@ -638,22 +656,21 @@ class VectorClient:
             "reward_terms": {t: zeros.copy() for t in REWARD_TERMS},
             "terminated": np.zeros((k, n), dtype=np.uint8),
             "truncated": np.ones((k, n), dtype=np.uint8),
-            "envs": [
-                {
-                    "episode": 0,
-                    "scenario": "",
-                    "step": 0,
-                    "t": 0.0,
-                    "info": {
-                        "action_clipped": [False] * n,
-                        "events": [],
-                        "metrics": [],
-                        "failover": True,
-                    },
-                    "reset": r,
-                }
-                for r in resets
-            ],
+            "episode": np.zeros(k, dtype=np.uint64),
+            "scenario": [""] * k,
+            "step": np.zeros(k, dtype=np.uint32),
+            "t": np.zeros(k, dtype=np.float64),
+            "action_clipped": np.zeros((k, n), dtype=np.uint8),
+            "events": [],
+            "metrics": [],
+            "resets": {
+                "index": np.arange(k, dtype=np.uint32),
+                "episode": np.array([r["episode"] for r in resets], dtype=np.uint64),
+                "scenario": [r["scenario"] for r in resets],
+                "horizon_steps": np.array([r["horizon_steps"] for r in resets], dtype=np.uint32),
+                "agents": [r["agents"] for r in resets],
+                "obs": stacked,
+            },
             "failover": True,
         }
 

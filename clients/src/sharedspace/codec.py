@@ -1,4 +1,4 @@
-"""MessagePack codec of the sharedspace wire protocol, version 1 (protocol/SPEC.md).
+"""MessagePack codec of the sharedspace wire protocol, version 2 (protocol/SPEC.md).
 
 Messages are plain dicts keyed by field name. Binary arrays (``{dtype, shape, data}`` maps with
 ``data`` as MessagePack ``bin``) decode to read-only numpy arrays that view the decoded bytes
@@ -61,10 +61,10 @@ __all__ = [
     "ProtocolError",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 
 #: dtype strings allowed in binary arrays, with their item size.
-ARRAY_DTYPES: dict[str, int] = {"<f4": 4, "<f8": 8, "<u4": 4, "|u1": 1}
+ARRAY_DTYPES: dict[str, int] = {"<f4": 4, "<f8": 8, "<u4": 4, "<u8": 8, "|u1": 1}
 
 #: ``node_ids`` value of padding nodes.
 PADDING_ID = 0xFFFFFFFF

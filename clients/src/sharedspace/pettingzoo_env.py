@@ -230,16 +230,15 @@ class SharedSpaceParallelEnv(ParallelEnv):
                 dict.fromkeys(live, True),
                 {a: dict(info) for a in live},
             )
-        env = res["envs"][0]
         o = res["obs"]
         self._obs = {k: o[k][0] for k in ("features", "adjacency", "mask")}
-        self._step = int(env["step"])
-        self._episode = int(env["episode"])
+        self._step = int(res["step"][0])
+        self._episode = int(res["episode"][0])
+        t, scenario, clipped = float(res["t"][0]), res["scenario"][0], res["action_clipped"][0]
         reward = res["reward"][0]
         term = res["terminated"][0]
         trunc = res["truncated"][0]
-        info_all = env.get("info") or {}
-        metrics = {m["agent"]: m for m in info_all.get("metrics") or ()}
+        metrics = {m["metrics"]["agent"]: m["metrics"] for m in res["metrics"]}
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         for a in live:
             e = self._index[a]
@@ -249,9 +248,9 @@ class SharedSpaceParallelEnv(ParallelEnv):
             truncs[a] = bool(trunc[e])
             infos[a] = {
                 "step": self._step,
-                "t": float(env["t"]),
-                "scenario": env["scenario"],
-                "action_clipped": bool((info_all.get("action_clipped") or [False] * n)[e]),
+                "t": t,
+                "scenario": scenario,
+                "action_clipped": bool(clipped[e]),
                 "reward_terms": {k: float(v[0][e]) for k, v in res["reward_terms"].items()},
             }
             if a in metrics:

@@ -282,24 +282,34 @@ class RemoteBatchedEnv(EnvBase):
         out["reward"] = np.array(res["reward"], dtype=np.float32).reshape(-1, 1)
         out["terminated"] = res["terminated"].reshape(-1, 1).astype(bool)
         out["truncated"] = res["truncated"].reshape(-1, 1).astype(bool)
-        for k, env in enumerate(res["envs"]):
-            info = env.get("info") or {}
-            for met in info.get("metrics") or ():
-                outcome = met.get("outcome")
-                if outcome in ("success", "collision", "timeout"):
-                    out["episode_" + outcome][k, 0] = True
-                out["episode_avg_speed"][k, 0] = met.get("avg_speed", 0.0)
-                out["episode_avg_abs_jerk"][k, 0] = met.get("avg_abs_jerk", 0.0)
-                out["episode_max_abs_acc"][k, 0] = met.get("max_abs_acc", 0.0)
-            if res.get("failover"):
-                self._pending[k] = env["reset"] if self.scenario_order == "random" else None
+        for entry in res["metrics"]:
+            k, met = int(entry["index"]), entry["metrics"]
+            outcome = met.get("outcome")
+            if outcome in ("success", "collision", "timeout"):
+                out["episode_" + outcome][k, 0] = True
+            out["episode_avg_speed"][k, 0] = met.get("avg_speed", 0.0)
+            out["episode_avg_abs_jerk"][k, 0] = met.get("avg_abs_jerk", 0.0)
+            out["episode_max_abs_acc"][k, 0] = met.get("max_abs_acc", 0.0)
+        resets = res["resets"]
+        first = {
+            int(k): {
+                "obs": {key: resets["obs"][key][j] for key in ("features", "adjacency", "mask")},
+                "scenario": resets["scenario"][j],
+            }
+            for j, k in enumerate(resets["index"])
+        }
+        if res.get("failover"):
+            for k in range(self.num_envs):
+                self._pending[k] = first.get(k) if self.scenario_order == "random" else None
+            self._done[:] = True
+        else:
+            for k, name in enumerate(res["scenario"]):
+                if name:
+                    self._scenario[k] = self._index_of(name)
+            ended = np.flatnonzero(out["terminated"][:, 0] | out["truncated"][:, 0])
+            for k in ended:
                 self._done[k] = True
-                continue
-            if env.get("scenario"):
-                self._scenario[k] = self._index_of(env["scenario"])
-            if out["terminated"][k, 0] or out["truncated"][k, 0]:
-                self._done[k] = True
-                self._pending[k] = env.get("reset")
+                self._pending[k] = first.get(int(k))
         if res.get("failover"):
             out["truncated"][:] = True
             self._cursor = [0] * self.num_envs

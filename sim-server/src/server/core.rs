@@ -12,9 +12,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use protocol::keys::{make_env_id, validate_env_id};
-use protocol::wire::{
-    decode_batch_step, write_batch_env_info_head, write_batch_step_ok, write_nil, BatchEnvInfoRef,
-};
+use protocol::wire::{decode_batch_step, write_batch_step_ok, BatchColumns, BatchEnvRef};
 use protocol::{
     decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
     Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
@@ -762,62 +760,61 @@ impl ServerCore {
         let chunk = k.div_ceil(threads);
         let mut buf = self.take_buffers(k, n_ext, m as usize);
         let mut refs: Vec<&mut Env> = envs.iter_mut().map(|g| &mut **g).collect();
-        // Per chunk: its envs' `BatchEnvInfo` maps, already encoded, and its publications.
-        type Part = (Vec<u8>, Vec<Publication>, Result<(), ErrorReply>);
+        // Per chunk: its envs' columns of the reply, and its publications.
+        type Part = (BatchColumns, Vec<Publication>, Result<(), ErrorReply>);
         let mut steppers = self.take_steppers(threads);
-        let run = |envs: &mut [&mut Env],
+        let run = |base: usize,
+                   envs: &mut [&mut Env],
                    actions: &[[f64; 2]],
                    mut out: BufMut<'_>,
                    scratch: &mut StepScratch|
          -> Part {
-            let mut infos = Vec::with_capacity(envs.len() * 128);
+            let mut cols = BatchColumns::starting_at(base as u32);
             let mut pubs = Vec::new();
             for (i, env) in envs.iter_mut().enumerate() {
                 let rows = &actions[i * n_ext..(i + 1) * n_ext];
                 let slots = &mut out.slots(i);
                 let meta = match env.step_into(rows, slots, gates, &mut pubs, Some(scratch)) {
                     Ok(meta) => meta,
-                    Err(e) => return (infos, pubs, Err(e)),
+                    Err(e) => return (cols, pubs, Err(e)),
                 };
-                write_batch_env_info_head(
-                    &mut infos,
-                    &BatchEnvInfoRef {
-                        episode: meta.episode,
-                        scenario: env.scenario_name(meta.scenario),
-                        step: meta.step,
-                        t: meta.t,
-                        action_clipped: env.action_clipped(),
-                        events: &meta.events,
-                        metrics: &meta.metrics,
-                    },
-                );
-                if !meta.reset {
-                    write_nil(&mut infos);
-                } else if let Err(e) = env.write_reset_result(&mut infos) {
-                    return (infos, pubs, Err(e));
+                cols.push_env(&BatchEnvRef {
+                    episode: meta.episode,
+                    scenario: env.scenario_name(meta.scenario),
+                    step: meta.step,
+                    t: meta.t,
+                    action_clipped: env.action_clipped(),
+                    events: &meta.events,
+                    metrics: &meta.metrics,
+                });
+                if meta.reset {
+                    env.push_reset_columns(&mut cols);
                 }
             }
-            (infos, pubs, Ok(()))
+            (cols, pubs, Ok(()))
         };
         let parts: Vec<Part> = if threads <= 1 {
-            vec![run(&mut refs, &actions, buf.view(), &mut steppers[0])]
+            vec![run(0, &mut refs, &actions, buf.view(), &mut steppers[0])]
         } else {
             std::thread::scope(|sc| {
                 let mut work = refs
                     .chunks_mut(chunk)
-                    .zip((0..k).step_by(chunk).map(|i| &actions[i * n_ext..]))
+                    .zip((0..k).step_by(chunk))
                     .zip(buf.view().chunks(k, chunk))
                     .zip(steppers.iter_mut());
-                let (((e0, a0), o0), s0) = work.next().expect("k >= 1");
+                let (((e0, b0), o0), s0) = work.next().expect("k >= 1");
+                let actions = &actions[..];
                 let handles: Vec<_> = work
-                    .map(|(((e, a), o), s)| sc.spawn(move || run(e, a, o, s)))
+                    .map(|(((e, b), o), s)| {
+                        sc.spawn(move || run(b, e, &actions[b * n_ext..], o, s))
+                    })
                     .collect();
                 let mut parts = Vec::with_capacity(threads);
-                parts.push(run(e0, a0, o0, s0));
+                parts.push(run(b0, e0, &actions[b0 * n_ext..], o0, s0));
                 parts.extend(handles.into_iter().map(|h| {
                     h.join().unwrap_or_else(|_| {
                         (
-                            Vec::new(),
+                            BatchColumns::default(),
                             Vec::new(),
                             Err(ErrorReply::new(
                                 ErrorCode::Internal,
@@ -832,24 +829,24 @@ impl ServerCore {
         drop(refs);
         drop(envs);
         self.return_steppers(steppers);
-        let mut infos = Vec::new();
-        for (i, (inf, p, r)) in parts.into_iter().enumerate() {
+        let mut cols = BatchColumns::default();
+        for (i, (part, p, r)) in parts.into_iter().enumerate() {
             r?;
             if i == 0 {
-                infos = inf;
+                cols = part;
             } else {
-                infos.extend_from_slice(&inf);
+                cols.append(&part);
             }
             pubs.extend(p);
         }
         let arrays = buf.arrays();
         let mut reply = Vec::with_capacity(
-            1024 + arrays.data_bytes()
-                + 16 * k
+            arrays.data_bytes()
+                + 8 * k
                 + req.env_ids.iter().map(String::len).sum::<usize>()
-                + infos.len(),
+                + cols.encoded_bytes(),
         );
-        let written = write_batch_step_ok(&mut reply, &req.env_ids, &arrays, &infos);
+        let written = write_batch_step_ok(&mut reply, &req.env_ids, &arrays, &cols);
         self.return_buffers(buf);
         written.map_err(Buffers::err)?;
         Ok(reply)
@@ -1107,7 +1104,9 @@ mod tests {
         for id in a.iter().chain(&b) {
             c.handle_reset(id, &[], Gates::NONE);
         }
-        for round in 0..3 {
+        let (mut resets, mut events) = (0, 0);
+        // Enough rounds for episodes to end (collisions, arrivals) and restart.
+        for round in 0..40 {
             let vals: Vec<f32> = (0..k)
                 .flat_map(|i| [((i + round) as f32 * 0.1).sin(), 0.05])
                 .collect();
@@ -1122,23 +1121,25 @@ mod tests {
                     .unwrap()
                     .into_result()
                     .unwrap();
-            let per = 8 * 11;
-            for (i, id) in b.iter().enumerate() {
-                let step = encode(&Step::from_rows(&[[vals[2 * i], vals[2 * i + 1]]]));
-                let s: StepResult =
+            let singles: Vec<StepResult> = b
+                .iter()
+                .enumerate()
+                .map(|(i, id)| {
+                    let step = encode(&Step::from_rows(&[[vals[2 * i], vals[2 * i + 1]]]));
                     decode::<Reply<StepResult>>(&c.handle_step(id, &step, Gates::NONE).reply)
                         .unwrap()
                         .into_result()
-                        .unwrap();
-                let f = r.obs.features.to_vec();
-                assert_eq!(
-                    &f[i * per..(i + 1) * per],
-                    &s.obs.features.to_vec()[..],
-                    "env {i}"
-                );
-                assert_eq!(r.reward.get(&[i as u32, 0]), s.reward.get(&[0]));
-                assert_eq!(r.envs[i].step, s.step);
-            }
+                        .unwrap()
+                })
+                .collect();
+            // The same transitions stacked (the reply names envs by position, so only the
+            // ids differ).
+            let mut want = BatchStepResult::from_results(singles).unwrap();
+            want.env_ids = a.clone();
+            assert_eq!(r, want, "round {round}");
+            resets += r.resets.index.len();
+            events += r.events.len();
         }
+        assert!(resets > 0 && events > 0, "{resets} resets, {events} events");
     }
 }

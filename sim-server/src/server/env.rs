@@ -15,7 +15,7 @@ use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::{AgentKind, Split};
 use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World};
 
-use protocol::wire::{self, AgentDescRef, BatchArrays, ObsRef, ResetResultRef};
+use protocol::wire::{AgentDescRef, BatchArrays, BatchColumns, ObsRef, ResetResultRef};
 
 use super::pools::{ScenarioSequence, ServedPool, ServedScenario};
 
@@ -375,7 +375,7 @@ pub struct StepMeta {
     pub events: Vec<Event>,
     pub metrics: Vec<EpisodeMetrics>,
     /// Whether the step ended the episode and autoreset started the next: its `ResetResult`
-    /// is then [`Env::reset_result`] (or [`Env::write_reset_result`]) until the next step.
+    /// is then [`Env::reset_result`] (or [`Env::push_reset_columns`]) until the next step.
     pub reset: bool,
 }
 
@@ -638,28 +638,24 @@ impl Env {
         })
     }
 
-    /// [`Env::reset_result`] written straight into `out` (MessagePack, the same bytes as its
-    /// encoding), without building the owned result.
-    pub fn write_reset_result(&mut self, out: &mut Vec<u8>) -> Result<(), ErrorReply> {
+    /// Adds [`Env::reset_result`] to a batch reply's columns as the reset of the env pushed
+    /// last (this one), without building the owned result.
+    pub fn push_reset_columns(&mut self, cols: &mut BatchColumns) {
         self.fill_reset_obs();
         let world = self
             .world
             .as_ref()
-            .expect("write_reset_result after a reset");
+            .expect("push_reset_columns after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
         let agents = agent_descs(world, served, &self.ext_ids);
-        wire::write_reset_result(
-            out,
-            &ResetResultRef {
-                env_id: &self.id,
-                episode: self.episode,
-                scenario: &served.scenario.name,
-                horizon_steps: world.horizon(),
-                agents: &agents,
-                obs: self.reset_obs.obs_ref(),
-            },
-        )
-        .map_err(Buffers::err)
+        cols.push_reset(&ResetResultRef {
+            env_id: &self.id,
+            episode: self.episode,
+            scenario: &served.scenario.name,
+            horizon_steps: world.horizon(),
+            agents: &agents,
+            obs: self.reset_obs.obs_ref(),
+        });
     }
 
     /// Checks the env can be stepped in lockstep now.
