@@ -331,6 +331,39 @@ def test_batch_step_head_plus_actions_is_the_whole_request(k):
     assert head + codec.encode(actions) == codec.encode_batch_step(ids, actions)
 
 
+def test_client_batch_decoder_equals_codec_decode_reply():
+    from sharedspace.client import decode_batch_result
+
+    payload = (GOLDEN / "reply_batch_step.msgpack").read_bytes()
+    typed = decode_batch_result(payload)
+    assert _same(typed, codec.decode_reply(payload))
+    # the arrays are views of the payload itself, not copies
+    assert typed["obs"]["features"].base is not None
+    assert not typed["obs"]["features"].flags.writeable
+
+
+def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
+    from sharedspace.client import decode_batch_result
+
+    with pytest.raises(NonFiniteAction):
+        decode_batch_result((GOLDEN / "reply_error.msgpack").read_bytes())
+    reply = msgpack.unpackb((GOLDEN / "reply_batch_step.msgpack").read_bytes(), raw=False)
+    reply["ok"]["reward"] = {"dtype": "<f4", "shape": [5, 1], "data": b"\0" * 8}
+    with pytest.raises(ProtocolError, match="needs 20"):
+        decode_batch_result(msgpack.packb(reply, use_bin_type=True))
+    reply["ok"]["reward"] = {"dtype": "<f4", "shape": [3], "data": 7}  # not even bytes
+    with pytest.raises(ProtocolError, match="binary-array map"):
+        decode_batch_result(msgpack.packb(reply, use_bin_type=True))
+    with pytest.raises(ProtocolError, match="empty reply"):
+        decode_batch_result(b"")
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 2), (16, 3, 2), (300, 1, 2), (0, 1, 2)])
+def test_f32_array_head_plus_data_is_the_encoded_array(shape):
+    a = np.random.default_rng(len(shape)).uniform(-1, 1, shape).astype(np.float32)
+    assert codec.f32_array_head(shape) + a.tobytes() == codec.encode(a)
+
+
 @pytest.mark.parametrize("n_ext", [0, 1, 3])
 def test_step_head_plus_action_bytes_is_the_whole_request(n_ext):
     actions = np.random.default_rng(n_ext).uniform(-1, 1, (n_ext, 2)).astype(np.float32)

@@ -97,10 +97,11 @@ def test_vector_client_batch(sim_client):
             assert resets["obs"]["features"].shape == (len(ended), 1, 5, 11)
             assert len(resets["scenario"]) == len(resets["agents"]) == len(ended)
             assert all(e >= 1 for e in resets["episode"])
+            start = vec._start_obs()["features"]
             for j, k in enumerate(ended):
-                np.testing.assert_array_equal(
-                    vec._last_obs["features"][k], resets["obs"]["features"][j]
-                )
+                np.testing.assert_array_equal(start[k], resets["obs"]["features"][j])
+            live = np.setdiff1d(np.arange(4), ended)
+            np.testing.assert_array_equal(start[live], res["obs"]["features"][live])
             assert res["episode"].shape == res["step"].shape == res["t"].shape == (4,)
             assert res["action_clipped"].shape == (4, 1) and len(res["scenario"]) == 4
             assert all(0 <= m["index"] < 4 for m in res["metrics"] + res["events"])

@@ -364,6 +364,16 @@ def step_head(n_ext: int) -> bytes:
     return full[:-tail] if tail else full
 
 
+def f32_array_head(shape: Sequence[int]) -> bytes:
+    """The bytes of a float32 binary-array map of ``shape`` before its data:
+    ``f32_array_head(a.shape) + a.tobytes()`` equals ``encode(encode_array(a))`` for a
+    C-contiguous little-endian float32 array ``a``."""
+    shape = [int(d) for d in shape]
+    n = 4 * int(np.prod(shape, dtype=np.int64))
+    full = encode({"dtype": "<f4", "shape": shape, "data": bytes(n)})
+    return full[:-n] if n else full
+
+
 def batch_step_head(env_ids: Iterable[str]) -> bytes:
     """The bytes of a ``BatchStep`` before its actions array: a trainer stepping the same K envs
     again and again encodes them once; ``batch_step_head(ids) + encode(encode_array(a))`` equals
