@@ -342,6 +342,24 @@ def test_client_batch_decoder_equals_codec_decode_reply():
     assert not typed["obs"]["features"].flags.writeable
 
 
+def test_client_step_decoder_equals_codec_decode_reply():
+    from sharedspace.client import decode_step_result
+
+    payload = (GOLDEN / "reply_step.msgpack").read_bytes()
+    assert _same(decode_step_result(payload), codec.decode_reply(payload))
+    # with an autoreset (the generic path) and as an error reply
+    reply = msgpack.unpackb((GOLDEN / "reply_reset.msgpack").read_bytes(), raw=False)
+    step = msgpack.unpackb(payload, raw=False)
+    step["ok"]["reset"] = reply["ok"]
+    with_reset = msgpack.packb(step, use_bin_type=True)
+    assert _same(decode_step_result(with_reset), codec.decode_reply(with_reset))
+    with pytest.raises(NonFiniteAction):
+        decode_step_result((GOLDEN / "reply_error.msgpack").read_bytes())
+    step["ok"]["reward"] = {"dtype": "<f4", "shape": [2], "data": b"\0" * 4}
+    with pytest.raises(ProtocolError, match="needs 8"):
+        decode_step_result(msgpack.packb(step, use_bin_type=True))
+
+
 def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
     from sharedspace.client import decode_batch_result
 

@@ -144,7 +144,7 @@ class _Arr(msgspec.Struct):
     """A binary array whose data stays in the reply buffer (typed decoding: no copy)."""
 
     dtype: str
-    shape: list[int]
+    shape: tuple[int, ...]
     data: memoryview
 
 
@@ -188,22 +188,39 @@ class _BatchReply(msgspec.Struct):
 _BATCH_DECODER = msgspec.msgpack.Decoder(_BatchReply)
 
 
-def _view(a: _Arr) -> np.ndarray:
-    spec = _WIRE_DTYPES.get(a.dtype)
+#: (wire dtype, shape) -> (numpy dtype, data bytes), for the shapes seen so far: a client gets
+#: the same few shapes reply after reply, and checking one costs more than the view itself.
+_VIEW_SPECS: dict[tuple[str, tuple[int, ...]], tuple[np.dtype, int]] = {}
+
+
+def _view_spec(dtype: str, shape: tuple[int, ...]) -> tuple[np.dtype, int]:
+    spec = _WIRE_DTYPES.get(dtype)
     if spec is None:
         raise ProtocolError(
-            f"binary array: unsupported dtype {a.dtype!r} (allowed {list(_WIRE_DTYPES)})"
+            f"binary array: unsupported dtype {dtype!r} (allowed {list(_WIRE_DTYPES)})"
         )
-    dtype, size = spec
+    if min(shape, default=0) < 0:
+        raise ProtocolError(f"binary array: shape {list(shape)} must be non-negative")
     count = 1
-    for d in a.shape:
+    for d in shape:
         count *= d
-    if min(a.shape, default=0) < 0 or len(a.data) != count * size:
+    if len(_VIEW_SPECS) >= 1024:
+        _VIEW_SPECS.clear()
+    out = _VIEW_SPECS[(dtype, shape)] = (spec[0], count * spec[1])
+    return out
+
+
+def _view(a: _Arr) -> np.ndarray:
+    shape = a.shape
+    dtype, nbytes = _VIEW_SPECS.get((a.dtype, shape)) or _view_spec(a.dtype, shape)
+    if len(a.data) != nbytes:
         raise ProtocolError(
-            f"binary array: data has {len(a.data)} bytes, shape {a.shape} of {a.dtype} "
-            f"needs {count * size}"
+            f"binary array: data has {len(a.data)} bytes, shape {list(shape)} of {a.dtype} "
+            f"needs {nbytes}"
         )
-    return np.ndarray(a.shape, dtype, a.data)
+    if len(shape) == 1:
+        return np.frombuffer(a.data, dtype)
+    return np.ndarray(shape, dtype, a.data)
 
 
 def _obs_views(o: _Obs) -> dict[str, np.ndarray]:
@@ -250,6 +267,59 @@ def decode_batch_result(payload: bytes) -> dict[str, Any]:
             "agents": r.agents,
             "obs": _obs_views(r.obs),
         },
+    }
+
+
+_NIL = msgspec.Raw(b"\xc0")
+
+
+class _Step(msgspec.Struct):
+    env_id: str
+    episode: int
+    scenario: str
+    step: int
+    t: float
+    obs: _Obs
+    reward: _Arr
+    reward_terms: dict[str, _Arr]
+    terminated: _Arr
+    truncated: _Arr
+    info: dict[str, Any]
+    # Undecoded: a step with an autoreset (rare) is decoded by the generic path.
+    reset: msgspec.Raw = _NIL
+
+
+class _StepReply(msgspec.Struct):
+    ok: _Step | None = None
+
+
+_STEP_DECODER = msgspec.msgpack.Decoder(_StepReply)
+
+
+def decode_step_result(payload: bytes) -> dict[str, Any]:
+    """Decodes a ``Reply<StepResult>`` into the dict :func:`decode_result` gives, like
+    :func:`decode_batch_result`: typed decoding, arrays as views of ``payload``. A step that
+    carries an autoreset (once an episode), an error reply, or anything off the schema goes
+    through :func:`decode_result`."""
+    try:
+        r = _STEP_DECODER.decode(payload).ok
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        r = None
+    if r is None or r.reset != _NIL:
+        return decode_result(payload)
+    return {
+        "env_id": r.env_id,
+        "episode": r.episode,
+        "scenario": r.scenario,
+        "step": r.step,
+        "t": r.t,
+        "obs": _obs_views(r.obs),
+        "reward": _view(r.reward),
+        "reward_terms": {k: _view(v) for k, v in r.reward_terms.items()},
+        "terminated": _view(r.terminated),
+        "truncated": _view(r.truncated),
+        "info": r.info,
+        "reset": None,
     }
 
 
@@ -480,7 +550,7 @@ class SimClient:
         head = self._step_heads.get(n_ext)
         if head is None:
             head = self._step_heads[n_ext] = codec.step_head(n_ext)
-        return self._request(sid, key, head + arr.tobytes())
+        return self._request(sid, key, head + arr.tobytes(), decode=decode_step_result)
 
     def batch_step(
         self, env_ids: Sequence[str], actions: Any, timeout: float | None = None
