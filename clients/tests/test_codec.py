@@ -340,6 +340,12 @@ def test_client_batch_decoder_equals_codec_decode_reply():
     # the arrays are views of the payload itself, not copies
     assert typed["obs"]["features"].base is not None
     assert not typed["obs"]["features"].flags.writeable
+    # env ids known to the caller are taken as they are only when the reply says the same
+    ids = ["s1-0", "s1-1"]
+    known = decode_batch_result(payload, (codec.encode(ids), ids))
+    assert known["env_ids"] == ids and known["env_ids"] is not ids
+    other = ["s1-0", "s1-9"]
+    assert decode_batch_result(payload, (codec.encode(other), other))["env_ids"] == ids
 
 
 def test_client_step_decoder_equals_codec_decode_reply():

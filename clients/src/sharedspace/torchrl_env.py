@@ -303,9 +303,7 @@ class RemoteBatchedEnv(EnvBase):
                 self._pending[k] = first.get(k) if self.scenario_order == "random" else None
             self._done[:] = True
         else:
-            for k, name in enumerate(res["scenario"]):
-                if name:
-                    self._scenario[k] = self._index_of(name)
+            # An env's scenario only changes with a reset, where `_take_reset` records it.
             ended = np.flatnonzero(out["terminated"][:, 0] | out["truncated"][:, 0])
             for k in ended:
                 self._done[k] = True
