@@ -96,18 +96,21 @@ pub fn exp(x: f64) -> f64 {
     p * pow2i(k1) * pow2i(k2)
 }
 
+#[allow(clippy::excessive_precision)] // fdlibm's published digits
 const ATAN_HI: [f64; 4] = [
     4.636_476_090_008_060_935_15e-01, // atan(0.5) hi
-    7.853_981_633_974_482_789_99e-01, // atan(1.0) hi
+    std::f64::consts::FRAC_PI_4,      // atan(1.0) hi
     9.827_937_232_473_290_540_82e-01, // atan(1.5) hi
-    1.570_796_326_794_896_558_00e+00, // atan(inf) hi
+    std::f64::consts::FRAC_PI_2,      // atan(inf) hi
 ];
+#[allow(clippy::excessive_precision)]
 const ATAN_LO: [f64; 4] = [
     2.269_877_745_296_168_709_24e-17,
     3.061_616_997_868_383_017_93e-17,
     1.390_331_103_123_099_845_16e-17,
     6.123_233_995_736_766_035_87e-17,
 ];
+#[allow(clippy::excessive_precision)]
 const AT: [f64; 11] = [
     3.333_333_333_333_293_180_27e-01,
     -1.999_999_999_987_648_324_76e-01,
@@ -121,10 +124,11 @@ const AT: [f64; 11] = [
     -3.653_157_274_421_691_552_70e-02,
     1.628_582_011_536_578_236_23e-02,
 ];
-const PI: f64 = 3.141_592_653_589_793_116_0;
+const PI: f64 = std::f64::consts::PI;
+#[allow(clippy::excessive_precision)]
 const PI_LO: f64 = 1.224_646_799_147_353_177_2e-16;
-const PI_O_2: f64 = 1.570_796_326_794_896_558_0;
-const PI_O_4: f64 = 7.853_981_633_974_482_790_0e-01;
+const PI_O_2: f64 = std::f64::consts::FRAC_PI_2;
+const PI_O_4: f64 = std::f64::consts::FRAC_PI_4;
 
 /// High 32 bits of `x`.
 #[inline(always)]
@@ -340,6 +344,19 @@ mod atan_tests {
             }
             assert!(atan2(y, f64::NAN).is_nan() && atan2(f64::NAN, y).is_nan());
         }
+    }
+
+    #[test]
+    fn constants_are_the_fdlibm_bits() {
+        assert_eq!(super::ATAN_HI[1].to_bits(), 0x3FE9_21FB_5444_2D18);
+        assert_eq!(super::ATAN_HI[3].to_bits(), 0x3FF9_21FB_5444_2D18);
+        assert_eq!(super::ATAN_LO[3].to_bits(), 0x3C91_A626_3314_5C07);
+        assert_eq!(super::PI.to_bits(), std::f64::consts::PI.to_bits());
+        assert_eq!(super::PI_LO.to_bits(), 0x3CA1_A626_3314_5C07);
+        assert_eq!(
+            super::PI_O_2.to_bits(),
+            std::f64::consts::FRAC_PI_2.to_bits()
+        );
     }
 
     #[test]
