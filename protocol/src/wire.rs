@@ -311,6 +311,20 @@ impl BatchColumns {
         }
     }
 
+    /// [`BatchColumns::starting_at`] with room for `envs` envs of `n_ext` agents (the per-env
+    /// columns then never grow while they are filled).
+    pub fn with_capacity(base: u32, envs: usize, n_ext: usize) -> Self {
+        Self {
+            base,
+            episode: Vec::with_capacity(envs),
+            scenarios: Vec::with_capacity(16 * envs),
+            step: Vec::with_capacity(envs),
+            t: Vec::with_capacity(envs),
+            action_clipped: Vec::with_capacity(envs * n_ext),
+            ..Self::default()
+        }
+    }
+
     /// Envs pushed so far.
     pub fn len(&self) -> usize {
         self.episode.len()

@@ -769,7 +769,7 @@ impl ServerCore {
                    mut out: BufMut<'_>,
                    scratch: &mut StepScratch|
          -> Part {
-            let mut cols = BatchColumns::starting_at(base as u32);
+            let mut cols = BatchColumns::with_capacity(base as u32, envs.len(), n_ext);
             let mut pubs = Vec::new();
             for (i, env) in envs.iter_mut().enumerate() {
                 let rows = &actions[i * n_ext..(i + 1) * n_ext];
