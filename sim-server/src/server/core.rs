@@ -27,6 +27,7 @@ use sim_core::scenario::Split;
 use sim_core::world::StepScratch;
 
 use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication};
+use super::helpers::Helpers;
 use super::pools::ServedPool;
 
 /// Batches of at least this many envs may be stepped on several threads (see
@@ -272,6 +273,8 @@ pub struct ServerCore {
     reg: Mutex<Registry>,
     /// Most threads a large batch is stepped on.
     batch_threads: usize,
+    /// `batch_threads - 1` threads that step a large batch's chunks beside the request's own.
+    helpers: Helpers,
     /// Step buffers of finished batches, for reuse (a K=256 batch's are ~200 KB).
     scratch: Mutex<Vec<Buffers>>,
     /// The worlds' step scratch of finished batches, one per batch thread: every world a
@@ -304,23 +307,27 @@ impl ServerCore {
         pools: Vec<ServedPool>,
         params: impl Into<ModelParams>,
     ) -> Self {
-        Self {
+        let mut core = Self {
             server_id,
             keys,
             limits,
             pools: pools.into_iter().map(Arc::new).collect(),
             params: params.into(),
             reg: Mutex::new(Registry::default()),
-            batch_threads: default_batch_threads(),
+            batch_threads: 1,
+            helpers: Helpers::new(0, "batch"),
             scratch: Mutex::new(Vec::new()),
             steppers: Mutex::new(Vec::new()),
-        }
+        };
+        core.set_batch_threads(default_batch_threads());
+        core
     }
 
     /// Sets the most threads a batch of at least [`PARALLEL_MIN_BATCH`] envs is stepped on
     /// (default: [`default_batch_threads`]).
     pub fn set_batch_threads(&mut self, threads: usize) {
         self.batch_threads = threads.max(1);
+        self.helpers = Helpers::new(self.batch_threads - 1, "batch");
     }
 
     pub fn server_id(&self) -> &str {
@@ -796,23 +803,30 @@ impl ServerCore {
         let parts: Vec<Part> = if threads <= 1 {
             vec![run(0, &mut refs, &actions, buf.view(), &mut steppers[0])]
         } else {
-            std::thread::scope(|sc| {
-                let mut work = refs
-                    .chunks_mut(chunk)
-                    .zip((0..k).step_by(chunk))
-                    .zip(buf.view().chunks(k, chunk))
-                    .zip(steppers.iter_mut());
-                let (((e0, b0), o0), s0) = work.next().expect("k >= 1");
-                let actions = &actions[..];
-                let handles: Vec<_> = work
-                    .map(|(((e, b), o), s)| {
-                        sc.spawn(move || run(b, e, &actions[b * n_ext..], o, s))
-                    })
-                    .collect();
-                let mut parts = Vec::with_capacity(threads);
-                parts.push(run(b0, e0, &actions[b0 * n_ext..], o0, s0));
-                parts.extend(handles.into_iter().map(|h| {
-                    h.join().unwrap_or_else(|_| {
+            // The first chunk on this thread, the others on the helper threads, each into its
+            // own slot (in chunk order).
+            let mut slots: Vec<Option<Part>> = (0..threads).map(|_| None).collect();
+            let actions = &actions[..];
+            let mut work = refs
+                .chunks_mut(chunk)
+                .zip((0..k).step_by(chunk))
+                .zip(buf.view().chunks(k, chunk))
+                .zip(steppers.iter_mut())
+                .zip(slots.iter_mut());
+            let ((((e0, b0), o0), s0), p0) = work.next().expect("k >= 1");
+            let jobs: Vec<Box<dyn FnOnce() + Send + '_>> = work
+                .map(|((((e, b), o), s), p)| {
+                    Box::new(move || *p = Some(run(b, e, &actions[b * n_ext..], o, s)))
+                        as Box<dyn FnOnce() + Send + '_>
+                })
+                .collect();
+            self.helpers.run(jobs, || {
+                *p0 = Some(run(b0, e0, &actions[b0 * n_ext..], o0, s0));
+            });
+            slots
+                .into_iter()
+                .map(|p| {
+                    p.unwrap_or_else(|| {
                         (
                             BatchColumns::default(),
                             Vec::new(),
@@ -822,9 +836,8 @@ impl ServerCore {
                             )),
                         )
                     })
-                }));
-                parts
-            })
+                })
+                .collect()
         };
         drop(refs);
         drop(envs);
