@@ -343,19 +343,18 @@ impl BatchColumns {
         self.t.push(e.t);
         self.action_clipped
             .extend(e.action_clipped.iter().map(|&c| u8::from(c)));
-        for ev in e.events {
-            self.events.extend_from_slice(b"\x82\xa5index");
-            write_uint(&mut self.events, u64::from(index));
-            self.events.extend_from_slice(b"\xa5event");
-            write_named(&mut self.events, ev);
+        /// `{index, <key>: value}` per value (`key` pre-encoded).
+        fn indexed<T: Serialize>(out: &mut Vec<u8>, index: u32, key: &[u8], values: &[T]) {
+            for v in values {
+                out.extend_from_slice(b"\x82\xa5index");
+                write_uint(out, u64::from(index));
+                out.extend_from_slice(key);
+                write_named(out, v);
+            }
         }
+        indexed(&mut self.events, index, b"\xa5event", e.events);
         self.n_events += e.events.len();
-        for m in e.metrics {
-            self.metrics.extend_from_slice(b"\x82\xa5index");
-            write_uint(&mut self.metrics, u64::from(index));
-            self.metrics.extend_from_slice(b"\xa7metrics");
-            write_named(&mut self.metrics, m);
-        }
+        indexed(&mut self.metrics, index, b"\xa7metrics", e.metrics);
         self.n_metrics += e.metrics.len();
     }
 

@@ -1683,44 +1683,20 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let d = xi - t.pos;
-            let vj = t.vel;
-            let (stamp, k) = self.stamp[t.id as usize];
-            let (belief, u) = if stamp == epoch {
-                let mut b = old.belief[k as usize];
-                let mu_p = b.predict(model, t.last_change);
-                let u = b.update(mu_p, vj, inp.schedule);
-                (b, u)
-            } else {
-                (Belief::first_sight(vj), 0.0)
-            };
-            let dist = d.norm();
-            // `radius_i + radius_j` is NaN when either footprint is a rectangle.
-            let radii = radius_i + t.radius;
-            let (clearance, normal, rect) = if !radii.is_nan() {
-                ((dist - radii).max(0.0), d, 0.0)
-            } else {
-                let placed_j = Placed {
-                    shape: a.shape[j],
-                    position: t.pos,
-                    heading: a.heading[j],
-                };
-                let (c, n) = clearance_and_normal(&placed_i, &placed_j);
-                (c, n, 1.0)
-            };
-            contact |= clearance <= 0.0;
+            let st = edge_state(inp, &self.stamp, epoch, model, &placed_i, radius_i, t, j);
+            contact |= st.clearance <= 0.0;
             e_target[c] = MaybeUninit::new(t.id);
             e_slot[c] = MaybeUninit::new(j as u32);
-            e_belief[c] = MaybeUninit::new(belief);
-            e_clear[c] = MaybeUninit::new(clearance);
-            e_u[c] = MaybeUninit::new(u);
-            alongs[c] = vj.x * d.x + vj.y * d.y;
-            dists[c] = dist;
+            e_belief[c] = MaybeUninit::new(st.belief);
+            e_clear[c] = MaybeUninit::new(st.clearance);
+            e_u[c] = MaybeUninit::new(st.u);
+            alongs[c] = st.along;
+            dists[c] = st.dist;
             accns[c] = t.acc_norm;
             vehs[c] = t.veh;
-            nnxs[c] = normal.x;
-            nnys[c] = normal.y;
-            rects[c] = rect;
+            nnxs[c] = st.normal.x;
+            nnys[c] = st.normal.y;
+            rects[c] = st.rect;
         }
 
         // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
@@ -1759,23 +1735,17 @@ impl ObserveWorker {
                     let (psi, inv_dist) =
                         edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
                     psis[c] = MaybeUninit::new(psi);
-                    let veh = vehs[c] != 0.0;
-                    let strength = if veh { fc.a_veh } else { fc.a_ped };
-                    let neg_inv_range = if veh {
-                        fc.neg_inv_b_veh
-                    } else {
-                        fc.neg_inv_b_ped
-                    };
-                    let lambda = if veh { fc.lam_veh } else { fc.lam_ped };
-                    let weighted = psi * (1.0 + lambda * us[c]);
-                    let w = if fc.unit_weight { 1.0 } else { weighted };
-                    // Exactly `inv_dist` (rect = 0) or 1 (rect = 1), without a select on loads.
-                    let scale = rects[c] + (1.0 - rects[c]) * inv_dist;
-                    let nx = nnxs[c] * scale;
-                    let ny = nnys[c] * scale;
-                    let rep = strength * fastmath::exp(clears[c] * neg_inv_range);
-                    fxs[c] = nx * rep * w;
-                    fys[c] = ny * rep * w;
+                    let (fx, fy, w) = edge_force(
+                        &fc,
+                        psi,
+                        us[c],
+                        vehs[c],
+                        inv_dist,
+                        (nnxs[c], nnys[c], rects[c]),
+                        clears[c],
+                    );
+                    fxs[c] = fx;
+                    fys[c] = fy;
                     ws[c] = w;
                 }
                 (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
@@ -1794,13 +1764,12 @@ impl ObserveWorker {
     /// Steps 3 to 5 of [`ObserveWorker::observer`] for an observer with at most
     /// [`SMALL_OBSERVER_EDGES`] targets (`self.cand[..m]`): one loop over the edges, pushing
     /// them, instead of three passes over structure-of-arrays scratch whose set-up costs more
-    /// than a few edges' work (most observers of a small scene). Every value is computed by the
-    /// same operations in the same order, and summed by the same lane functions, so the result
-    /// is bit-identical to the three passes.
+    /// than a few edges' work (most observers of a small scene). Both paths compute each edge
+    /// with [`edge_state`], [`edge_risk`] and [`edge_force`] and sum with the same lane
+    /// functions, so the result is bit-identical to the three passes.
     #[inline(always)]
     fn small_observer_edges(&mut self, inp: &ObserveInputs, i: usize, m: usize, epoch: u32) {
         let a = inp.agents;
-        let old = inp.old;
         let xi = a.pos[i];
         let model = inp.params.cognition.prediction;
         let radius_i = inp.targets[i].radius;
@@ -1826,59 +1795,34 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let d = xi - t.pos;
-            let vj = t.vel;
-            let (st, k) = stamp[t.id as usize];
-            let (belief, u) = if st == epoch {
-                let mut b = old.belief[k as usize];
-                let mu_p = b.predict(model, t.last_change);
-                let u = b.update(mu_p, vj, inp.schedule);
-                (b, u)
-            } else {
-                (Belief::first_sight(vj), 0.0)
-            };
-            let dist = d.norm();
-            let radii = radius_i + t.radius;
-            let (clearance, normal, rect) = if !radii.is_nan() {
-                ((dist - radii).max(0.0), d, 0.0)
-            } else {
-                let placed_j = Placed {
-                    shape: a.shape[j],
-                    position: t.pos,
-                    heading: a.heading[j],
-                };
-                let (cl, n) = clearance_and_normal(&placed_i, &placed_j);
-                (cl, n, 1.0)
-            };
-            contact |= clearance <= 0.0;
-            let along = vj.x * d.x + vj.y * d.y;
-            let (psi, inv_dist) = edge_risk(gamma1, two_gamma2, along, dist, t.acc_norm, clearance);
+            let st = edge_state(inp, stamp, epoch, model, &placed_i, radius_i, t, j);
+            contact |= st.clearance <= 0.0;
+            let (psi, inv_dist) = edge_risk(
+                gamma1,
+                two_gamma2,
+                st.along,
+                st.dist,
+                t.acc_norm,
+                st.clearance,
+            );
             if let Some(fc) = fc {
-                let veh = t.veh != 0.0;
-                let strength = if veh { fc.a_veh } else { fc.a_ped };
-                let neg_inv_range = if veh {
-                    fc.neg_inv_b_veh
-                } else {
-                    fc.neg_inv_b_ped
-                };
-                let lambda = if veh { fc.lam_veh } else { fc.lam_ped };
-                let weighted = psi * (1.0 + lambda * u);
-                let w = if fc.unit_weight { 1.0 } else { weighted };
-                let scale = rect + (1.0 - rect) * inv_dist;
-                let nx = normal.x * scale;
-                let ny = normal.y * scale;
-                let rep = strength * fastmath::exp(clearance * neg_inv_range);
-                fxs[c] = nx * rep * w;
-                fys[c] = ny * rep * w;
-                ws[c] = w;
+                (fxs[c], fys[c], ws[c]) = edge_force(
+                    &fc,
+                    psi,
+                    st.u,
+                    t.veh,
+                    inv_dist,
+                    (st.normal.x, st.normal.y, st.rect),
+                    st.clearance,
+                );
             }
             edges.push(Edge {
                 target: t.id,
                 target_slot: j as u32,
-                belief,
-                clearance,
+                belief: st.belief,
+                clearance: st.clearance,
                 psi,
-                u,
+                u: st.u,
             });
         }
         let (force, max_w) = match fc {
@@ -1995,6 +1939,105 @@ unsafe fn gather_avx2(
     }
     let o = 4 * groups;
     gather(&xs[o..], &ys[o..], &slots[o..], xi, r2, i, cand, m)
+}
+
+/// What an observer learns of one target in step 3 of [`ObserveWorker::observer`].
+struct EdgeState {
+    /// The updated belief and its uncertainty `u`.
+    belief: Belief,
+    u: f64,
+    /// `v_j . (x_i - x_j)`: the target's velocity along the centre offset.
+    along: f64,
+    /// Centre distance.
+    dist: f64,
+    clearance: f64,
+    /// The repulsion direction before scaling: the centre offset between two discs (`rect` =
+    /// 0), the footprint normal when either is a rectangle (`rect` = 1).
+    normal: Vec2,
+    rect: f64,
+}
+
+/// The belief update, distance and clearance of the edge from the observer `placed_i` (disc
+/// radius `radius_i`, NaN for a rectangle) to target `t` in slot `j`. Shared by the three-pass
+/// and the small observer paths, so both compute the same bits.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn edge_state(
+    inp: &ObserveInputs,
+    stamp: &[(u32, u32)],
+    epoch: u32,
+    model: crate::params::PredictionModel,
+    placed_i: &Placed,
+    radius_i: f64,
+    t: &TargetInfo,
+    j: usize,
+) -> EdgeState {
+    let d = placed_i.position - t.pos;
+    let vj = t.vel;
+    let (seen, k) = stamp[t.id as usize];
+    let (belief, u) = if seen == epoch {
+        let mut b = inp.old.belief[k as usize];
+        let mu_p = b.predict(model, t.last_change);
+        let u = b.update(mu_p, vj, inp.schedule);
+        (b, u)
+    } else {
+        (Belief::first_sight(vj), 0.0)
+    };
+    let dist = d.norm();
+    // `radius_i + radius_j` is NaN when either footprint is a rectangle.
+    let radii = radius_i + t.radius;
+    let (clearance, normal, rect) = if !radii.is_nan() {
+        ((dist - radii).max(0.0), d, 0.0)
+    } else {
+        let a = inp.agents;
+        let placed_j = Placed {
+            shape: a.shape[j],
+            position: t.pos,
+            heading: a.heading[j],
+        };
+        let (c, n) = clearance_and_normal(placed_i, &placed_j);
+        (c, n, 1.0)
+    };
+    EdgeState {
+        belief,
+        u,
+        along: vj.x * d.x + vj.y * d.y,
+        dist,
+        clearance,
+        normal,
+        rect,
+    }
+}
+
+/// The social force `(fx, fy)` of one edge on a simulated pedestrian and its weight `w`
+/// (pedestrian::total_force without the goal term, branch-free): `veh` is 1 for a vehicle
+/// target, `(nnx, nny, rect)` the repulsion direction of [`EdgeState`].
+#[inline(always)]
+fn edge_force(
+    fc: &ForceConsts,
+    psi: f64,
+    u: f64,
+    veh: f64,
+    inv_dist: f64,
+    (nnx, nny, rect): (f64, f64, f64),
+    clearance: f64,
+) -> (f64, f64, f64) {
+    let veh = veh != 0.0;
+    let strength = if veh { fc.a_veh } else { fc.a_ped };
+    let neg_inv_range = if veh {
+        fc.neg_inv_b_veh
+    } else {
+        fc.neg_inv_b_ped
+    };
+    let lambda = if veh { fc.lam_veh } else { fc.lam_ped };
+    let weighted = psi * (1.0 + lambda * u);
+    let w = if fc.unit_weight { 1.0 } else { weighted };
+    // Exactly `inv_dist` (rect = 0) or 1 (rect = 1), without a select on loads.
+    let scale = rect + (1.0 - rect) * inv_dist;
+    let nx = nnx * scale;
+    let ny = nny * scale;
+    let rep = strength * fastmath::exp(clearance * neg_inv_range);
+    (nx * rep * w, ny * rep * w, w)
 }
 
 /// Physical risk `psi` of one edge (risk::risk_with, branch-free) and `1 / dist` (1 for
