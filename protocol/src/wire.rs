@@ -302,6 +302,20 @@ struct ResetColumns {
     node_ids: Vec<u32>,
 }
 
+impl ResetColumns {
+    fn append(&mut self, next: &ResetColumns) {
+        self.index.extend_from_slice(&next.index);
+        self.episode.extend_from_slice(&next.episode);
+        self.scenarios.extend_from_slice(&next.scenarios);
+        self.horizon_steps.extend_from_slice(&next.horizon_steps);
+        self.agents.extend_from_slice(&next.agents);
+        self.features.extend_from_slice(&next.features);
+        self.adjacency.extend_from_slice(&next.adjacency);
+        self.mask.extend_from_slice(&next.mask);
+        self.node_ids.extend_from_slice(&next.node_ids);
+    }
+}
+
 impl BatchColumns {
     /// Empty columns whose first env is `env_ids[base]`.
     pub fn starting_at(base: u32) -> Self {
@@ -387,16 +401,7 @@ impl BatchColumns {
         self.n_events += next.n_events;
         self.metrics.extend_from_slice(&next.metrics);
         self.n_metrics += next.n_metrics;
-        let (c, n) = (&mut self.resets, &next.resets);
-        c.index.extend_from_slice(&n.index);
-        c.episode.extend_from_slice(&n.episode);
-        c.scenarios.extend_from_slice(&n.scenarios);
-        c.horizon_steps.extend_from_slice(&n.horizon_steps);
-        c.agents.extend_from_slice(&n.agents);
-        c.features.extend_from_slice(&n.features);
-        c.adjacency.extend_from_slice(&n.adjacency);
-        c.mask.extend_from_slice(&n.mask);
-        c.node_ids.extend_from_slice(&n.node_ids);
+        self.resets.append(&next.resets);
     }
 
     /// Bytes the columns add to a reply, roughly (for reserving the output).
