@@ -193,7 +193,7 @@ pub fn write_batch_step_ok(
         write_str(out, id);
     }
     write_str(out, "obs");
-    write_obs(out, Some(k), &a.obs)?;
+    write_obs(out, k, &a.obs)?;
     write_str(out, "reward");
     write_array(out, &[k, n], a.reward)?;
     write_str(out, "reward_terms");
@@ -244,7 +244,7 @@ pub fn write_batch_step_ok(
     out.extend_from_slice(b"\xa3obs");
     write_obs(
         out,
-        Some(rn),
+        rn,
         &ObsRef {
             n_ext: n,
             m: a.obs.m,
@@ -372,8 +372,8 @@ impl BatchColumns {
         self.n_metrics += e.metrics.len();
     }
 
-    /// Records that the env pushed last restarted with `r` (its `env_id` is not written: the
-    /// reply names the env by position). The observation must have the batch's shapes.
+    /// Records that the env pushed last restarted with `r`. The observation must have the
+    /// batch's shapes.
     pub fn push_reset(&mut self, r: &ResetResultRef<'_>) {
         debug_assert!(!self.is_empty(), "push_reset before push_env");
         let index = self.base + self.episode.len().saturating_sub(1) as u32;
@@ -421,7 +421,7 @@ impl BatchColumns {
 }
 
 /// MessagePack nil (an absent optional value).
-pub fn write_nil(out: &mut Vec<u8>) {
+fn write_nil(out: &mut Vec<u8>) {
     out.push(0xc0);
 }
 
@@ -455,35 +455,17 @@ pub struct ObsRef<'a> {
     pub node_ids: &'a [u32],
 }
 
-/// The fields of a [`ResetResult`](crate::ResetResult), borrowed (`step` and `t` are always 0).
+/// What a batch reply says of one autoreset ([`BatchColumns::push_reset`]): the fields of its
+/// [`ResetResult`](crate::ResetResult), borrowed, but `env_id` (the reply names the env by
+/// position) and `step`/`t` (always 0).
 #[derive(Debug, Clone, Copy)]
 pub struct ResetResultRef<'a> {
-    pub env_id: &'a str,
     pub episode: u64,
     pub scenario: &'a str,
     pub horizon_steps: u32,
     /// In id order, as in `ResetResult::agents`.
     pub agents: &'a [AgentDescRef<'a>],
     pub obs: ObsRef<'a>,
-}
-
-/// Writes a `ResetResult` map, byte-identical to its serde encoding.
-pub fn write_reset_result(out: &mut Vec<u8>, r: &ResetResultRef<'_>) -> Result<(), ArrayError> {
-    out.extend_from_slice(b"\x88\xa6env_id");
-    write_str(out, r.env_id);
-    out.extend_from_slice(b"\xa7episode");
-    write_uint(out, r.episode);
-    out.extend_from_slice(b"\xa8scenario");
-    write_str(out, r.scenario);
-    // "step": 0, "t": 0.0
-    out.extend_from_slice(b"\xa4step\x00\xa1t");
-    write_f64(out, 0.0);
-    out.extend_from_slice(b"\xadhorizon_steps");
-    write_uint(out, u64::from(r.horizon_steps));
-    out.extend_from_slice(b"\xa6agents");
-    write_agent_descs(out, r.agents);
-    out.extend_from_slice(b"\xa3obs");
-    write_obs(out, None, &r.obs)
 }
 
 /// An array of `AgentDesc` maps.
@@ -513,21 +495,18 @@ fn write_agent_descs(out: &mut Vec<u8>, agents: &[AgentDescRef<'_>]) {
     }
 }
 
-/// Writes an observation map (`features`, `adjacency`, `mask`, `node_ids`), each array with a
-/// leading axis of `k` envs when given (a batch), else of one env's shape.
-fn write_obs(out: &mut Vec<u8>, k: Option<u32>, o: &ObsRef<'_>) -> Result<(), ArrayError> {
+/// Writes an observation map (`features`, `adjacency`, `mask`, `node_ids`) of `k` stacked envs
+/// (each array has a leading `k` axis).
+fn write_obs(out: &mut Vec<u8>, k: u32, o: &ObsRef<'_>) -> Result<(), ArrayError> {
     let (n, m) = (o.n_ext, o.m);
-    // Room for the longest shape, [k, n, m, F]; `lead` skips the k axis of a single env.
-    let lead = usize::from(k.is_none());
-    let k = k.unwrap_or(0);
     out.extend_from_slice(b"\x84\xa8features");
-    write_array(out, &[k, n, m, crate::N_FEATURES][lead..], o.features)?;
+    write_array(out, &[k, n, m, crate::N_FEATURES], o.features)?;
     out.extend_from_slice(b"\xa9adjacency");
-    write_array(out, &[k, n, m, m][lead..], o.adjacency)?;
+    write_array(out, &[k, n, m, m], o.adjacency)?;
     out.extend_from_slice(b"\xa4mask");
-    write_array(out, &[k, n, m][lead..], o.mask)?;
+    write_array(out, &[k, n, m], o.mask)?;
     out.extend_from_slice(b"\xa8node_ids");
-    write_array(out, &[k, n, m][lead..], o.node_ids)
+    write_array(out, &[k, n, m], o.node_ids)
 }
 
 /// [`decode`](crate::decode) of a [`BatchStep`](crate::BatchStep), with a direct reading of the
@@ -791,7 +770,6 @@ mod tests {
             );
             let shape = self.r.obs.features.shape();
             ResetResultRef {
-                env_id: &self.r.env_id,
                 episode: self.r.episode,
                 scenario: &self.r.scenario,
                 horizon_steps: self.r.horizon_steps,
@@ -819,16 +797,13 @@ mod tests {
     }
 
     #[test]
-    fn reset_result_is_byte_identical_to_the_serde_encoding() {
+    fn agent_descs_are_byte_identical_to_the_serde_encoding() {
         let mut r = crate::samples::reset_result();
         for round in 0..3 {
             let mut out = Vec::new();
-            write_reset_result(&mut out, &reset_ref(&r).as_ref()).unwrap();
-            assert_eq!(out, encode(&r), "round {round}");
-            // Longer names, more agents, large numbers.
-            r.env_id = format!("{}-{}", r.env_id, "x".repeat(40));
-            r.episode = r.episode * 1000 + 77_777;
-            r.horizon_steps = r.horizon_steps * 300 + 1;
+            write_agent_descs(&mut out, reset_ref(&r).as_ref().agents);
+            assert_eq!(out, encode(&r.agents), "round {round}");
+            // Longer names, more agents, large ids.
             let mut more = r.agents.clone();
             for a in &mut more {
                 a.id += 1000 * (round + 1);

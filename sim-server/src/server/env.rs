@@ -649,7 +649,6 @@ impl Env {
         let served = &self.spec.pool.scenarios[self.scenario];
         let agents = agent_descs(world, served, &self.ext_ids);
         cols.push_reset(&ResetResultRef {
-            env_id: &self.id,
             episode: self.episode,
             scenario: &served.scenario.name,
             horizon_steps: world.horizon(),
