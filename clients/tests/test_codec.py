@@ -308,6 +308,27 @@ def test_client_decode_result_names_a_malformed_array(field, value, says):
 
 
 @pytest.mark.parametrize(
+    "field, value, says",
+    [
+        ("reward", None, "expected a binary-array map"),
+        ("reward", {"dtype": "<f4", "shape": [1]}, "expected a binary-array map"),
+        ("reward", {"dtype": "<f4", "shape": [3], "data": b"\0" * 4}, "needs 12"),
+        ("terminated", {"dtype": "<i8", "shape": [1], "data": b"\0" * 8}, "unsupported dtype"),
+        ("reward", {"dtype": "<f4", "shape": [-1], "data": b""}, "non-negative"),
+    ],
+)
+@pytest.mark.parametrize("name", ["reply_step", "reply_batch_step"])
+def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
+    from sharedspace.client import decode_batch_result, decode_step_result
+
+    decode = decode_step_result if name == "reply_step" else decode_batch_result
+    reply = msgpack.unpackb((GOLDEN / f"{name}.msgpack").read_bytes(), raw=False)
+    reply["ok"][field] = value
+    with pytest.raises(ProtocolError, match=says):
+        decode(msgpack.packb(reply, use_bin_type=True))
+
+
+@pytest.mark.parametrize(
     "mangle, says",
     [
         (lambda b: b + b"\x00", "trailing"),
