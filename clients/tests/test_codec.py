@@ -434,3 +434,65 @@ def test_client_array_refuses_negative_dims_of_a_matching_size():
 
     with pytest.raises(ProtocolError, match="non-negative"):
         _array({"dtype": "<f4", "shape": [-1, -1], "data": b"\0" * 4})
+
+
+def test_client_layout_decoder_equals_the_typed_step_decoder():
+    from sharedspace.client import _StepLayout, decode_step_result, step_decoder_for
+
+    payload = (GOLDEN / "reply_step.msgpack").read_bytes()
+    first = decode_step_result(payload)
+    layout = step_decoder_for(first)
+    assert isinstance(layout, _StepLayout)
+    assert step_decoder_for(decode_step_result(payload)) is layout  # one per layout
+    out = layout(payload)
+    assert _same(out, first) and _same(out, codec.decode_reply(payload))
+    assert out["obs"]["features"].base is not None  # a view of the payload
+    assert not out["reward"].flags.writeable
+
+
+@pytest.mark.parametrize(
+    "mangle",
+    [
+        lambda ok: ok.update(reward={"dtype": "<f4", "shape": [2], "data": b"\0" * 8}),
+        lambda ok: ok.update(reward={"dtype": "<f8", "shape": [1], "data": b"\0" * 8}),
+        lambda ok: ok["obs"].update(mask={"dtype": "|u1", "shape": [1, 3], "data": b"\0" * 3}),
+        lambda ok: ok["reward_terms"].update(
+            extra={"dtype": "<f4", "shape": [3], "data": b"\0" * 12}
+        ),
+        lambda ok: ok.update(
+            reset=msgpack.unpackb((GOLDEN / "reply_reset.msgpack").read_bytes(), raw=False)["ok"]
+        ),
+    ],
+    ids=["other_shape", "other_dtype", "other_obs_shape", "other_term_shape", "autoreset"],
+)
+def test_client_layout_decoder_hands_replies_off_its_layout_to_the_typed_decoder(mangle):
+    from sharedspace.client import decode_step_result, step_decoder_for
+
+    payload = (GOLDEN / "reply_step.msgpack").read_bytes()
+    layout = step_decoder_for(decode_step_result(payload))
+    reply = msgpack.unpackb(payload, raw=False)
+    mangle(reply["ok"])
+    other = msgpack.packb(reply, use_bin_type=True)
+    assert _same(layout(other), decode_step_result(other))
+
+
+@pytest.mark.parametrize(
+    "field, value, says",
+    [
+        ("reward", {"dtype": "<f4", "shape": [1], "data": b"\0" * 8}, "needs 4"),
+        ("reward", {"dtype": "<f4", "shape": [3], "data": b"\0" * 4}, "needs 12"),
+        ("terminated", {"dtype": "<i8", "shape": [1], "data": b"\0" * 8}, "unsupported dtype"),
+        ("reward", None, "expected a binary-array map"),
+    ],
+)
+def test_client_layout_decoder_names_a_malformed_array(field, value, says):
+    from sharedspace.client import decode_step_result, step_decoder_for
+
+    payload = (GOLDEN / "reply_step.msgpack").read_bytes()
+    layout = step_decoder_for(decode_step_result(payload))
+    reply = msgpack.unpackb(payload, raw=False)
+    reply["ok"][field] = value
+    with pytest.raises(ProtocolError, match=says):
+        layout(msgpack.packb(reply, use_bin_type=True))
+    with pytest.raises(NonFiniteAction):
+        layout((GOLDEN / "reply_error.msgpack").read_bytes())
