@@ -321,17 +321,29 @@ def decode_step_result(payload: bytes) -> dict[str, Any]:
         r = None
     if r is None or r.reset != _NIL:
         return decode_result(payload)
+    return _step_dict(
+        r,
+        _obs_views(r.obs),
+        _view(r.reward),
+        {k: _view(v) for k, v in r.reward_terms.items()},
+        _view(r.terminated),
+        _view(r.truncated),
+    )
+
+
+def _step_dict(r, obs, reward, reward_terms, terminated, truncated) -> dict[str, Any]:
+    """The ``StepResult`` dict of a typed step ``r`` (no autoreset) and its arrays."""
     return {
         "env_id": r.env_id,
         "episode": r.episode,
         "scenario": r.scenario,
         "step": r.step,
         "t": r.t,
-        "obs": _obs_views(r.obs),
-        "reward": _view(r.reward),
-        "reward_terms": {k: _view(v) for k, v in r.reward_terms.items()},
-        "terminated": _view(r.terminated),
-        "truncated": _view(r.truncated),
+        "obs": obs,
+        "reward": reward,
+        "reward_terms": reward_terms,
+        "terminated": terminated,
+        "truncated": truncated,
         "info": r.info,
         "reset": None,
     }
@@ -422,25 +434,19 @@ class _StepLayout:
         (kf, df, sf), (ka, da, sa), (km, dm, sm), (kn, dn, sn) = self.obs
         dr, sr = self.reward
         dt, st = self.term
-        return {
-            "env_id": r.env_id,
-            "episode": r.episode,
-            "scenario": r.scenario,
-            "step": r.step,
-            "t": r.t,
-            "obs": {
+        return _step_dict(
+            r,
+            {
                 kf: nd(sf, df, o.features.data),
                 ka: nd(sa, da, o.adjacency.data),
                 km: nd(sm, dm, o.mask.data),
                 kn: nd(sn, dn, o.node_ids.data),
             },
-            "reward": nd(sr, dr, r.reward.data),
-            "reward_terms": {k: nd(st, dt, v.data) for k, v in r.reward_terms.items()},
-            "terminated": nd(self.terminated[1], self.terminated[0], r.terminated.data),
-            "truncated": nd(self.truncated[1], self.truncated[0], r.truncated.data),
-            "info": r.info,
-            "reset": None,
-        }
+            nd(sr, dr, r.reward.data),
+            {k: nd(st, dt, v.data) for k, v in r.reward_terms.items()},
+            nd(self.terminated[1], self.terminated[0], r.terminated.data),
+            nd(self.truncated[1], self.truncated[0], r.truncated.data),
+        )
 
 
 #: Layout decoders by layout: envs of one shape share one.
