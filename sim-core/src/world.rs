@@ -260,15 +260,6 @@ impl EdgeStore {
         fresh(&mut self.u, len);
     }
 
-    fn append(&mut self, other: &EdgeStore) {
-        self.target.extend_from_slice(&other.target);
-        self.slot.extend_from_slice(&other.slot);
-        self.belief.extend_from_slice(&other.belief);
-        self.clearance.extend_from_slice(&other.clearance);
-        self.psi.extend_from_slice(&other.psi);
-        self.u.extend_from_slice(&other.u);
-    }
-
     /// Makes room for `m` more edges in every field.
     fn reserve(&mut self, m: usize) {
         self.target.reserve(m);
@@ -279,16 +270,29 @@ impl EdgeStore {
         self.u.reserve(m);
     }
 
-    /// Sets the length of every field but `psi` to `len`.
+    /// A sink over the next `m` entries of every field's spare capacity (reserve them first).
+    fn sink(&mut self, m: usize) -> EdgeSink<'_> {
+        EdgeSink {
+            target: &mut self.target.spare_capacity_mut()[..m],
+            slot: &mut self.slot.spare_capacity_mut()[..m],
+            belief: &mut self.belief.spare_capacity_mut()[..m],
+            clearance: &mut self.clearance.spare_capacity_mut()[..m],
+            psi: &mut self.psi.spare_capacity_mut()[..m],
+            u: &mut self.u.spare_capacity_mut()[..m],
+        }
+    }
+
+    /// Makes the next `m` entries of every field part of the store.
     ///
     /// # Safety
-    /// Entries up to `len` of those fields must be initialised (written through
-    /// `spare_capacity_mut`).
-    unsafe fn commit_all_but_psi(&mut self, len: usize) {
+    /// Those entries must have been written, every field of each (through [`EdgeStore::sink`]).
+    unsafe fn commit(&mut self, m: usize) {
+        let len = self.len() + m;
         self.target.set_len(len);
         self.slot.set_len(len);
         self.belief.set_len(len);
         self.clearance.set_len(len);
+        self.psi.set_len(len);
         self.u.set_len(len);
     }
 
@@ -310,6 +314,42 @@ impl EdgeStore {
             clearance: self.clearance[k],
             psi: self.psi[k],
             u: self.u[k],
+        }
+    }
+}
+
+/// Entries of an [`EdgeStore`] still to be written, one run per field, the same length each.
+/// The observe pass writes edges through it; a threaded pass splits one sink into disjoint
+/// runs, one per worker, so that every worker writes its edges where they belong and none are
+/// copied afterwards.
+struct EdgeSink<'a> {
+    target: &'a mut [MaybeUninit<AgentId>],
+    slot: &'a mut [MaybeUninit<u32>],
+    belief: &'a mut [MaybeUninit<Belief>],
+    clearance: &'a mut [MaybeUninit<f64>],
+    psi: &'a mut [MaybeUninit<f64>],
+    u: &'a mut [MaybeUninit<f64>],
+}
+
+impl<'a> EdgeSink<'a> {
+    fn len(&self) -> usize {
+        self.target.len()
+    }
+
+    /// The first `m` entries as a sink of their own; `self` keeps the rest.
+    fn split_front(&mut self, m: usize) -> EdgeSink<'a> {
+        fn split<'a, T>(v: &mut &'a mut [T], m: usize) -> &'a mut [T] {
+            let (front, rest) = std::mem::take(v).split_at_mut(m);
+            *v = rest;
+            front
+        }
+        EdgeSink {
+            target: split(&mut self.target, m),
+            slot: split(&mut self.slot, m),
+            belief: split(&mut self.belief, m),
+            clearance: split(&mut self.clearance, m),
+            psi: split(&mut self.psi, m),
+            u: split(&mut self.u, m),
         }
     }
 }
@@ -947,23 +987,42 @@ impl World {
         if threads == 1 {
             workers[0].run(&inputs, 0..n);
         } else {
+            // Two parallel halves: the targets of every observer (so that each worker knows
+            // where in the store its edges go), then the edges, each worker writing its own
+            // run of one store. Copying the workers' stores together instead cost about a
+            // fifth of a two-thread step at N = 1 000.
             let chunk = n.div_ceil(threads);
+            let range = |t: usize| (t * chunk).min(n)..((t + 1) * chunk).min(n);
             std::thread::scope(|scope| {
-                let mut rest = workers.iter_mut().enumerate();
-                let (_, first) = rest.next().expect("at least one worker");
-                for (t, w) in rest {
-                    let range = (t * chunk).min(n)..((t + 1) * chunk).min(n);
+                let (first, rest) = workers.split_first_mut().expect("at least one worker");
+                for (t, w) in rest.iter_mut().enumerate() {
                     let inputs = &inputs;
-                    scope.spawn(move || w.run(inputs, range));
+                    scope.spawn(move || w.gather_all(inputs, range(t + 1)));
                 }
-                first.run(&inputs, 0..chunk.min(n));
+                first.gather_all(&inputs, range(0));
             });
+            let total: usize = workers.iter().map(|w| w.cands.len()).sum();
+            let mut store = std::mem::take(&mut workers[0].edges);
+            store.clear_with_capacity(total);
+            store.reserve(total);
+            let mut sink = store.sink(total);
+            std::thread::scope(|scope| {
+                let (first, rest) = workers.split_first_mut().expect("at least one worker");
+                let first_out = sink.split_front(first.cands.len());
+                for (t, w) in rest.iter_mut().enumerate() {
+                    let inputs = &inputs;
+                    let out = sink.split_front(w.cands.len());
+                    scope.spawn(move || w.edges_into(inputs, range(t + 1), out));
+                }
+                first.edges_into(&inputs, range(0), first_out);
+            });
+            // SAFETY: the workers' runs cover the `total` entries (their lengths add up), and
+            // each worker wrote every field of every entry of its run (`observer_edges`).
+            unsafe { store.commit(total) };
+            workers[0].edges = store;
         }
-        // Concatenate the workers' outputs in observer order.
+        // The workers' outputs are in observer order.
         std::mem::swap(&mut self.edges, &mut s.workers[0].edges);
-        for w in &s.workers[1..threads] {
-            self.edges.append(&w.edges);
-        }
         self.rep_force.clear();
         self.rep_max_w.clear();
         self.contact.clear();
@@ -1480,6 +1539,8 @@ impl ForceConsts {
 /// into the edge store, and one branch-free loop over structure-of-arrays scratch for the risk
 /// and the social forces, which the compiler vectorises (with [`fastmath::exp`]). The whole
 /// pass is compiled twice, portable and AVX2 (chosen at run time), with identical arithmetic.
+/// A threaded pass runs in two halves ([`ObserveWorker::gather_all`], then
+/// [`ObserveWorker::edges_into`]) so that the workers write into one store.
 #[derive(Debug, Clone, Default)]
 struct ObserveWorker {
     /// `stamp[id].0 == epoch` when the current observer had a belief about agent `id`, held by
@@ -1488,6 +1549,9 @@ struct ObserveWorker {
     epoch: u32,
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
+    /// A threaded pass's targets of all the worker's observers, in order, and how many each.
+    cands: Vec<u32>,
+    counts: Vec<u32>,
     // Per edge of the current observer.
     /// `v_j . (x_i - x_j)`: the target's velocity along the centre offset.
     along: Vec<f64>,
@@ -1529,51 +1593,111 @@ impl ObserveWorker {
         }
     }
 
+    /// The whole observe pass of `observers`, into the worker's own edge store.
     fn run(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        self.dispatch(inp, Phase::Whole(observers));
+    }
+
+    /// First half of a threaded pass: the targets of each of `observers`, into `cands` and
+    /// `counts` (how many each).
+    fn gather_all(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+        self.dispatch(inp, Phase::Gather(observers));
+    }
+
+    /// Second half of a threaded pass: the edges of `observers` from the targets
+    /// [`ObserveWorker::gather_all`] found, written into `out`, which has room for exactly
+    /// them.
+    fn edges_into(&mut self, inp: &ObserveInputs, observers: Range<usize>, out: EdgeSink) {
+        self.dispatch(inp, Phase::Edges(observers, out));
+    }
+
+    fn dispatch(&mut self, inp: &ObserveInputs, phase: Phase) {
         #[cfg(target_arch = "x86_64")]
         if inp.kernels == Kernels::Avx2 {
             // SAFETY: `Kernels::Avx2` is only chosen when the CPU reports AVX2
             // (`Kernels::detect`).
-            unsafe { self.run_avx2(inp, observers) };
+            unsafe { self.dispatch_avx2(inp, phase) };
             return;
         }
-        self.run_body::<false>(inp, observers);
+        self.dispatch_body::<false>(inp, phase);
     }
 
-    /// [`ObserveWorker::run`] compiled for AVX2: the per-edge loops run four lanes wide. AVX2
-    /// alone, no FMA: every operation rounds as in the portable build, so results are
+    /// [`ObserveWorker::dispatch`] compiled for AVX2: the per-edge loops run four lanes wide.
+    /// AVX2 alone, no FMA: every operation rounds as in the portable build, so results are
     /// bit-identical.
     ///
     /// # Safety
     /// The CPU must support AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn run_avx2(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
-        self.run_body::<true>(inp, observers);
+    unsafe fn dispatch_avx2(&mut self, inp: &ObserveInputs, phase: Phase) {
+        self.dispatch_body::<true>(inp, phase);
     }
 
-    /// The observe pass proper, inlined into each instruction-set variant of `run` (`AVX2`: only
-    /// called where the CPU has AVX2).
+    /// The observe pass proper, inlined into each instruction-set variant of `dispatch`
+    /// (`AVX2`: only called where the CPU has AVX2).
     #[inline(always)]
-    fn run_body<const AVX2: bool>(&mut self, inp: &ObserveInputs, observers: Range<usize>) {
+    fn dispatch_body<const AVX2: bool>(&mut self, inp: &ObserveInputs, phase: Phase) {
         let n = inp.agents.len();
-        // Room for as many edges as these observers had last step, and some.
-        let a = inp.agents;
-        let last: usize = a.edge_len[observers.clone()]
-            .iter()
-            .map(|&l| l as usize)
-            .sum();
-        self.edges.clear_with_capacity(last);
+        if self.cand.len() < n {
+            self.resize_scratch(n);
+        }
+        match phase {
+            Phase::Whole(observers) => {
+                // Room for as many edges as these observers had last step, and some.
+                let last: usize = inp.agents.edge_len[observers.clone()]
+                    .iter()
+                    .map(|&l| l as usize)
+                    .sum();
+                self.clear_output();
+                let mut edges = std::mem::take(&mut self.edges);
+                let mut cand = std::mem::take(&mut self.cand);
+                edges.clear_with_capacity(last);
+                for i in observers {
+                    let epoch = self.index_beliefs(inp, i);
+                    let m = gather_targets::<AVX2>(inp, i, &mut cand);
+                    edges.reserve(m);
+                    self.observer_edges::<AVX2>(inp, i, &cand[..m], epoch, edges.sink(m));
+                    // SAFETY: `observer_edges` writes every field of each of the `m` entries.
+                    unsafe { edges.commit(m) };
+                }
+                self.edges = edges;
+                self.cand = cand;
+            }
+            Phase::Gather(observers) => {
+                self.cands.clear();
+                self.counts.clear();
+                for i in observers {
+                    let m = gather_targets::<AVX2>(inp, i, &mut self.cand);
+                    self.cands.extend_from_slice(&self.cand[..m]);
+                    self.counts.push(m as u32);
+                }
+            }
+            Phase::Edges(observers, mut out) => {
+                assert_eq!(observers.len(), self.counts.len());
+                assert_eq!(out.len(), self.cands.len());
+                self.clear_output();
+                let cands = std::mem::take(&mut self.cands);
+                let counts = std::mem::take(&mut self.counts);
+                let mut from = 0;
+                for (i, &m) in observers.zip(&counts) {
+                    let m = m as usize;
+                    let epoch = self.index_beliefs(inp, i);
+                    let part = out.split_front(m);
+                    self.observer_edges::<AVX2>(inp, i, &cands[from..from + m], epoch, part);
+                    from += m;
+                }
+                self.cands = cands;
+                self.counts = counts;
+            }
+        }
+    }
+
+    fn clear_output(&mut self) {
         self.len.clear();
         self.contact.clear();
         self.force.clear();
         self.max_w.clear();
-        if self.cand.len() < n {
-            self.resize_scratch(n);
-        }
-        for i in observers {
-            self.observer::<AVX2>(inp, i);
-        }
     }
 
     /// Sizes the per-edge scratch for at least `n` agents (an observer has fewer than `n` edges;
@@ -1597,12 +1721,12 @@ impl ObserveWorker {
         }
     }
 
+    /// Indexes observer `i`'s beliefs of the previous graph by target id (in `stamp`, under a
+    /// new epoch, which it returns) and starts fetching them.
     #[inline(always)]
-    fn observer<const AVX2: bool>(&mut self, inp: &ObserveInputs, i: usize) {
+    fn index_beliefs(&mut self, inp: &ObserveInputs, i: usize) -> u32 {
         let a = inp.agents;
         let old = inp.old;
-
-        // 1. Index the observer's existing beliefs by target id.
         if self.epoch == u32::MAX {
             self.stamp.fill((0, 0));
             self.epoch = 0;
@@ -1614,8 +1738,8 @@ impl ObserveWorker {
         for (k, &t) in old.target[old_range.clone()].iter().enumerate() {
             self.stamp[t as usize] = (epoch, (s + k) as u32);
         }
-        // The update below reads these beliefs in the new grid order: start fetching them
-        // now (the old graph is megabytes at large N, out of the nearer caches).
+        // The update reads these beliefs in the new grid order: start fetching them now (the
+        // old graph is megabytes at large N, out of the nearer caches).
         #[cfg(target_arch = "x86_64")]
         {
             let beliefs = &old.belief[old_range];
@@ -1630,40 +1754,44 @@ impl ObserveWorker {
                 };
             }
         }
+        epoch
+    }
 
-        // 2. Every agent within the radius, in grid order.
-        let (slots, gx, gy) = inp.grid.sorted();
-        let (ranges, rows) = inp.grid.candidate_ranges(i);
-        let xi = a.pos[i];
-        let r2 = inp.r2;
-        let cand = &mut self.cand[..];
-        let mut m = 0;
-        for &(lo, hi) in &ranges[..rows] {
-            let (gx, gy, slots) = (&gx[lo..hi], &gy[lo..hi], &slots[lo..hi]);
-            #[cfg(target_arch = "x86_64")]
-            if AVX2 {
-                // SAFETY: `observer::<true>` only runs where the CPU has AVX2 (`run_avx2`).
-                m = unsafe { gather_avx2(gx, gy, slots, xi, r2, i as u32, cand, m) };
-                continue;
-            }
-            m = gather(gx, gy, slots, xi, r2, i as u32, cand, m);
-        }
+    /// Observer `i`'s edges to its targets `cand` (slots, in grid order), written into `out`
+    /// (room for exactly `cand.len()`), and its contact flag, repulsion sum and largest weight
+    /// pushed onto the worker's outputs. Its beliefs are indexed under `epoch`.
+    #[inline(always)]
+    fn observer_edges<const AVX2: bool>(
+        &mut self,
+        inp: &ObserveInputs,
+        i: usize,
+        cand: &[u32],
+        epoch: u32,
+        out: EdgeSink,
+    ) {
+        let m = cand.len();
+        assert_eq!(out.len(), m);
         if m <= SMALL_OBSERVER_EDGES {
-            self.small_observer_edges(inp, i, m, epoch);
+            self.small_observer_edges(inp, i, cand, epoch, out);
             return;
         }
-        let cand = &self.cand[..m];
+        let a = inp.agents;
+        let xi = a.pos[i];
 
-        // 3. Targets' state, beliefs, clearances. The edges are written straight into the
-        // store's spare capacity (no zero-fill or copy first), made visible by `commit`.
-        let e = &mut self.edges;
-        let base = e.len();
-        e.reserve(m);
-        let e_target = &mut e.target.spare_capacity_mut()[..m];
-        let e_slot = &mut e.slot.spare_capacity_mut()[..m];
-        let e_belief = &mut e.belief.spare_capacity_mut()[..m];
-        let e_clear = &mut e.clearance.spare_capacity_mut()[..m];
-        let e_u = &mut e.u.spare_capacity_mut()[..m];
+        // 3. Targets' state, beliefs, clearances. The edges are written straight into their
+        // place in the edge store (no zero-fill or copy first).
+        let EdgeSink {
+            target: e_target,
+            slot: e_slot,
+            belief: e_belief,
+            clearance: e_clear,
+            psi: e_psi,
+            u: e_u,
+        } = out;
+        // Sliced to `m` so that the compiler knows every length (no bound checks in the loops).
+        let (e_target, e_slot, e_belief) =
+            (&mut e_target[..m], &mut e_slot[..m], &mut e_belief[..m]);
+        let (e_clear, e_psi, e_u) = (&mut e_clear[..m], &mut e_psi[..m], &mut e_u[..m]);
         let alongs = &mut self.along[..m];
         let dists = &mut self.dist[..m];
         let accns = &mut self.accn[..m];
@@ -1702,13 +1830,14 @@ impl ObserveWorker {
         // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
         // simulated pedestrian (pedestrian::total_force without the goal term, summed in four
         // interleaved lanes), in one loop over the edges.
-        let e = &mut self.edges;
-        // SAFETY: the loop above wrote entries `base..base + m` of these fields (each `c` in
-        // `0..m` once).
-        unsafe { e.commit_all_but_psi(base + m) };
-        let psis = &mut e.psi.spare_capacity_mut()[..m];
-        let clears = &e.clearance[base..base + m];
-        let us = &e.u[base..base + m];
+        // SAFETY: the loop above wrote every entry of these two (each `c` in `0..m` once), and
+        // `MaybeUninit<f64>` has the layout of `f64`.
+        let (clears, us) = unsafe {
+            (
+                &*(&*e_clear as *const [MaybeUninit<f64>] as *const [f64]),
+                &*(&*e_u as *const [MaybeUninit<f64>] as *const [f64]),
+            )
+        };
         let (alongs, dists, accns) = (&self.along[..m], &self.dist[..m], &self.accn[..m]);
         let gamma1 = inp.params.risk.gamma1;
         let two_gamma2 = 2.0 * inp.params.risk.gamma2;
@@ -1721,7 +1850,7 @@ impl ObserveWorker {
                 for c in 0..m {
                     let (psi, _) =
                         edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
-                    psis[c] = MaybeUninit::new(psi);
+                    e_psi[c] = MaybeUninit::new(psi);
                 }
                 (Vec2::zeros(), 0.0)
             }
@@ -1734,7 +1863,7 @@ impl ObserveWorker {
                 for c in 0..m {
                     let (psi, inv_dist) =
                         edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
-                    psis[c] = MaybeUninit::new(psi);
+                    e_psi[c] = MaybeUninit::new(psi);
                     let (fx, fy, w) = edge_force(
                         &fc,
                         psi,
@@ -1751,24 +1880,28 @@ impl ObserveWorker {
                 (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
             }
         };
-        // SAFETY: both branches above wrote `psi` of entries `base..base + m`.
-        unsafe { self.edges.psi.set_len(base + m) };
         self.len.push(m as u32);
         self.contact.push(contact);
         self.force.push(force);
         self.max_w.push(max_w);
     }
-}
 
-impl ObserveWorker {
-    /// Steps 3 to 5 of [`ObserveWorker::observer`] for an observer with at most
-    /// [`SMALL_OBSERVER_EDGES`] targets (`self.cand[..m]`): one loop over the edges, pushing
-    /// them, instead of three passes over structure-of-arrays scratch whose set-up costs more
-    /// than a few edges' work (most observers of a small scene). Both paths compute each edge
-    /// with [`edge_state`], [`edge_risk`] and [`edge_force`] and sum with the same lane
-    /// functions, so the result is bit-identical to the three passes.
+    /// Steps 3 to 5 of [`ObserveWorker::observer_edges`] for an observer with at most
+    /// [`SMALL_OBSERVER_EDGES`] targets: one loop over the edges instead of three passes over
+    /// structure-of-arrays scratch whose set-up costs more than a few edges' work (most
+    /// observers of a small scene). Both paths compute each edge with [`edge_state`],
+    /// [`edge_risk`] and [`edge_force`] and sum with the same lane functions, so the result is
+    /// bit-identical to the three passes.
     #[inline(always)]
-    fn small_observer_edges(&mut self, inp: &ObserveInputs, i: usize, m: usize, epoch: u32) {
+    fn small_observer_edges(
+        &mut self,
+        inp: &ObserveInputs,
+        i: usize,
+        cand: &[u32],
+        epoch: u32,
+        out: EdgeSink,
+    ) {
+        let m = cand.len();
         let a = inp.agents;
         let xi = a.pos[i];
         let model = inp.params.cognition.prediction;
@@ -1788,14 +1921,10 @@ impl ObserveWorker {
         let mut fys = [0.0; SMALL_OBSERVER_EDGES];
         let mut ws = [0.0; SMALL_OBSERVER_EDGES];
         let mut contact = false;
-        let Self {
-            stamp, cand, edges, ..
-        } = self;
-        edges.reserve(m);
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let st = edge_state(inp, stamp, epoch, model, &placed_i, radius_i, t, j);
+            let st = edge_state(inp, &self.stamp, epoch, model, &placed_i, radius_i, t, j);
             contact |= st.clearance <= 0.0;
             let (psi, inv_dist) = edge_risk(
                 gamma1,
@@ -1816,14 +1945,12 @@ impl ObserveWorker {
                     st.clearance,
                 );
             }
-            edges.push(Edge {
-                target: t.id,
-                target_slot: j as u32,
-                belief: st.belief,
-                clearance: st.clearance,
-                psi,
-                u: st.u,
-            });
+            out.target[c] = MaybeUninit::new(t.id);
+            out.slot[c] = MaybeUninit::new(j as u32);
+            out.belief[c] = MaybeUninit::new(st.belief);
+            out.clearance[c] = MaybeUninit::new(st.clearance);
+            out.psi[c] = MaybeUninit::new(psi);
+            out.u[c] = MaybeUninit::new(st.u);
         }
         let (force, max_w) = match fc {
             None => (Vec2::zeros(), 0.0),
@@ -1837,6 +1964,39 @@ impl ObserveWorker {
         self.force.push(force);
         self.max_w.push(max_w);
     }
+}
+
+/// What [`ObserveWorker::dispatch`] does.
+enum Phase<'a> {
+    /// The whole pass of these observers, into the worker's own store.
+    Whole(Range<usize>),
+    /// Only their targets ([`ObserveWorker::gather_all`]).
+    Gather(Range<usize>),
+    /// Their edges from the gathered targets, into this sink ([`ObserveWorker::edges_into`]).
+    Edges(Range<usize>, EdgeSink<'a>),
+}
+
+/// Writes into `cand` the slots of every agent within the perception radius of observer `i`,
+/// in grid order; returns how many (`cand` has room for every agent).
+#[inline(always)]
+fn gather_targets<const AVX2: bool>(inp: &ObserveInputs, i: usize, cand: &mut [u32]) -> usize {
+    let (slots, gx, gy) = inp.grid.sorted();
+    let (ranges, rows) = inp.grid.candidate_ranges(i);
+    let xi = inp.agents.pos[i];
+    let r2 = inp.r2;
+    let mut m = 0;
+    for &(lo, hi) in &ranges[..rows] {
+        let (gx, gy, slots) = (&gx[lo..hi], &gy[lo..hi], &slots[lo..hi]);
+        #[cfg(target_arch = "x86_64")]
+        if AVX2 {
+            // SAFETY: `gather_targets::<true>` only runs where the CPU has AVX2
+            // (`dispatch_avx2`).
+            m = unsafe { gather_avx2(gx, gy, slots, xi, r2, i as u32, cand, m) };
+            continue;
+        }
+        m = gather(gx, gy, slots, xi, r2, i as u32, cand, m);
+    }
+    m
 }
 
 /// Observers with at most this many targets take [`ObserveWorker::small_observer_edges`].
