@@ -130,6 +130,10 @@ struct RolloutArgs {
     /// Output file; standard output when absent.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Threads a step may use: scenes of at least 512 agents are split over them, with the same
+    /// output for every count.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
+    threads: u16,
 }
 
 fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
@@ -181,14 +185,22 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
         })
         .ok_or_else(|| format!("no scenario `{}` in pool `{}`", args.scenario, pool.name))?;
     let scenario = Arc::new(scenario.clone());
+    let threads = usize::from(args.threads);
     let result = match &args.out {
         Some(path) => {
             let file = std::fs::File::create(path)
                 .map_err(|e| format!("creating {}: {e}", path.display()))?;
             let mut w = std::io::BufWriter::new(file);
-            rollout(scenario, params, model, ego, &mut w)
+            rollout(scenario, params, model, ego, threads, &mut w)
         }
-        None => rollout(scenario, params, model, ego, &mut std::io::stdout().lock()),
+        None => rollout(
+            scenario,
+            params,
+            model,
+            ego,
+            threads,
+            &mut std::io::stdout().lock(),
+        ),
     };
     result.map(|_| ()).map_err(|e| e.to_string())
 }

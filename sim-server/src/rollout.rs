@@ -103,12 +103,15 @@ fn step_json(world: &World, outcomes: &[AgentOutcome], events: &[Event]) -> Valu
     })
 }
 
-/// Runs `scenario` and writes the JSON lines to `out`. Returns the number of steps taken.
+/// Runs `scenario` and writes the JSON lines to `out`, stepping on `threads` threads (scenes of
+/// at least [`sim_core::world::PARALLEL_MIN_AGENTS`] agents are split; the lines are the same
+/// for every count). Returns the number of steps taken.
 pub fn rollout(
     scenario: Arc<Scenario>,
     params: WorldParams,
     model: PedestrianModel,
     ego: EgoDrive,
+    threads: usize,
     out: &mut impl Write,
 ) -> Result<u32, RolloutError> {
     let config = match ego {
@@ -116,6 +119,7 @@ pub fn rollout(
         EgoDrive::Constant(_) => EpisodeConfig::ego_external(&scenario, model),
     };
     let mut world = World::new(scenario.clone(), params, config)?;
+    world.set_threads(threads);
     let agents: Vec<Value> = scenario
         .agents
         .iter()

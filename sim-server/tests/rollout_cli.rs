@@ -49,6 +49,7 @@ fn bad_arguments_are_refused_with_a_message_naming_them() {
             vec!["--params", "/nonexistent/params.json5"],
             "/nonexistent/params.json5",
         ),
+        (vec!["--threads", "0"], "--threads"),
     ] {
         let out = rollout(&args);
         assert!(!out.status.success(), "{args:?} should fail");

@@ -1,0 +1,47 @@
+//! A rollout of a scene large enough to be split over threads writes the same bytes on one
+//! thread and on two.
+
+use std::sync::Arc;
+
+use scenarios::synthetic::{generate, Layout, SyntheticConfig};
+use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::world::PARALLEL_MIN_AGENTS;
+use sim_server::rollout::{rollout, EgoDrive};
+
+#[test]
+fn rollout_lines_do_not_depend_on_the_thread_count() {
+    let mut cfg = SyntheticConfig::new(Layout::Random, 560, 3);
+    // Short walks and no time beyond the records: a few steps of a dense scene.
+    cfg.max_walk = 3.0;
+    cfg.vehicle_speed = 3.0;
+    let scenario = Arc::new(generate(&cfg).expect("synthetic scene"));
+    assert!(
+        scenario.agents.len() >= PARALLEL_MIN_AGENTS,
+        "the scene must be split"
+    );
+    let mut params = WorldParams::default();
+    params.horizon_extra = 0.0;
+    let run = |threads| {
+        let mut out = Vec::new();
+        let steps = rollout(
+            scenario.clone(),
+            params,
+            PedestrianModel::CrSfm,
+            EgoDrive::Constant([0.2, 0.05]),
+            threads,
+            &mut out,
+        )
+        .expect("rollout");
+        (steps, out)
+    };
+    let (steps_1, one) = run(1);
+    let (steps_2, two) = run(2);
+    assert!(steps_1 >= 3, "a few steps at least, got {steps_1}");
+    let text = String::from_utf8(one.clone()).unwrap();
+    assert!(
+        text.lines().nth(2).unwrap().len() > 100_000,
+        "a dense graph in every step"
+    );
+    assert_eq!(steps_1, steps_2);
+    assert!(one == two, "the two-thread rollout wrote other bytes");
+}
