@@ -19,8 +19,10 @@ fn rollout_lines_do_not_depend_on_the_thread_count() {
         scenario.agents.len() >= PARALLEL_MIN_AGENTS,
         "the scene must be split"
     );
-    let mut params = WorldParams::default();
-    params.horizon_extra = 0.0;
+    let params = WorldParams {
+        horizon_extra: 0.0,
+        ..WorldParams::default()
+    };
     let run = |threads| {
         let mut out = Vec::new();
         let steps = rollout(
