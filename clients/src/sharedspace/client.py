@@ -377,8 +377,8 @@ class _StepLayout:
     __slots__ = ("decoder", "obs", "reward", "terminated", "truncated", "term")
 
     def __init__(self, res: Mapping[str, Any]):
-        def spec(a: np.ndarray) -> tuple[str, tuple[int, ...]]:
-            return a.dtype.str, tuple(a.shape)
+        def spec(a: np.ndarray) -> tuple[np.dtype, tuple[int, ...]]:
+            return a.dtype, tuple(a.shape)
 
         o = res["obs"]
         self.obs = tuple((k, *spec(o[k])) for k in _OBS_KEYS)
@@ -390,8 +390,8 @@ class _StepLayout:
             raise ValueError("reward terms of several layouts")
         self.term = terms.pop() if terms else self.reward
 
-        def arr(name: str, s: tuple[str, tuple[int, ...]]) -> type:
-            return _fixed_array_type(name, *s)
+        def arr(name: str, s: tuple[np.dtype, tuple[int, ...]]) -> type:
+            return _fixed_array_type(name, s[0].str, s[1])
 
         obs_t = msgspec.defstruct(
             "_LayoutObs", [(k, arr(f"_Layout_{k}", (d, s))) for k, d, s in self.obs]
@@ -415,12 +415,6 @@ class _StepLayout:
         )
         reply_t = msgspec.defstruct("_LayoutReply", [("ok", step_t | None, None)])
         self.decoder = msgspec.msgpack.Decoder(reply_t)
-        # From here on the specs hold numpy dtypes.
-        self.obs = tuple((k, _WIRE_DTYPES[d][0], s) for k, d, s in self.obs)
-        self.reward, self.terminated, self.truncated, self.term = (
-            (_WIRE_DTYPES[d][0], s)
-            for d, s in (self.reward, self.terminated, self.truncated, self.term)
-        )
 
     def __call__(self, payload: bytes) -> dict[str, Any]:
         try:
