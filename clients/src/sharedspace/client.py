@@ -366,6 +366,33 @@ def _fixed_array_type(name: str, dtype: str, shape: tuple[int, ...]) -> type:
     )
 
 
+#: The array layout of an env's step replies: ``(name, dtype, shape)`` of each observation
+#: array, then ``(dtype, shape)`` of ``reward``, ``terminated``, ``truncated`` and of every
+#: reward term.
+_Layout = tuple
+
+
+def _layout_of(res: Mapping[str, Any]) -> _Layout:
+    """The array layout of the decoded ``StepResult`` ``res`` (raises ``ValueError`` when its
+    reward terms differ in layout, ``KeyError``/``AttributeError`` when it has no arrays)."""
+
+    def spec(a: np.ndarray) -> tuple[np.dtype, tuple[int, ...]]:
+        return a.dtype, tuple(a.shape)
+
+    o = res["obs"]
+    terms = {spec(v) for v in res["reward_terms"].values()}
+    if len(terms) > 1:
+        raise ValueError("reward terms of several layouts")
+    reward = spec(res["reward"])
+    return (
+        tuple((k, *spec(o[k])) for k in _OBS_KEYS),
+        reward,
+        spec(res["terminated"]),
+        spec(res["truncated"]),
+        terms.pop() if terms else reward,
+    )
+
+
 class _StepLayout:
     """Decoder of the step replies of envs whose arrays have one fixed layout (dtype and shape
     of every array, set at ``CreateEnv`` by ``n_ext`` and ``max_agents``). msgspec checks the
@@ -376,19 +403,8 @@ class _StepLayout:
 
     __slots__ = ("decoder", "obs", "reward", "terminated", "truncated", "term")
 
-    def __init__(self, res: Mapping[str, Any]):
-        def spec(a: np.ndarray) -> tuple[np.dtype, tuple[int, ...]]:
-            return a.dtype, tuple(a.shape)
-
-        o = res["obs"]
-        self.obs = tuple((k, *spec(o[k])) for k in _OBS_KEYS)
-        self.reward = spec(res["reward"])
-        self.terminated = spec(res["terminated"])
-        self.truncated = spec(res["truncated"])
-        terms = {spec(v) for v in res["reward_terms"].values()}
-        if len(terms) > 1:
-            raise ValueError("reward terms of several layouts")
-        self.term = terms.pop() if terms else self.reward
+    def __init__(self, layout: _Layout):
+        self.obs, self.reward, self.terminated, self.truncated, self.term = layout
 
         def arr(name: str, s: tuple[np.dtype, tuple[int, ...]]) -> type:
             return _fixed_array_type(name, s[0].str, s[1])
@@ -425,9 +441,10 @@ class _StepLayout:
             return decode_step_result(payload)
         nd = np.ndarray
         o = r.obs
+        # (key, dtype, shape) of each observation array; (dtype, shape) of the others.
         (kf, df, sf), (ka, da, sa), (km, dm, sm), (kn, dn, sn) = self.obs
-        dr, sr = self.reward
-        dt, st = self.term
+        (d_rew, s_rew), (d_ter, s_ter) = self.reward, self.terminated
+        (d_tru, s_tru), (d_term, s_term) = self.truncated, self.term
         return _step_dict(
             r,
             {
@@ -436,15 +453,15 @@ class _StepLayout:
                 km: nd(sm, dm, o.mask.data),
                 kn: nd(sn, dn, o.node_ids.data),
             },
-            nd(sr, dr, r.reward.data),
-            {k: nd(st, dt, v.data) for k, v in r.reward_terms.items()},
-            nd(self.terminated[1], self.terminated[0], r.terminated.data),
-            nd(self.truncated[1], self.truncated[0], r.truncated.data),
+            nd(s_rew, d_rew, r.reward.data),
+            {k: nd(s_term, d_term, v.data) for k, v in r.reward_terms.items()},
+            nd(s_ter, d_ter, r.terminated.data),
+            nd(s_tru, d_tru, r.truncated.data),
         )
 
 
 #: Layout decoders by layout: envs of one shape share one.
-_STEP_LAYOUTS: dict[tuple, _StepLayout] = {}
+_STEP_LAYOUTS: dict[_Layout, _StepLayout] = {}
 
 
 def step_decoder_for(res: Mapping[str, Any]):
@@ -452,20 +469,15 @@ def step_decoder_for(res: Mapping[str, Any]):
     ``StepResult``): a :class:`_StepLayout` of its array layout, or :func:`decode_step_result`
     when the result has none to fix (no observation, terms of several shapes)."""
     try:
-        o = res["obs"]
-        key = (
-            tuple((o[k].dtype.str, o[k].shape) for k in _OBS_KEYS),
-            tuple((res[k].dtype.str, res[k].shape) for k in _RESULT_ARRAYS),
-            tuple(sorted({(v.dtype.str, v.shape) for v in res["reward_terms"].values()})),
-        )
-        layout = _STEP_LAYOUTS.get(key)
-        if layout is None:
-            if len(_STEP_LAYOUTS) >= 256:
-                _STEP_LAYOUTS.clear()
-            layout = _STEP_LAYOUTS[key] = _StepLayout(res)
-        return layout
+        layout = _layout_of(res)
     except (KeyError, TypeError, AttributeError, ValueError):
         return decode_step_result
+    decoder = _STEP_LAYOUTS.get(layout)
+    if decoder is None:
+        if len(_STEP_LAYOUTS) >= 256:
+            _STEP_LAYOUTS.clear()
+        decoder = _STEP_LAYOUTS[layout] = _StepLayout(layout)
+    return decoder
 
 
 class SimClient:
@@ -516,7 +528,8 @@ class SimClient:
         #: env id -> ``n_ext`` (number of external agents).
         self.env_n_ext: dict[str, int] = {}
         self._closed_envs: set[str] = set()
-        #: env id -> (server id, step key, request head, action shape) of envs stepped before.
+        #: env id -> (server id, step key, request head, action shape, reply decoder) of envs
+        #: stepped before.
         self._step_keys: dict[str, tuple[str, str, bytes, tuple[int, int], Any]] = {}
         self._step_heads: dict[int, bytes] = {}
 
