@@ -280,6 +280,16 @@ def _same(a, b):
     return a == b
 
 
+#: (field, malformed value, what the error says) for the client decoders.
+MALFORMED_ARRAYS = [
+    ("reward", None, "expected a binary-array map"),
+    ("reward", {"dtype": "<f4", "shape": [1]}, "expected a binary-array map"),
+    ("reward", {"dtype": "<f4", "shape": [3], "data": b"\0" * 4}, "needs 12"),
+    ("terminated", {"dtype": "<i8", "shape": [1], "data": b"\0" * 8}, "unsupported dtype"),
+    ("reward", {"dtype": "<f4", "shape": [-1], "data": b""}, "non-negative"),
+]
+
+
 @pytest.mark.parametrize("name", ["reply_step", "reply_reset", "reply_batch_step"])
 def test_client_decode_result_equals_codec_decode_reply(name):
     from sharedspace.client import decode_result
@@ -290,13 +300,7 @@ def test_client_decode_result_equals_codec_decode_reply(name):
 
 @pytest.mark.parametrize(
     "field, value, says",
-    [
-        ("reward", None, "expected a binary-array map"),
-        ("reward", {"dtype": "<f4", "shape": [1]}, "expected a binary-array map"),
-        ("reward", {"dtype": "<f4", "shape": [3], "data": b"\0" * 4}, "needs 12"),
-        ("terminated", {"dtype": "<i8", "shape": [1], "data": b"\0" * 8}, "unsupported dtype"),
-        ("reward", {"dtype": "<f4", "shape": [-1], "data": b""}, "non-negative"),
-    ],
+    MALFORMED_ARRAYS,
 )
 def test_client_decode_result_names_a_malformed_array(field, value, says):
     from sharedspace.client import decode_result
@@ -309,13 +313,7 @@ def test_client_decode_result_names_a_malformed_array(field, value, says):
 
 @pytest.mark.parametrize(
     "field, value, says",
-    [
-        ("reward", None, "expected a binary-array map"),
-        ("reward", {"dtype": "<f4", "shape": [1]}, "expected a binary-array map"),
-        ("reward", {"dtype": "<f4", "shape": [3], "data": b"\0" * 4}, "needs 12"),
-        ("terminated", {"dtype": "<i8", "shape": [1], "data": b"\0" * 8}, "unsupported dtype"),
-        ("reward", {"dtype": "<f4", "shape": [-1], "data": b""}, "non-negative"),
-    ],
+    MALFORMED_ARRAYS,
 )
 @pytest.mark.parametrize("name", ["reply_step", "reply_batch_step"])
 def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
