@@ -1003,8 +1003,7 @@ impl World {
             });
             let total: usize = workers.iter().map(|w| w.cands.len()).sum();
             let mut store = std::mem::take(&mut workers[0].edges);
-            store.clear_with_capacity(total);
-            store.reserve(total);
+            store.clear_with_capacity(total); // room for `total` and more: no reserve needed
             let mut sink = store.sink(total);
             std::thread::scope(|scope| {
                 let (first, rest) = workers.split_first_mut().expect("at least one worker");
