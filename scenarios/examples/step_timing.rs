@@ -9,7 +9,9 @@
 //! cargo run --release -p scenarios --example step_timing -- allocs N STEPS  # heap use per step
 //! ```
 //!
-//! `STEP_TIMING_PORTABLE=1` makes `time`, `steps` and `allocs` run the portable kernels.
+//! `STEP_TIMING_KERNELS=portable|avx2|avx512` makes `time`, `steps` and `allocs` run that
+//! variant of the observe pass instead of the widest one the CPU has (`STEP_TIMING_PORTABLE=1`
+//! is `portable`).
 //!
 //! `dump` writes the bits of every agent's state and every graph edge after each step of a fixed
 //! set of episodes (synthetic scenes of several sizes, layouts, models and seeds, and the
@@ -27,7 +29,7 @@ use scenarios::synthetic::{generate, Layout as SceneLayout, SyntheticConfig};
 use sha2::{Digest, Sha256};
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::Scenario;
-use sim_core::world::{AgentId, EpisodeConfig, StepScratch, World};
+use sim_core::world::{AgentId, EpisodeConfig, Kernels, StepScratch, World};
 
 /// The system allocator, counting allocations (for `allocs`).
 struct Counting;
@@ -76,12 +78,25 @@ fn step_once(world: &mut World) {
 }
 
 /// The world `sim-server bench-step` times (seed 0): warmed up, or, when the AV's episode ended
-/// during warm-up, the same scene with the AV replayed. With `STEP_TIMING_PORTABLE=1` in the
-/// environment it runs the portable kernels (what CPUs without AVX2 run).
+/// during warm-up, the same scene with the AV replayed, stepping with the kernels that
+/// `STEP_TIMING_KERNELS` names (see the module documentation).
 fn bench_world(n: usize) -> World {
     let mut world = bench_world_default(n);
-    if std::env::var("STEP_TIMING_PORTABLE").is_ok_and(|v| v == "1") {
-        world.use_portable_kernels();
+    let named = std::env::var("STEP_TIMING_KERNELS").ok();
+    let portable = std::env::var("STEP_TIMING_PORTABLE").is_ok_and(|v| v == "1");
+    let kernels = match (named.as_deref(), portable) {
+        (Some("portable"), _) | (None, true) => Kernels::Portable,
+        (Some("avx2"), _) => Kernels::Avx2,
+        (Some("avx512"), _) => Kernels::Avx512,
+        (None, false) => Kernels::detect(),
+        (Some(other), _) => {
+            eprintln!("STEP_TIMING_KERNELS: unknown variant {other:?} (portable, avx2, avx512)");
+            std::process::exit(2);
+        }
+    };
+    if let Err(e) = world.use_kernels(kernels) {
+        eprintln!("STEP_TIMING_KERNELS: {e}");
+        std::process::exit(2);
     }
     world
 }

@@ -28,6 +28,9 @@ use crate::risk;
 use crate::scenario::{AgentKind, AgentRecord, Scenario};
 use crate::vehicle::{self, UnicycleState};
 
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+
 /// An agent's identity: its index in the scenario's agent list. Stable for the whole episode.
 pub type AgentId = u32;
 
@@ -191,7 +194,11 @@ pub(crate) struct Edge {
 struct EdgeStore {
     target: Vec<AgentId>,
     slot: Vec<u32>,
-    belief: Vec<Belief>,
+    /// The observer's belief about the target, by field ([`Belief::mu`] and
+    /// [`Belief::updates`]): the vectorised observe pass loads and stores each as one run.
+    mu_x: Vec<f64>,
+    mu_y: Vec<f64>,
+    updates: Vec<u32>,
     clearance: Vec<f64>,
     psi: Vec<f64>,
     u: Vec<f64>,
@@ -217,7 +224,9 @@ impl Clone for EdgeStore {
         Self {
             target: copy(&self.target, capacity),
             slot: copy(&self.slot, capacity),
-            belief: copy(&self.belief, capacity),
+            mu_x: copy(&self.mu_x, capacity),
+            mu_y: copy(&self.mu_y, capacity),
+            updates: copy(&self.updates, capacity),
             clearance: copy(&self.clearance, capacity),
             psi: copy(&self.psi, capacity),
             u: copy(&self.u, capacity),
@@ -237,7 +246,9 @@ impl EdgeStore {
     fn truncate(&mut self, len: usize) {
         self.target.truncate(len);
         self.slot.truncate(len);
-        self.belief.truncate(len);
+        self.mu_x.truncate(len);
+        self.mu_y.truncate(len);
+        self.updates.truncate(len);
         self.clearance.truncate(len);
         self.psi.truncate(len);
         self.u.truncate(len);
@@ -254,7 +265,9 @@ impl EdgeStore {
         }
         fresh(&mut self.target, len);
         fresh(&mut self.slot, len);
-        fresh(&mut self.belief, len);
+        fresh(&mut self.mu_x, len);
+        fresh(&mut self.mu_y, len);
+        fresh(&mut self.updates, len);
         fresh(&mut self.clearance, len);
         fresh(&mut self.psi, len);
         fresh(&mut self.u, len);
@@ -264,7 +277,9 @@ impl EdgeStore {
     fn reserve(&mut self, m: usize) {
         self.target.reserve(m);
         self.slot.reserve(m);
-        self.belief.reserve(m);
+        self.mu_x.reserve(m);
+        self.mu_y.reserve(m);
+        self.updates.reserve(m);
         self.clearance.reserve(m);
         self.psi.reserve(m);
         self.u.reserve(m);
@@ -275,7 +290,9 @@ impl EdgeStore {
         EdgeSink {
             target: &mut self.target.spare_capacity_mut()[..m],
             slot: &mut self.slot.spare_capacity_mut()[..m],
-            belief: &mut self.belief.spare_capacity_mut()[..m],
+            mu_x: &mut self.mu_x.spare_capacity_mut()[..m],
+            mu_y: &mut self.mu_y.spare_capacity_mut()[..m],
+            updates: &mut self.updates.spare_capacity_mut()[..m],
             clearance: &mut self.clearance.spare_capacity_mut()[..m],
             psi: &mut self.psi.spare_capacity_mut()[..m],
             u: &mut self.u.spare_capacity_mut()[..m],
@@ -290,7 +307,9 @@ impl EdgeStore {
         let len = self.len() + m;
         self.target.set_len(len);
         self.slot.set_len(len);
-        self.belief.set_len(len);
+        self.mu_x.set_len(len);
+        self.mu_y.set_len(len);
+        self.updates.set_len(len);
         self.clearance.set_len(len);
         self.psi.set_len(len);
         self.u.set_len(len);
@@ -299,10 +318,20 @@ impl EdgeStore {
     fn push(&mut self, e: Edge) {
         self.target.push(e.target);
         self.slot.push(e.target_slot);
-        self.belief.push(e.belief);
+        self.mu_x.push(e.belief.mu.x);
+        self.mu_y.push(e.belief.mu.y);
+        self.updates.push(e.belief.updates);
         self.clearance.push(e.clearance);
         self.psi.push(e.psi);
         self.u.push(e.u);
+    }
+
+    #[inline(always)]
+    fn belief(&self, k: usize) -> Belief {
+        Belief {
+            mu: Vec2::new(self.mu_x[k], self.mu_y[k]),
+            updates: self.updates[k],
+        }
     }
 
     #[inline]
@@ -310,7 +339,7 @@ impl EdgeStore {
         Edge {
             target: self.target[k],
             target_slot: self.slot[k],
-            belief: self.belief[k],
+            belief: self.belief(k),
             clearance: self.clearance[k],
             psi: self.psi[k],
             u: self.u[k],
@@ -325,7 +354,9 @@ impl EdgeStore {
 struct EdgeSink<'a> {
     target: &'a mut [MaybeUninit<AgentId>],
     slot: &'a mut [MaybeUninit<u32>],
-    belief: &'a mut [MaybeUninit<Belief>],
+    mu_x: &'a mut [MaybeUninit<f64>],
+    mu_y: &'a mut [MaybeUninit<f64>],
+    updates: &'a mut [MaybeUninit<u32>],
     clearance: &'a mut [MaybeUninit<f64>],
     psi: &'a mut [MaybeUninit<f64>],
     u: &'a mut [MaybeUninit<f64>],
@@ -346,7 +377,9 @@ impl<'a> EdgeSink<'a> {
         EdgeSink {
             target: split(&mut self.target, m),
             slot: split(&mut self.slot, m),
-            belief: split(&mut self.belief, m),
+            mu_x: split(&mut self.mu_x, m),
+            mu_y: split(&mut self.mu_y, m),
+            updates: split(&mut self.updates, m),
             clearance: split(&mut self.clearance, m),
             psi: split(&mut self.psi, m),
             u: split(&mut self.u, m),
@@ -694,6 +727,22 @@ impl World {
     #[doc(hidden)]
     pub fn use_portable_kernels(&mut self) {
         self.kernels = Kernels::Portable;
+    }
+
+    /// Steps with the `kernels` variant of the observe pass from now on (same results, other
+    /// speed); refused, changing nothing, when the CPU does not run it.
+    pub fn use_kernels(&mut self, kernels: Kernels) -> Result<(), KernelsUnavailable> {
+        if !kernels.is_available() {
+            return Err(KernelsUnavailable(kernels));
+        }
+        self.kernels = kernels;
+        Ok(())
+    }
+
+    /// The variant of the observe pass this world steps with ([`Kernels::detect`] unless
+    /// changed).
+    pub fn kernels(&self) -> Kernels {
+        self.kernels
     }
 
     /// The thread count set by [`World::set_threads`].
@@ -1435,8 +1484,10 @@ fn finish_move((pos, vel): (Vec2, Vec2), heading: f64) -> (Vec2, Vec2, f64, f64)
 }
 
 /// What an observer reads of a target, gathered once per observe pass into one record per slot
-/// (one cache line and one bounds check per edge instead of one per field).
+/// (one cache line and one bounds check per edge instead of one per field). `repr(C)`, as the
+/// AVX-512 pass gathers its fields by offset.
 #[derive(Debug, Clone, Copy, Default)]
+#[repr(C)]
 struct TargetInfo {
     pos: Vec2,
     vel: Vec2,
@@ -1478,26 +1529,58 @@ fn model_index(model: PedestrianModel) -> usize {
     }
 }
 
-/// Which compiled variant of the observe pass a world runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kernels {
+/// Which compiled variant of the observe pass a world runs. Every variant computes the same
+/// bits; they differ only in speed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Kernels {
     /// Baseline instructions of the build target.
     Portable,
-    /// AVX2 (x86-64 CPUs that report it at run time).
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    /// AVX2 (x86-64 CPUs that report it at run time): the per-edge loops four lanes wide.
     Avx2,
+    /// AVX-512 F, DQ and VL besides AVX2: the per-edge loops eight lanes wide, and the belief
+    /// updates by gathers.
+    Avx512,
 }
 
 impl Kernels {
-    /// The widest variant this CPU runs.
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            return Kernels::Avx2;
+    /// The widest variant this CPU runs (what a new world uses).
+    pub fn detect() -> Self {
+        *Self::available()
+            .last()
+            .expect("the portable variant always runs")
+    }
+
+    /// Whether this CPU runs the variant.
+    pub fn is_available(self) -> bool {
+        match self {
+            Kernels::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            Kernels::Avx2 => std::is_x86_feature_detected!("avx2"),
+            #[cfg(target_arch = "x86_64")]
+            Kernels::Avx512 => {
+                std::is_x86_feature_detected!("avx2")
+                    && std::is_x86_feature_detected!("avx512f")
+                    && std::is_x86_feature_detected!("avx512dq")
+                    && std::is_x86_feature_detected!("avx512vl")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
         }
-        Kernels::Portable
+    }
+
+    /// Every variant this CPU runs, narrowest first.
+    pub fn available() -> Vec<Self> {
+        [Kernels::Portable, Kernels::Avx2, Kernels::Avx512]
+            .into_iter()
+            .filter(|k| k.is_available())
+            .collect()
     }
 }
+
+/// [`World::use_kernels`] with a variant this CPU does not run.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("this CPU does not run the {0:?} kernels")]
+pub struct KernelsUnavailable(pub Kernels);
 
 /// Social-force constants of one observing simulated pedestrian.
 #[derive(Clone, Copy)]
@@ -1548,6 +1631,8 @@ struct ObserveWorker {
     epoch: u32,
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
+    /// Where in the old store each of them has its belief (the AVX-512 pass's scratch).
+    belief_at: Vec<u32>,
     /// A threaded pass's targets of all the worker's observers, in order, and how many each.
     cands: Vec<u32>,
     counts: Vec<u32>,
@@ -1612,13 +1697,20 @@ impl ObserveWorker {
 
     fn dispatch(&mut self, inp: &ObserveInputs, phase: Phase) {
         #[cfg(target_arch = "x86_64")]
+        if inp.kernels == Kernels::Avx512 {
+            // SAFETY: `Kernels::Avx512` is only chosen when the CPU reports these features
+            // (`Kernels::detect`).
+            unsafe { self.dispatch_avx512(inp, phase) };
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
         if inp.kernels == Kernels::Avx2 {
             // SAFETY: `Kernels::Avx2` is only chosen when the CPU reports AVX2
             // (`Kernels::detect`).
             unsafe { self.dispatch_avx2(inp, phase) };
             return;
         }
-        self.dispatch_body::<false>(inp, phase);
+        self.dispatch_body::<false, false>(inp, phase);
     }
 
     /// [`ObserveWorker::dispatch`] compiled for AVX2: the per-edge loops run four lanes wide.
@@ -1630,13 +1722,28 @@ impl ObserveWorker {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn dispatch_avx2(&mut self, inp: &ObserveInputs, phase: Phase) {
-        self.dispatch_body::<true>(inp, phase);
+        self.dispatch_body::<true, false>(inp, phase);
+    }
+
+    /// [`ObserveWorker::dispatch`] compiled for AVX-512 (F, DQ, VL): the per-edge loops run
+    /// eight lanes wide. No FMA, as in [`ObserveWorker::dispatch_avx2`].
+    ///
+    /// # Safety
+    /// The CPU must support AVX2, AVX-512F, AVX-512DQ and AVX-512VL.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl")]
+    unsafe fn dispatch_avx512(&mut self, inp: &ObserveInputs, phase: Phase) {
+        self.dispatch_body::<true, true>(inp, phase);
     }
 
     /// The observe pass proper, inlined into each instruction-set variant of `dispatch`
-    /// (`AVX2`: only called where the CPU has AVX2).
+    /// (`AVX2`, `AVX512`: only called where the CPU has them).
     #[inline(always)]
-    fn dispatch_body<const AVX2: bool>(&mut self, inp: &ObserveInputs, phase: Phase) {
+    fn dispatch_body<const AVX2: bool, const AVX512: bool>(
+        &mut self,
+        inp: &ObserveInputs,
+        phase: Phase,
+    ) {
         let n = inp.agents.len();
         if self.cand.len() < n {
             self.resize_scratch(n);
@@ -1656,7 +1763,7 @@ impl ObserveWorker {
                     let epoch = self.index_beliefs(inp, i);
                     let m = gather_targets::<AVX2>(inp, i, &mut cand);
                     edges.reserve(m);
-                    self.observer_edges::<AVX2>(inp, i, &cand[..m], epoch, edges.sink(m));
+                    self.observer_edges::<AVX2, AVX512>(inp, i, &cand[..m], epoch, edges.sink(m));
                     // SAFETY: `observer_edges` writes every field of each of the `m` entries.
                     unsafe { edges.commit(m) };
                 }
@@ -1683,7 +1790,13 @@ impl ObserveWorker {
                     let m = m as usize;
                     let epoch = self.index_beliefs(inp, i);
                     let part = out.split_front(m);
-                    self.observer_edges::<AVX2>(inp, i, &cands[from..from + m], epoch, part);
+                    self.observer_edges::<AVX2, AVX512>(
+                        inp,
+                        i,
+                        &cands[from..from + m],
+                        epoch,
+                        part,
+                    );
                     from += m;
                 }
                 self.cands = cands;
@@ -1704,6 +1817,7 @@ impl ObserveWorker {
     #[cold]
     fn resize_scratch(&mut self, n: usize) {
         self.cand.resize(n, 0);
+        self.belief_at.resize(n, 0);
         for v in [
             &mut self.along,
             &mut self.dist,
@@ -1741,16 +1855,22 @@ impl ObserveWorker {
         // old graph is megabytes at large N, out of the nearer caches).
         #[cfg(target_arch = "x86_64")]
         {
-            let beliefs = &old.belief[old_range];
-            let start = beliefs.as_ptr().cast::<i8>();
-            for offset in (0..std::mem::size_of_val(beliefs)).step_by(64) {
-                // SAFETY: a prefetch only hints the cache (it never faults); the address lies
-                // inside `beliefs`.
-                unsafe {
-                    std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-                        start.add(offset),
-                    )
-                };
+            let r = old_range;
+            let runs: [(*const i8, usize); 3] = [
+                (old.mu_x[r.clone()].as_ptr().cast(), 8 * r.len()),
+                (old.mu_y[r.clone()].as_ptr().cast(), 8 * r.len()),
+                (old.updates[r.clone()].as_ptr().cast(), 4 * r.len()),
+            ];
+            for (start, bytes) in runs {
+                for offset in (0..bytes).step_by(64) {
+                    // SAFETY: a prefetch only hints the cache (it never faults); the address
+                    // lies inside the run.
+                    unsafe {
+                        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                            start.add(offset),
+                        )
+                    };
+                }
             }
         }
         epoch
@@ -1760,7 +1880,7 @@ impl ObserveWorker {
     /// (room for exactly `cand.len()`), and its contact flag, repulsion sum and largest weight
     /// pushed onto the worker's outputs. Its beliefs are indexed under `epoch`.
     #[inline(always)]
-    fn observer_edges<const AVX2: bool>(
+    fn observer_edges<const AVX2: bool, const AVX512: bool>(
         &mut self,
         inp: &ObserveInputs,
         i: usize,
@@ -1782,14 +1902,16 @@ impl ObserveWorker {
         let EdgeSink {
             target: e_target,
             slot: e_slot,
-            belief: e_belief,
+            mu_x: e_mu_x,
+            mu_y: e_mu_y,
+            updates: e_updates,
             clearance: e_clear,
             psi: e_psi,
             u: e_u,
         } = out;
         // Sliced to `m` so that the compiler knows every length (no bound checks in the loops).
-        let (e_target, e_slot, e_belief) =
-            (&mut e_target[..m], &mut e_slot[..m], &mut e_belief[..m]);
+        let (e_target, e_slot) = (&mut e_target[..m], &mut e_slot[..m]);
+        let (e_mu_x, e_mu_y, e_updates) = (&mut e_mu_x[..m], &mut e_mu_y[..m], &mut e_updates[..m]);
         let (e_clear, e_psi, e_u) = (&mut e_clear[..m], &mut e_psi[..m], &mut e_u[..m]);
         let alongs = &mut self.along[..m];
         let dists = &mut self.dist[..m];
@@ -1806,24 +1928,71 @@ impl ObserveWorker {
             position: xi,
             heading: a.heading[i],
         };
+        // Below about two chunks of eight the gathers' set-up costs more than they save.
+        #[cfg(target_arch = "x86_64")]
+        let vectorised = AVX512 && m >= VECTOR_STATE_MIN_EDGES;
+        #[cfg(not(target_arch = "x86_64"))]
+        let vectorised = false;
         let mut contact = false;
-        for c in 0..m {
-            let j = cand[c] as usize;
-            let t = &inp.targets[j];
-            let st = edge_state(inp, &self.stamp, epoch, model, &placed_i, radius_i, t, j);
-            contact |= st.clearance <= 0.0;
-            e_target[c] = MaybeUninit::new(t.id);
-            e_slot[c] = MaybeUninit::new(j as u32);
-            e_belief[c] = MaybeUninit::new(st.belief);
-            e_clear[c] = MaybeUninit::new(st.clearance);
-            e_u[c] = MaybeUninit::new(st.u);
-            alongs[c] = st.along;
-            dists[c] = st.dist;
-            accns[c] = t.acc_norm;
-            vehs[c] = t.veh;
-            nnxs[c] = st.normal.x;
-            nnys[c] = st.normal.y;
-            rects[c] = st.rect;
+        if vectorised {
+            #[cfg(target_arch = "x86_64")]
+            {
+                let out = EdgeSink {
+                    target: &mut *e_target,
+                    slot: &mut *e_slot,
+                    mu_x: &mut *e_mu_x,
+                    mu_y: &mut *e_mu_y,
+                    updates: &mut *e_updates,
+                    clearance: &mut *e_clear,
+                    psi: &mut *e_psi,
+                    u: &mut *e_u,
+                };
+                let cols = avx512::StateColumns {
+                    along: &mut *alongs,
+                    dist: &mut *dists,
+                    accn: &mut *accns,
+                    veh: &mut *vehs,
+                    nnx: &mut *nnxs,
+                    nny: &mut *nnys,
+                    rect: &mut *rects,
+                    belief_at: &mut self.belief_at[..m],
+                };
+                // SAFETY: `AVX512` is only set in `dispatch_avx512`, which runs where the CPU
+                // has these features.
+                contact = unsafe {
+                    avx512::edge_states(
+                        inp,
+                        &self.stamp,
+                        epoch,
+                        &placed_i,
+                        radius_i,
+                        cand,
+                        out,
+                        cols,
+                    )
+                };
+            }
+        } else {
+            for c in 0..m {
+                let j = cand[c] as usize;
+                let t = &inp.targets[j];
+                let st = edge_state(inp, &self.stamp, epoch, model, &placed_i, radius_i, t, j);
+                contact |= st.clearance <= 0.0;
+                e_target[c] = MaybeUninit::new(t.id);
+                e_slot[c] = MaybeUninit::new(j as u32);
+                e_mu_x[c] = MaybeUninit::new(st.belief.mu.x);
+                e_mu_y[c] = MaybeUninit::new(st.belief.mu.y);
+                e_updates[c] = MaybeUninit::new(st.belief.updates);
+                e_clear[c] = MaybeUninit::new(st.clearance);
+                e_u[c] = MaybeUninit::new(st.u);
+                alongs[c] = st.along;
+                dists[c] = st.dist;
+                accns[c] = t.acc_norm;
+                vehs[c] = t.veh;
+                nnxs[c] = st.normal.x;
+                nnys[c] = st.normal.y;
+                rects[c] = st.rect;
+            }
         }
 
         // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
@@ -1946,7 +2115,9 @@ impl ObserveWorker {
             }
             out.target[c] = MaybeUninit::new(t.id);
             out.slot[c] = MaybeUninit::new(j as u32);
-            out.belief[c] = MaybeUninit::new(st.belief);
+            out.mu_x[c] = MaybeUninit::new(st.belief.mu.x);
+            out.mu_y[c] = MaybeUninit::new(st.belief.mu.y);
+            out.updates[c] = MaybeUninit::new(st.belief.updates);
             out.clearance[c] = MaybeUninit::new(st.clearance);
             out.psi[c] = MaybeUninit::new(psi);
             out.u[c] = MaybeUninit::new(st.u);
@@ -1997,6 +2168,11 @@ fn gather_targets<const AVX2: bool>(inp: &ObserveInputs, i: usize, cand: &mut [u
     }
     m
 }
+
+/// Observers with at least this many targets update their beliefs eight edges at a time
+/// (`avx512::edge_states`) where the CPU has AVX-512.
+#[cfg(target_arch = "x86_64")]
+const VECTOR_STATE_MIN_EDGES: usize = 16;
 
 /// Observers with at most this many targets take [`ObserveWorker::small_observer_edges`].
 const SMALL_OBSERVER_EDGES: usize = 4;
@@ -2135,7 +2311,7 @@ fn edge_state(
     let vj = t.vel;
     let (seen, k) = stamp[t.id as usize];
     let (belief, u) = if seen == epoch {
-        let mut b = inp.old.belief[k as usize];
+        let mut b = inp.old.belief(k as usize);
         let mu_p = b.predict(model, t.last_change);
         let u = b.update(mu_p, vj, inp.schedule);
         (b, u)

@@ -1,11 +1,12 @@
-//! A step split over several threads, or run with the portable instead of the widest vector
-//! instructions of the CPU, gives bit-identical results to the single-threaded step.
+//! A step split over several threads, or run with any variant of the observe pass the CPU has
+//! (portable, AVX2, AVX-512), gives bit-identical results to the single-threaded step.
 
 mod common;
 
 use common::{fingerprint, line, scenario, Rng};
+use sim_core::params::PredictionModel;
 use sim_core::scenario::{AgentKind, AgentRecord};
-use sim_core::world::PARALLEL_MIN_AGENTS;
+use sim_core::world::{Kernels, PARALLEL_MIN_AGENTS};
 use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
 
 const MODELS: [PedestrianModel; 4] = [
@@ -18,6 +19,10 @@ const MODELS: [PedestrianModel; 4] = [
 /// An external ego car and a replayed car among 700 pedestrians of all models on 60 m x 60 m,
 /// some entering later and some arriving early.
 fn world(threads: usize) -> World {
+    world_with(threads, WorldParams::default())
+}
+
+fn world_with(threads: usize, params: WorldParams) -> World {
     let mut rng = Rng::new(7);
     let mut agents: Vec<AgentRecord> = vec![
         line(AgentKind::Vehicle, 0, [-5.0, 20.0], [2.0, 0.0], 60),
@@ -38,7 +43,7 @@ fn world(threads: usize) -> World {
         model_overrides: overrides,
         external: vec![0],
     };
-    let mut w = World::new(scenario(0, agents), WorldParams::default(), config).unwrap();
+    let mut w = World::new(scenario(0, agents), params, config).unwrap();
     w.set_threads(threads);
     w
 }
@@ -73,11 +78,45 @@ fn thread_count_does_not_change_any_bit() {
     assert_same_bits(&mut worlds);
 }
 
+/// Every kernel variant this CPU runs, on one and on two threads, under `params`.
+fn every_variant(params: &WorldParams) -> Vec<World> {
+    let mut worlds = Vec::new();
+    for kernels in Kernels::available() {
+        for threads in [1, 2] {
+            let mut w = world_with(threads, params.clone());
+            w.use_kernels(kernels).unwrap();
+            assert_eq!(w.kernels(), kernels);
+            worlds.push(w);
+        }
+    }
+    worlds
+}
+
 #[test]
 fn vector_instruction_set_does_not_change_any_bit() {
-    let mut portable = world(1);
-    portable.use_portable_kernels();
-    let mut worlds = [world(1), portable, world(2)];
-    worlds[2].use_portable_kernels();
+    let mut worlds = every_variant(&WorldParams::default());
+    assert_eq!(worlds[0].kernels(), Kernels::Portable);
     assert_same_bits(&mut worlds);
+}
+
+#[test]
+fn vector_instruction_set_does_not_change_any_bit_with_constant_acceleration() {
+    let mut params = WorldParams::default();
+    params.cognition.prediction = PredictionModel::ConstantAcceleration;
+    assert_same_bits(&mut every_variant(&params));
+}
+
+#[test]
+fn a_variant_the_cpu_lacks_is_refused() {
+    let mut w = world(1);
+    let before = w.kernels();
+    for k in [Kernels::Portable, Kernels::Avx2, Kernels::Avx512] {
+        if !k.is_available() {
+            let err = w.use_kernels(k).unwrap_err();
+            assert!(err.to_string().contains(&format!("{k:?}")), "{err}");
+            assert_eq!(w.kernels(), before);
+        }
+    }
+    assert!(w.use_kernels(Kernels::Portable).is_ok());
+    assert_eq!(Kernels::detect(), *Kernels::available().last().unwrap());
 }
