@@ -168,7 +168,7 @@ fn first_overlap_among(
                     let c = clearance(pa, pb);
                     if c <= 0.0 || !c.is_finite() {
                         let pair = ((*ia).min(*ib), (*ia).max(*ib), c);
-                        if best.map_or(true, |b| (pair.0, pair.1) < (b.0, b.1)) {
+                        if best.is_none_or(|b| (pair.0, pair.1) < (b.0, b.1)) {
                             best = Some(pair);
                         }
                     }

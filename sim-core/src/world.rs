@@ -1696,17 +1696,19 @@ impl ObserveWorker {
     }
 
     fn dispatch(&mut self, inp: &ObserveInputs, phase: Phase) {
+        // Small scenes run the AVX2 variant even where the CPU has AVX-512: with ten or so
+        // edges per observer the eight-lane loops are mostly set-up and remainder.
         #[cfg(target_arch = "x86_64")]
-        if inp.kernels == Kernels::Avx512 {
-            // SAFETY: `Kernels::Avx512` is only chosen when the CPU reports these features
-            // (`Kernels::detect`).
+        if inp.kernels == Kernels::Avx512 && inp.agents.len() >= AVX512_MIN_AGENTS {
+            // SAFETY: `Kernels::Avx512` is only chosen where the CPU has these features
+            // (`World::use_kernels`, `Kernels::detect`).
             unsafe { self.dispatch_avx512(inp, phase) };
             return;
         }
         #[cfg(target_arch = "x86_64")]
-        if inp.kernels == Kernels::Avx2 {
-            // SAFETY: `Kernels::Avx2` is only chosen when the CPU reports AVX2
-            // (`Kernels::detect`).
+        if matches!(inp.kernels, Kernels::Avx2 | Kernels::Avx512) {
+            // SAFETY: `Kernels::Avx2` and `Kernels::Avx512` are only chosen where the CPU has
+            // AVX2 (`World::use_kernels`, `Kernels::detect`).
             unsafe { self.dispatch_avx2(inp, phase) };
             return;
         }
@@ -1761,7 +1763,7 @@ impl ObserveWorker {
                 edges.clear_with_capacity(last);
                 for i in observers {
                     let epoch = self.index_beliefs(inp, i);
-                    let m = gather_targets::<AVX2>(inp, i, &mut cand);
+                    let m = gather_targets::<AVX2, AVX512>(inp, i, &mut cand);
                     edges.reserve(m);
                     self.observer_edges::<AVX2, AVX512>(inp, i, &cand[..m], epoch, edges.sink(m));
                     // SAFETY: `observer_edges` writes every field of each of the `m` entries.
@@ -1774,7 +1776,7 @@ impl ObserveWorker {
                 self.cands.clear();
                 self.counts.clear();
                 for i in observers {
-                    let m = gather_targets::<AVX2>(inp, i, &mut self.cand);
+                    let m = gather_targets::<AVX2, AVX512>(inp, i, &mut self.cand);
                     self.cands.extend_from_slice(&self.cand[..m]);
                     self.counts.push(m as u32);
                 }
@@ -2149,7 +2151,11 @@ enum Phase<'a> {
 /// Writes into `cand` the slots of every agent within the perception radius of observer `i`,
 /// in grid order; returns how many (`cand` has room for every agent).
 #[inline(always)]
-fn gather_targets<const AVX2: bool>(inp: &ObserveInputs, i: usize, cand: &mut [u32]) -> usize {
+fn gather_targets<const AVX2: bool, const AVX512: bool>(
+    inp: &ObserveInputs,
+    i: usize,
+    cand: &mut [u32],
+) -> usize {
     let (slots, gx, gy) = inp.grid.sorted();
     let (ranges, rows) = inp.grid.candidate_ranges(i);
     let xi = inp.agents.pos[i];
@@ -2158,9 +2164,15 @@ fn gather_targets<const AVX2: bool>(inp: &ObserveInputs, i: usize, cand: &mut [u
     for &(lo, hi) in &ranges[..rows] {
         let (gx, gy, slots) = (&gx[lo..hi], &gy[lo..hi], &slots[lo..hi]);
         #[cfg(target_arch = "x86_64")]
+        if AVX512 {
+            // SAFETY: `AVX512` is only set where the CPU has AVX-512 (`dispatch_avx512`).
+            m = unsafe { avx512::gather(gx, gy, slots, xi, r2, i as u32, cand, m) };
+            continue;
+        }
+        #[cfg(target_arch = "x86_64")]
         if AVX2 {
-            // SAFETY: `gather_targets::<true>` only runs where the CPU has AVX2
-            // (`dispatch_avx2`).
+            // SAFETY: `AVX2` is only set where the CPU has AVX2 (`dispatch_avx2`,
+            // `dispatch_avx512`).
             m = unsafe { gather_avx2(gx, gy, slots, xi, r2, i as u32, cand, m) };
             continue;
         }
@@ -2168,6 +2180,10 @@ fn gather_targets<const AVX2: bool>(inp: &ObserveInputs, i: usize, cand: &mut [u
     }
     m
 }
+
+/// Scenes with fewer agents step with the AVX2 variant where the CPU has AVX-512.
+#[cfg(target_arch = "x86_64")]
+const AVX512_MIN_AGENTS: usize = 32;
 
 /// Observers with at least this many targets update their beliefs eight edges at a time
 /// (`avx512::edge_states`) where the CPU has AVX-512.

@@ -83,7 +83,7 @@ fn every_variant(params: &WorldParams) -> Vec<World> {
     let mut worlds = Vec::new();
     for kernels in Kernels::available() {
         for threads in [1, 2] {
-            let mut w = world_with(threads, params.clone());
+            let mut w = world_with(threads, *params);
             w.use_kernels(kernels).unwrap();
             assert_eq!(w.kernels(), kernels);
             worlds.push(w);
