@@ -50,7 +50,18 @@ pub fn disc_rect_gap(
     length: f64,
     width: f64,
 ) -> (f64, Vec2) {
-    let (s, co) = heading.sin_cos();
+    disc_rect_gap_oriented(c, r, rect_pos, heading.sin_cos(), length, width)
+}
+
+/// [`disc_rect_gap`] with the rectangle's `heading.sin_cos()` given.
+fn disc_rect_gap_oriented(
+    c: Vec2,
+    r: f64,
+    rect_pos: Vec2,
+    (s, co): (f64, f64),
+    length: f64,
+    width: f64,
+) -> (f64, Vec2) {
     let d = c - rect_pos;
     // Disc centre in the rectangle's frame (x along the heading).
     let local = Vec2::new(co * d.x + s * d.y, -s * d.x + co * d.y);
@@ -91,8 +102,7 @@ impl SignumOrOne for f64 {
     }
 }
 
-fn rect_corners(p: &Placed, length: f64, width: f64) -> [Vec2; 4] {
-    let (s, c) = p.heading.sin_cos();
+fn rect_corners(p: &Placed, (s, c): (f64, f64), length: f64, width: f64) -> [Vec2; 4] {
     let ax = Vec2::new(c, s) * (0.5 * length);
     let ay = Vec2::new(-s, c) * (0.5 * width);
     [
@@ -129,9 +139,12 @@ fn segments_intersect(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
 }
 
 /// Gap between two oriented rectangles (0 when they touch or overlap).
-fn rect_rect_gap(a: &Placed, (la, wa): (f64, f64), b: &Placed, (lb, wb): (f64, f64)) -> f64 {
-    let ca = rect_corners(a, la, wa);
-    let cb = rect_corners(b, lb, wb);
+fn rect_rect_gap(
+    (a, sc_a, la, wa): (&Placed, (f64, f64), f64, f64),
+    (b, sc_b, lb, wb): (&Placed, (f64, f64), f64, f64),
+) -> f64 {
+    let ca = rect_corners(a, sc_a, la, wa);
+    let cb = rect_corners(b, sc_b, lb, wb);
     let overlap = ca.iter().any(|p| point_in_convex(*p, &cb))
         || cb.iter().any(|p| point_in_convex(*p, &ca))
         || (0..4).any(|i| {
@@ -160,6 +173,27 @@ pub fn clearance(a: &Placed, b: &Placed) -> f64 {
 /// (the direction of the repulsive force that `b` exerts on `a`). For a rectangle the direction
 /// starts at its nearest point; for coincident centres it is the zero vector.
 pub fn clearance_and_normal(a: &Placed, b: &Placed) -> (f64, Vec2) {
+    clearance_and_normal_oriented(a, axes(a), b, axes(b))
+}
+
+/// `p.heading.sin_cos()` for a rectangle, which [`clearance_and_normal_oriented`] needs; any
+/// value for a disc, which it ignores.
+#[inline]
+pub fn axes(p: &Placed) -> (f64, f64) {
+    match p.shape {
+        Shape::Rect { .. } => p.heading.sin_cos(),
+        Shape::Disc { .. } => (0.0, 1.0),
+    }
+}
+
+/// [`clearance_and_normal`] with each footprint's [`axes`] given: for many clearances against
+/// one rectangle, whose sine and cosine are then computed once (same results, to the bit).
+pub fn clearance_and_normal_oriented(
+    a: &Placed,
+    axes_a: (f64, f64),
+    b: &Placed,
+    axes_b: (f64, f64),
+) -> (f64, Vec2) {
     let centre_dir = || {
         let d = a.position - b.position;
         let n = d.norm();
@@ -177,11 +211,13 @@ pub fn clearance_and_normal(a: &Placed, b: &Placed) -> (f64, Vec2) {
             ((n - (ra + rb)).max(0.0), dir)
         }
         (Shape::Disc { radius }, Shape::Rect { length, width }) => {
-            let (gap, n) = disc_rect_gap(a.position, radius, b.position, b.heading, length, width);
+            let (gap, n) =
+                disc_rect_gap_oriented(a.position, radius, b.position, axes_b, length, width);
             (gap.max(0.0), n)
         }
         (Shape::Rect { length, width }, Shape::Disc { radius }) => {
-            let (gap, n) = disc_rect_gap(b.position, radius, a.position, a.heading, length, width);
+            let (gap, n) =
+                disc_rect_gap_oriented(b.position, radius, a.position, axes_a, length, width);
             (gap.max(0.0), -n)
         }
         (
@@ -193,6 +229,9 @@ pub fn clearance_and_normal(a: &Placed, b: &Placed) -> (f64, Vec2) {
                 length: lb,
                 width: wb,
             },
-        ) => (rect_rect_gap(a, (la, wa), b, (lb, wb)), centre_dir()),
+        ) => (
+            rect_rect_gap((a, axes_a, la, wa), (b, axes_b, lb, wb)),
+            centre_dir(),
+        ),
     }
 }

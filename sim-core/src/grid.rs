@@ -13,6 +13,8 @@ pub struct Grid {
     nx: usize,
     ny: usize,
     cell_of: Vec<u32>,
+    /// Column and row of each agent's cell (`cell_of` without a division per query).
+    cell_xy: Vec<(u32, u32)>,
     /// `starts[c]..starts[c + 1]` indexes `sorted` for cell `c`.
     starts: Vec<u32>,
     sorted: Vec<u32>,
@@ -29,6 +31,7 @@ impl Grid {
     pub fn rebuild(&mut self, positions: &[Vec2], radius: f64) {
         let n = positions.len();
         self.cell_of.clear();
+        self.cell_xy.clear();
         self.sorted.clear();
         self.sorted_x.clear();
         self.sorted_y.clear();
@@ -64,6 +67,7 @@ impl Grid {
             self.starts.clear();
             self.starts.extend_from_slice(&[0, n as u32]);
             self.cell_of.resize(n, 0);
+            self.cell_xy.resize(n, (0, 0));
             self.sorted.extend(0..n as u32);
             self.sorted_x.extend(positions.iter().map(|p| p.x));
             self.sorted_y.extend(positions.iter().map(|p| p.y));
@@ -72,8 +76,10 @@ impl Grid {
         self.starts.clear();
         self.starts.resize(ncell + 1, 0);
         for p in positions {
-            let c = self.cell_index(*p);
+            let (cx, cy) = self.cell_coords(*p);
+            let c = cy * self.nx + cx;
             self.cell_of.push(c as u32);
+            self.cell_xy.push((cx as u32, cy as u32));
             self.starts[c + 1] += 1;
         }
         for c in 0..ncell {
@@ -105,8 +111,8 @@ impl Grid {
     /// visits them). Returns the ranges and how many of the three are used.
     #[inline]
     pub(crate) fn candidate_ranges(&self, i: usize) -> ([(usize, usize); 3], usize) {
-        let c = self.cell_of[i] as usize;
-        let (cx, cy) = (c % self.nx, c / self.nx);
+        let (cx, cy) = self.cell_xy[i];
+        let (cx, cy) = (cx as usize, cy as usize);
         let y0 = cy.saturating_sub(1);
         let y1 = (cy + 1).min(self.ny - 1);
         let x0 = cx.saturating_sub(1);
@@ -127,17 +133,12 @@ impl Grid {
         (cx, cy)
     }
 
-    fn cell_index(&self, p: Vec2) -> usize {
-        let (cx, cy) = self.cell_coords(p);
-        cy * self.nx + cx
-    }
-
     /// Calls `f(j)` for every agent slot `j` in the 3x3 block of cells around agent `i` (a
     /// superset of its neighbours within the radius, `i` itself included).
     #[inline]
     pub fn for_each_candidate(&self, i: usize, mut f: impl FnMut(usize)) {
-        let c = self.cell_of[i] as usize;
-        let (cx, cy) = (c % self.nx, c / self.nx);
+        let (cx, cy) = self.cell_xy[i];
+        let (cx, cy) = (cx as usize, cy as usize);
         let y0 = cy.saturating_sub(1);
         let y1 = (cy + 1).min(self.ny - 1);
         let x0 = cx.saturating_sub(1);

@@ -19,7 +19,7 @@ use std::sync::Arc;
 
 use crate::cognition::{Belief, VarianceSchedule};
 use crate::fastmath;
-use crate::geometry::{clearance_and_normal, Placed, Shape, Vec2};
+use crate::geometry::{clearance_and_normal, clearance_and_normal_oriented, Placed, Shape, Vec2};
 use crate::grid::Grid;
 use crate::metrics::{EpisodeMetrics, EpisodeStatus};
 use crate::params::{ParamError, PedestrianModel, SocialForceParams, WorldParams};
@@ -557,6 +557,8 @@ pub struct StepScratch {
     keep: Vec<bool>,
     slot_map: Vec<u32>,
     targets: Vec<TargetInfo>,
+    /// [`crate::geometry::axes`] of every agent (computed once per step, not once per edge).
+    axes: Vec<(f64, f64)>,
     /// One per observe worker (thread).
     workers: Vec<ObserveWorker>,
 }
@@ -1003,6 +1005,11 @@ impl World {
                 0.0
             },
         }));
+        s.axes.clear();
+        s.axes.extend((0..n).map(|j| match a.shape[j] {
+            Shape::Rect { .. } => a.heading[j].sin_cos(),
+            Shape::Disc { .. } => (0.0, 1.0),
+        }));
         let threads = if n >= PARALLEL_MIN_AGENTS {
             self.threads.min(n)
         } else {
@@ -1017,6 +1024,7 @@ impl World {
         }
         let inputs = ObserveInputs {
             targets: &s.targets,
+            axes: &s.axes,
             agents: &self.agents,
             old: &self.edges,
             grid: &s.grid,
@@ -1504,6 +1512,8 @@ struct TargetInfo {
 /// What every observe worker reads: the state, the previous edges (beliefs), the grid.
 struct ObserveInputs<'a> {
     targets: &'a [TargetInfo],
+    /// [`crate::geometry::axes`] by slot.
+    axes: &'a [(f64, f64)],
     agents: &'a Agents,
     old: &'a EdgeStore,
     grid: &'a Grid,
@@ -1854,9 +1864,10 @@ impl ObserveWorker {
             self.stamp[t as usize] = (epoch, (s + k) as u32);
         }
         // The update reads these beliefs in the new grid order: start fetching them now (the
-        // old graph is megabytes at large N, out of the nearer caches).
+        // old graph is megabytes at large N, out of the nearer caches; a short run is a few
+        // lines, and the loop would cost more than it saves).
         #[cfg(target_arch = "x86_64")]
-        {
+        if old_range.len() >= PREFETCH_MIN_EDGES {
             let r = old_range;
             let runs: [(*const i8, usize); 3] = [
                 (old.mu_x[r.clone()].as_ptr().cast(), 8 * r.len()),
@@ -1897,7 +1908,6 @@ impl ObserveWorker {
             return;
         }
         let a = inp.agents;
-        let xi = a.pos[i];
 
         // 3. Targets' state, beliefs, clearances. The edges are written straight into their
         // place in the edge store (no zero-fill or copy first).
@@ -1923,13 +1933,7 @@ impl ObserveWorker {
         let nnys = &mut self.nny[..m];
         let rects = &mut self.rect[..m];
         let model = inp.params.cognition.prediction;
-        let shape_i = a.shape[i];
-        let radius_i = inp.targets[i].radius;
-        let placed_i = Placed {
-            shape: shape_i,
-            position: xi,
-            heading: a.heading[i],
-        };
+        let observer = Observer::of(inp, i);
         // Below about two chunks of eight the gathers' set-up costs more than they save.
         #[cfg(target_arch = "x86_64")]
         let vectorised = AVX512 && m >= VECTOR_STATE_MIN_EDGES;
@@ -1962,23 +1966,14 @@ impl ObserveWorker {
                 // SAFETY: `AVX512` is only set in `dispatch_avx512`, which runs where the CPU
                 // has these features.
                 contact = unsafe {
-                    avx512::edge_states(
-                        inp,
-                        &self.stamp,
-                        epoch,
-                        &placed_i,
-                        radius_i,
-                        cand,
-                        out,
-                        cols,
-                    )
+                    avx512::edge_states(inp, &self.stamp, epoch, &observer, cand, out, cols)
                 };
             }
         } else {
             for c in 0..m {
                 let j = cand[c] as usize;
                 let t = &inp.targets[j];
-                let st = edge_state(inp, &self.stamp, epoch, model, &placed_i, radius_i, t, j);
+                let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
                 contact |= st.clearance <= 0.0;
                 e_target[c] = MaybeUninit::new(t.id);
                 e_slot[c] = MaybeUninit::new(j as u32);
@@ -2073,14 +2068,8 @@ impl ObserveWorker {
     ) {
         let m = cand.len();
         let a = inp.agents;
-        let xi = a.pos[i];
         let model = inp.params.cognition.prediction;
-        let radius_i = inp.targets[i].radius;
-        let placed_i = Placed {
-            shape: a.shape[i],
-            position: xi,
-            heading: a.heading[i],
-        };
+        let observer = Observer::of(inp, i);
         let gamma1 = inp.params.risk.gamma1;
         let two_gamma2 = 2.0 * inp.params.risk.gamma2;
         let fc = match a.control[i] {
@@ -2094,7 +2083,7 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let st = edge_state(inp, &self.stamp, epoch, model, &placed_i, radius_i, t, j);
+            let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
             let (psi, inv_dist) = edge_risk(
                 gamma1,
@@ -2180,6 +2169,10 @@ fn gather_targets<const AVX2: bool, const AVX512: bool>(
     }
     m
 }
+
+/// Observers with fewer edges in the old graph do not prefetch their beliefs.
+#[cfg(target_arch = "x86_64")]
+const PREFETCH_MIN_EDGES: usize = 32;
 
 /// Scenes with fewer agents step with the AVX2 variant where the CPU has AVX-512.
 #[cfg(target_arch = "x86_64")]
@@ -2292,6 +2285,31 @@ unsafe fn gather_avx2(
     gather(&xs[o..], &ys[o..], &slots[o..], xi, r2, i, cand, m)
 }
 
+/// The observing agent of an observe pass's edges.
+struct Observer {
+    placed: Placed,
+    /// Disc radius; NaN for a rectangle.
+    radius: f64,
+    /// [`crate::geometry::axes`] of `placed`.
+    axes: (f64, f64),
+}
+
+impl Observer {
+    #[inline(always)]
+    fn of(inp: &ObserveInputs, i: usize) -> Self {
+        let a = inp.agents;
+        Self {
+            placed: Placed {
+                shape: a.shape[i],
+                position: a.pos[i],
+                heading: a.heading[i],
+            },
+            radius: inp.targets[i].radius,
+            axes: inp.axes[i],
+        }
+    }
+}
+
 /// What an observer learns of one target in step 3 of [`ObserveWorker::observer`].
 struct EdgeState {
     /// The updated belief and its uncertainty `u`.
@@ -2308,8 +2326,8 @@ struct EdgeState {
     rect: f64,
 }
 
-/// The belief update, distance and clearance of the edge from the observer `placed_i` (disc
-/// radius `radius_i`, NaN for a rectangle) to target `t` in slot `j`. Shared by the three-pass
+/// The belief update, distance and clearance of the edge from `observer` to target `t` in slot
+/// `j`. Shared by the three-pass
 /// and the small observer paths, so both compute the same bits.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -2318,11 +2336,11 @@ fn edge_state(
     stamp: &[(u32, u32)],
     epoch: u32,
     model: crate::params::PredictionModel,
-    placed_i: &Placed,
-    radius_i: f64,
+    observer: &Observer,
     t: &TargetInfo,
     j: usize,
 ) -> EdgeState {
+    let placed_i = &observer.placed;
     let d = placed_i.position - t.pos;
     let vj = t.vel;
     let (seen, k) = stamp[t.id as usize];
@@ -2336,7 +2354,7 @@ fn edge_state(
     };
     let dist = d.norm();
     // `radius_i + radius_j` is NaN when either footprint is a rectangle.
-    let radii = radius_i + t.radius;
+    let radii = observer.radius + t.radius;
     let (clearance, normal, rect) = if !radii.is_nan() {
         ((dist - radii).max(0.0), d, 0.0)
     } else {
@@ -2346,7 +2364,7 @@ fn edge_state(
             position: t.pos,
             heading: a.heading[j],
         };
-        let (c, n) = clearance_and_normal(placed_i, &placed_j);
+        let (c, n) = clearance_and_normal_oriented(placed_i, observer.axes, &placed_j, inp.axes[j]);
         (c, n, 1.0)
     };
     EdgeState {

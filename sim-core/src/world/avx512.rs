@@ -6,13 +6,14 @@
 //! Every lane does the operations of `edge_state` in the same order, without FMA, so the
 //! results are bit-identical to the scalar loop's (the 796-episode dump of
 //! `scenarios/examples/step_timing.rs` compares equal, and `tests/threads.rs` compares the
-//! kernels). Edges that involve a rectangle take the scalar `clearance_and_normal` lane by lane.
+//! kernels). Edges that involve a rectangle take the scalar `clearance_and_normal_oriented` lane
+//! by lane.
 
 use std::arch::x86_64::*;
 use std::mem::{offset_of, size_of, MaybeUninit};
 
-use super::{AgentId, EdgeSink, ObserveInputs, TargetInfo};
-use crate::geometry::{clearance_and_normal, Placed, Vec2};
+use super::{AgentId, EdgeSink, ObserveInputs, Observer, TargetInfo};
+use crate::geometry::{clearance_and_normal_oriented, Placed, Vec2};
 use crate::params::PredictionModel;
 
 /// The per-edge columns the risk and force loop reads after step 3 (see `ObserveWorker`).
@@ -40,8 +41,7 @@ const _: () = assert!(size_of::<(u32, u32)>() == 8);
 const STAMP_EPOCH: usize = offset_of!((u32, u32), 0) / 4;
 const STAMP_EDGE: usize = offset_of!((u32, u32), 1) / 4;
 
-/// Writes edges `0..cand.len()` of observer `placed_i` (disc radius `radius_i`, NaN for a
-/// rectangle) into `out` and `cols`, as the scalar loop of `observer_edges` does with
+/// Writes edges `0..cand.len()` of `observer` into `out` and `cols`, as the scalar loop of `observer_edges` does with
 /// `edge_state`: target id and slot, the updated belief, `u`, the clearance, and the columns.
 /// Returns whether some clearance is `<= 0`.
 ///
@@ -54,8 +54,7 @@ pub(super) unsafe fn edge_states(
     inp: &ObserveInputs,
     stamp: &[(u32, u32)],
     epoch: u32,
-    placed_i: &Placed,
-    radius_i: f64,
+    observer: &Observer,
     cand: &[u32],
     out: EdgeSink,
     cols: StateColumns,
@@ -102,9 +101,10 @@ pub(super) unsafe fn edge_states(
     let s_epoch = stamp.as_ptr().cast::<i32>().add(STAMP_EPOCH);
     let s_edge = stamp.as_ptr().cast::<i32>().add(STAMP_EDGE);
 
+    let placed_i = &observer.placed;
     let xi = _mm512_set1_pd(placed_i.position.x);
     let yi = _mm512_set1_pd(placed_i.position.y);
-    let r_i = _mm512_set1_pd(radius_i);
+    let r_i = _mm512_set1_pd(observer.radius);
     let h = _mm512_set1_pd(half_inv_s2o);
     let zero = _mm512_setzero_pd();
     let epoch_v = _mm256_set1_epi32(epoch as i32);
@@ -250,7 +250,8 @@ pub(super) unsafe fn edge_states(
                 position: targets[slot].pos,
                 heading: a.heading[slot],
             };
-            let (c_ij, normal) = clearance_and_normal(placed_i, &placed_j);
+            let (c_ij, normal) =
+                clearance_and_normal_oriented(placed_i, observer.axes, &placed_j, inp.axes[slot]);
             contact |= c_ij <= 0.0;
             out.clearance[c] = MaybeUninit::new(c_ij);
             cols.nnx[c] = normal.x;
