@@ -1772,7 +1772,7 @@ impl ObserveWorker {
                 let mut cand = std::mem::take(&mut self.cand);
                 edges.clear_with_capacity(last);
                 for i in observers {
-                    let epoch = self.index_beliefs(inp, i);
+                    let epoch = self.index_beliefs::<AVX512>(inp, i);
                     let m = gather_targets::<AVX2, AVX512>(inp, i, &mut cand);
                     edges.reserve(m);
                     self.observer_edges::<AVX2, AVX512>(inp, i, &cand[..m], epoch, edges.sink(m));
@@ -1800,7 +1800,7 @@ impl ObserveWorker {
                 let mut from = 0;
                 for (i, &m) in observers.zip(&counts) {
                     let m = m as usize;
-                    let epoch = self.index_beliefs(inp, i);
+                    let epoch = self.index_beliefs::<AVX512>(inp, i);
                     let part = out.split_front(m);
                     self.observer_edges::<AVX2, AVX512>(
                         inp,
@@ -1849,7 +1849,7 @@ impl ObserveWorker {
     /// Indexes observer `i`'s beliefs of the previous graph by target id (in `stamp`, under a
     /// new epoch, which it returns) and starts fetching them.
     #[inline(always)]
-    fn index_beliefs(&mut self, inp: &ObserveInputs, i: usize) -> u32 {
+    fn index_beliefs<const AVX512: bool>(&mut self, inp: &ObserveInputs, i: usize) -> u32 {
         let a = inp.agents;
         let old = inp.old;
         if self.epoch == u32::MAX {
@@ -1860,8 +1860,22 @@ impl ObserveWorker {
         let epoch = self.epoch;
         let s = a.edge_start[i] as usize;
         let old_range = s..s + a.edge_len[i] as usize;
-        for (k, &t) in old.target[old_range.clone()].iter().enumerate() {
-            self.stamp[t as usize] = (epoch, (s + k) as u32);
+        let old_targets = &old.target[old_range.clone()];
+        #[cfg(target_arch = "x86_64")]
+        let vectorised = AVX512 && old_targets.len() >= VECTOR_STATE_MIN_EDGES;
+        #[cfg(not(target_arch = "x86_64"))]
+        let vectorised = false;
+        if vectorised {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `AVX512` is only set in `dispatch_avx512`, which runs where the CPU has
+            // these features.
+            unsafe {
+                avx512::index_stamps(old_targets, s as u32, epoch, &mut self.stamp)
+            };
+        } else {
+            for (k, &t) in old_targets.iter().enumerate() {
+                self.stamp[t as usize] = (epoch, (s + k) as u32);
+            }
         }
         // The update reads these beliefs in the new grid order: start fetching them now (the
         // old graph is megabytes at large N, out of the nearer caches; a short run is a few

@@ -308,3 +308,37 @@ pub(super) unsafe fn gather(
     let o = 8 * groups;
     super::gather(&xs[o..], &ys[o..], &slots[o..], xi, r2, i, cand, m)
 }
+
+/// `stamp[targets[k]] = (epoch, first + k)` for every `k`, eight at a time by scatters (in lane
+/// order, as the scalar loop of `ObserveWorker::index_beliefs` stores them).
+///
+/// # Safety
+/// The CPU must support AVX2, AVX-512F, AVX-512DQ and AVX-512VL. (Every target is checked
+/// against `stamp`.)
+#[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl")]
+pub(super) unsafe fn index_stamps(
+    targets: &[AgentId],
+    first: u32,
+    epoch: u32,
+    stamp: &mut [(u32, u32)],
+) {
+    let m = targets.len();
+    assert!(u32::try_from(m).is_ok_and(|m| first.checked_add(m).is_some()));
+    let n_stamp = _mm256_set1_epi32(stamp.len() as i32);
+    // One stamp entry as a 64-bit word: the epoch and the edge index in their fields' halves.
+    let epoch_word = _mm512_set1_epi64(i64::from(epoch) << (32 * STAMP_EPOCH));
+    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let base = stamp.as_mut_ptr().cast::<i64>();
+    let mut o = 0;
+    while o < m {
+        let lanes = (m - o).min(8);
+        let k8: __mmask8 = (0xffu16 >> (8 - lanes)) as u8;
+        let t = _mm256_maskz_loadu_epi32(k8, targets.as_ptr().add(o).cast());
+        assert!(_mm256_mask_cmpge_epu32_mask(k8, t, n_stamp) == 0, "agent id out of range");
+        let edge = _mm256_add_epi32(_mm256_set1_epi32((first as usize + o) as i32), lane);
+        let edge_word = _mm512_slli_epi64::<{ 32 * STAMP_EDGE as u32 }>(_mm512_cvtepu32_epi64(edge));
+        let word = _mm512_or_si512(epoch_word, edge_word);
+        _mm512_mask_i32scatter_epi64::<8>(base, k8, t, word);
+        o += 8;
+    }
+}
