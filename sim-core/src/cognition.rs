@@ -94,6 +94,16 @@ impl VarianceSchedule {
         s
     }
 
+    /// Number of tabulated entries (update numbers at or past `len - 1` share the last).
+    pub fn len(&self) -> usize {
+        self.post.len()
+    }
+
+    /// Never: the table holds at least the first sight's entry.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
     fn index(&self, updates: u32) -> usize {
         (updates as usize).min(self.post.len() - 1)
     }

@@ -106,6 +106,16 @@ fn vector_instruction_set_does_not_change_any_bit_with_constant_acceleration() {
     assert_same_bits(&mut every_variant(&params));
 }
 
+/// A small process noise makes the variance schedule hundreds of updates long (the AVX-512
+/// pass then gathers the update constants instead of holding them in registers).
+#[test]
+fn vector_instruction_set_does_not_change_any_bit_with_a_long_variance_schedule() {
+    let mut params = WorldParams::default();
+    params.cognition.q = 0.01;
+    assert!(sim_core::cognition::VarianceSchedule::new(&params.cognition).len() > 100);
+    assert_same_bits(&mut every_variant(&params));
+}
+
 #[test]
 fn a_variant_the_cpu_lacks_is_refused() {
     let mut w = world(1);

@@ -113,6 +113,22 @@ pub(super) unsafe fn edge_states(
     let n_old = _mm256_set1_epi32(old.len() as i32);
     let words = _mm256_set1_epi32(TARGET_WORDS);
     let last_update = _mm256_set1_epi32((schedule_len - 1) as i32);
+    // Updates read rows 1.. of the constants (row 0 is a first sight's). Up to 32 such rows (33
+    // with the default parameters) are held in registers, four per column, and picked by
+    // permutes instead of gathers.
+    let in_registers = schedule_len - 1 <= 32;
+    let mut rows = [[_mm512_setzero_pd(); 4]; 3];
+    if in_registers {
+        for (column, regs) in columns.iter().zip(&mut rows) {
+            for (q, reg) in regs.iter_mut().enumerate() {
+                let from = (1 + 8 * q).min(schedule_len);
+                let count = (schedule_len - from).min(8);
+                let k: __mmask8 = (0xffu16 >> (8 - count)) as u8;
+                *reg = _mm512_maskz_loadu_pd(k, column.as_ptr().add(from));
+            }
+        }
+    }
+    let sixteen = _mm512_set1_epi64(16);
     let one = _mm256_set1_epi32(1);
     let below_max = _mm256_set1_epi32((u32::MAX - 1) as i32);
 
@@ -194,9 +210,26 @@ pub(super) unsafe fn edge_states(
         // Belief::update: the constants of update `min(updates + 1, len - 1)` (saturating).
         let next = _mm256_add_epi32(_mm256_min_epu32(updates, below_max), one);
         let row = _mm256_min_epu32(next, last_update);
-        let kl_const = _mm512_i32gather_pd::<8>(row, columns[0].as_ptr());
-        let w_prior = _mm512_i32gather_pd::<8>(row, columns[1].as_ptr());
-        let w_obs = _mm512_i32gather_pd::<8>(row, columns[2].as_ptr());
+        let (kl_const, w_prior, w_obs) = if in_registers {
+            let r = _mm512_cvtepu32_epi64(_mm256_sub_epi32(row, one));
+            let upper = _mm512_test_epi64_mask(r, sixteen);
+            macro_rules! pick {
+                ($t:expr) => {
+                    _mm512_mask_blend_pd(
+                        upper,
+                        _mm512_permutex2var_pd($t[0], r, $t[1]),
+                        _mm512_permutex2var_pd($t[2], r, $t[3]),
+                    )
+                };
+            }
+            (pick!(rows[0]), pick!(rows[1]), pick!(rows[2]))
+        } else {
+            (
+                _mm512_i32gather_pd::<8>(row, columns[0].as_ptr()),
+                _mm512_i32gather_pd::<8>(row, columns[1].as_ptr()),
+                _mm512_i32gather_pd::<8>(row, columns[2].as_ptr()),
+            )
+        };
         let dfx = _mm512_sub_pd(vx, mp_x);
         let dfy = _mm512_sub_pd(vy, mp_y);
         let sq = _mm512_add_pd(_mm512_mul_pd(dfx, dfx), _mm512_mul_pd(dfy, dfy));
@@ -334,9 +367,13 @@ pub(super) unsafe fn index_stamps(
         let lanes = (m - o).min(8);
         let k8: __mmask8 = (0xffu16 >> (8 - lanes)) as u8;
         let t = _mm256_maskz_loadu_epi32(k8, targets.as_ptr().add(o).cast());
-        assert!(_mm256_mask_cmpge_epu32_mask(k8, t, n_stamp) == 0, "agent id out of range");
+        assert!(
+            _mm256_mask_cmpge_epu32_mask(k8, t, n_stamp) == 0,
+            "agent id out of range"
+        );
         let edge = _mm256_add_epi32(_mm256_set1_epi32((first as usize + o) as i32), lane);
-        let edge_word = _mm512_slli_epi64::<{ 32 * STAMP_EDGE as u32 }>(_mm512_cvtepu32_epi64(edge));
+        let edge_word =
+            _mm512_slli_epi64::<{ 32 * STAMP_EDGE as u32 }>(_mm512_cvtepu32_epi64(edge));
         let word = _mm512_or_si512(epoch_word, edge_word);
         _mm512_mask_i32scatter_epi64::<8>(base, k8, t, word);
         o += 8;
