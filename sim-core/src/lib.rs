@@ -9,6 +9,7 @@ pub mod cognition;
 pub mod fastmath;
 pub mod geometry;
 pub mod grid;
+pub mod helpers;
 pub mod metrics;
 pub mod observation;
 pub mod params;

@@ -21,6 +21,7 @@ use crate::cognition::{Belief, VarianceSchedule};
 use crate::fastmath;
 use crate::geometry::{clearance_and_normal, clearance_and_normal_oriented, Placed, Shape, Vec2};
 use crate::grid::Grid;
+use crate::helpers::Helpers;
 use crate::metrics::{EpisodeMetrics, EpisodeStatus};
 use crate::params::{ParamError, PedestrianModel, SocialForceParams, WorldParams};
 use crate::pedestrian::{self, Interaction};
@@ -538,6 +539,8 @@ pub struct World {
     clipped_of: Vec<(AgentId, bool, f64)>,
     /// Threads the observe pass may use (1 by default); see [`World::set_threads`].
     threads: usize,
+    /// The threads a step of more than one thread runs its other workers on (shared by clones).
+    helpers: Option<Arc<Helpers>>,
     /// The observe pass's instruction-set variant (the widest the CPU runs, by default).
     kernels: Kernels,
 }
@@ -696,6 +699,7 @@ impl World {
             contact: Vec::new(),
             clipped_of: Vec::new(),
             threads: 1,
+            helpers: None,
             kernels: Kernels::detect(),
         };
         let mut events = Vec::new();
@@ -721,6 +725,11 @@ impl World {
     /// count. Not part of the world's parameters: a server running many worlds keeps 1.
     pub fn set_threads(&mut self, threads: usize) {
         self.threads = threads.max(1);
+        let wanted = self.threads - 1;
+        if self.helpers.as_ref().map_or(0, |h| h.len()) != wanted {
+            // Fewer may start (the rest of a step then runs on the stepping thread).
+            self.helpers = (wanted > 0).then(|| Arc::new(Helpers::new(wanted, "sim-step")));
+        }
     }
 
     /// Runs the observe pass with the baseline instructions of the build target even where the
@@ -1050,28 +1059,54 @@ impl World {
             // fifth of a two-thread step at N = 1 000.
             let chunk = n.div_ceil(threads);
             let range = |t: usize| (t * chunk).min(n)..((t + 1) * chunk).min(n);
-            std::thread::scope(|scope| {
+            let helpers = self.helpers.as_deref();
+            let run = |jobs: Vec<Box<dyn FnOnce() + Send + '_>>, here: &mut dyn FnMut()| {
+                let ok = match helpers {
+                    Some(h) => h.run(jobs, here),
+                    None => {
+                        here();
+                        jobs.into_iter().for_each(|job| job());
+                        Vec::new()
+                    }
+                };
+                assert!(ok.iter().all(|&ok| ok), "an observe worker panicked");
+            };
+            {
                 let (first, rest) = workers.split_first_mut().expect("at least one worker");
-                for (t, w) in rest.iter_mut().enumerate() {
-                    let inputs = &inputs;
-                    scope.spawn(move || w.gather_all(inputs, range(t + 1)));
-                }
-                first.gather_all(&inputs, range(0));
-            });
+                let inputs = &inputs;
+                let jobs = rest
+                    .iter_mut()
+                    .enumerate()
+                    .map(|(t, w)| {
+                        Box::new(move || w.gather_all(inputs, range(t + 1)))
+                            as Box<dyn FnOnce() + Send + '_>
+                    })
+                    .collect();
+                run(jobs, &mut || first.gather_all(inputs, range(0)));
+            }
             let total: usize = workers.iter().map(|w| w.cands.len()).sum();
             let mut store = std::mem::take(&mut workers[0].edges);
             store.clear_with_capacity(total); // room for `total` and more: no reserve needed
             let mut sink = store.sink(total);
-            std::thread::scope(|scope| {
+            {
                 let (first, rest) = workers.split_first_mut().expect("at least one worker");
+                let inputs = &inputs;
                 let first_out = sink.split_front(first.cands.len());
-                for (t, w) in rest.iter_mut().enumerate() {
-                    let inputs = &inputs;
-                    let out = sink.split_front(w.cands.len());
-                    scope.spawn(move || w.edges_into(inputs, range(t + 1), out));
-                }
-                first.edges_into(&inputs, range(0), first_out);
-            });
+                let jobs = rest
+                    .iter_mut()
+                    .enumerate()
+                    .map(|(t, w)| {
+                        let out = sink.split_front(w.cands.len());
+                        Box::new(move || w.edges_into(inputs, range(t + 1), out))
+                            as Box<dyn FnOnce() + Send + '_>
+                    })
+                    .collect();
+                let mut first_out = Some(first_out);
+                run(jobs, &mut || {
+                    let out = first_out.take().expect("runs once");
+                    first.edges_into(inputs, range(0), out)
+                });
+            }
             // SAFETY: the workers' runs cover the `total` entries (their lengths add up), and
             // each worker wrote every field of every entry of its run (`observer_edges`).
             unsafe { store.commit(total) };

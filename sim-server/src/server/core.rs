@@ -27,8 +27,8 @@ use sim_core::scenario::Split;
 use sim_core::world::StepScratch;
 
 use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication};
-use super::helpers::Helpers;
 use super::pools::ServedPool;
+use sim_core::helpers::Helpers;
 
 /// Batches of at least this many envs may be stepped on several threads (see
 /// [`ServerCore::set_batch_threads`]).
@@ -328,6 +328,13 @@ impl ServerCore {
     pub fn set_batch_threads(&mut self, threads: usize) {
         self.batch_threads = threads.max(1);
         self.helpers = Helpers::new(self.batch_threads - 1, "batch");
+        if self.helpers.len() < self.batch_threads - 1 {
+            tracing::warn!(
+                wanted = self.batch_threads - 1,
+                started = self.helpers.len(),
+                "not every batch helper thread started; the rest of a batch runs on its own thread"
+            );
+        }
     }
 
     pub fn server_id(&self) -> &str {

@@ -10,7 +10,7 @@
 //! * [`env`]: one env — its scenario sequence, the current episode's `sim_core::World`, and the
 //!   translation of sim-core results into protocol replies and publications (observations are
 //!   written straight into the reply's arrays, batched or not).
-//! * [`helpers`]: the persistent threads that step a large batch's chunks.
+//! * [`sim_core::helpers`]: the persistent threads that step a large batch's chunks.
 //! * [`core`]: [`ServerCore`], the env registry (env id → `Arc<Mutex<Env>>`), trainers and
 //!   reaping, limits, and one handler per request taking payload bytes and returning reply bytes
 //!   plus the publications to send. Unit-testable without zenoh.
@@ -59,7 +59,6 @@ pub mod client;
 pub mod config;
 pub mod core;
 pub mod env;
-pub mod helpers;
 pub mod net;
 pub mod pools;
 

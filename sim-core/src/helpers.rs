@@ -1,10 +1,13 @@
-//! Persistent helper threads that step a large batch's chunks beside the request's thread.
+//! Persistent helper threads that run borrowed jobs beside the calling thread: the server's
+//! batch steps (a large batch's chunks) and a threaded [`crate::World`] step (its observe
+//! workers).
 //!
-//! `std::thread::scope` spawns fresh threads for every batch: ~50–60 µs of spawn and join on a
-//! 2-vCPU VM, and each new thread starts on a cold stack, against ~12 µs to hand work to a thread
-//! waiting on a channel. A general pool (rayon) was tried and dropped: its idle workers spin
-//! before sleeping, and on two cores they took the CPU the zenoh threads need to move the
-//! reply (docs/BENCHMARKS.md section 2). These helpers block on a channel between jobs.
+//! `std::thread::scope` spawns fresh threads for every call: ~50–60 µs of spawn and join on a
+//! 2-vCPU VM (and far more system time on some hosts), and each new thread starts on a cold
+//! stack, against ~12 µs to hand work to a thread waiting on a channel. A general pool (rayon)
+//! was tried and dropped: its idle workers spin before sleeping, and on two cores they took the
+//! CPU the zenoh threads need to move the reply (docs/BENCHMARKS.md section 2). These helpers
+//! block on a channel between jobs. Threads are not I/O: the core stays pure.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{mpsc, Mutex};
@@ -19,7 +22,8 @@ pub struct Helpers {
 }
 
 impl Helpers {
-    /// `n` helper threads named `{name}-{k}`; fewer if the system refuses to start some.
+    /// `n` helper threads named `{name}-{k}`; fewer if the system refuses to start some (see
+    /// [`Helpers::len`]; jobs without a helper run on the calling thread).
     pub fn new(n: usize, name: &str) -> Self {
         let mut queues = Vec::with_capacity(n);
         for k in 0..n {
@@ -35,10 +39,7 @@ impl Helpers {
                 });
             match spawned {
                 Ok(_) => queues.push(Mutex::new(tx)),
-                Err(e) => {
-                    tracing::warn!(error = %e, "batch helper thread not started");
-                    break;
-                }
+                Err(_) => break,
             }
         }
         Self { queues }
