@@ -11,7 +11,7 @@
 //!
 //! `STEP_TIMING_KERNELS=portable|avx2|avx512` makes `time`, `steps` and `allocs` run that
 //! variant of the observe pass instead of the widest one the CPU has (`STEP_TIMING_PORTABLE=1`
-//! is `portable`).
+//! is `portable`), and `STEP_TIMING_THREADS=T` steps on `T` threads (default 1).
 //!
 //! `dump` writes the bits of every agent's state and every graph edge after each step of a fixed
 //! set of episodes (synthetic scenes of several sizes, layouts, models and seeds, and the
@@ -97,6 +97,14 @@ fn bench_world(n: usize) -> World {
     if let Err(e) = world.use_kernels(kernels) {
         eprintln!("STEP_TIMING_KERNELS: {e}");
         std::process::exit(2);
+    }
+    match std::env::var("STEP_TIMING_THREADS").map(|t| t.parse::<usize>()) {
+        Ok(Ok(t)) => world.set_threads(t),
+        Ok(Err(e)) => {
+            eprintln!("STEP_TIMING_THREADS: {e}");
+            std::process::exit(2);
+        }
+        Err(_) => {}
     }
     world
 }

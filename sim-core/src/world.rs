@@ -1057,8 +1057,24 @@ impl World {
             // where in the store its edges go), then the edges, each worker writing its own
             // run of one store. Copying the workers' stores together instead cost about a
             // fifth of a two-thread step at N = 1 000.
-            let chunk = n.div_ceil(threads);
-            let range = |t: usize| (t * chunk).min(n)..((t + 1) * chunk).min(n);
+            // Observers split by last step's edge counts (and a fixed cost per observer), so
+            // that the workers finish together; any split gives the same bits.
+            let weight = |i: usize| u64::from(self.agents.edge_len[i]) + 8;
+            let total_weight: u64 = (0..n).map(weight).sum();
+            let mut bounds = vec![0; threads + 1];
+            let (mut t, mut acc) = (1, 0);
+            for i in 0..n {
+                acc += weight(i);
+                while t < threads && acc * threads as u64 >= total_weight * t as u64 {
+                    bounds[t] = i + 1;
+                    t += 1;
+                }
+            }
+            bounds[threads] = n;
+            for t in 1..=threads {
+                bounds[t] = bounds[t].max(bounds[t - 1]);
+            }
+            let range = |t: usize| bounds[t]..bounds[t + 1];
             let helpers = self.helpers.as_deref();
             let run = |jobs: Vec<Box<dyn FnOnce() + Send + '_>>, here: &mut dyn FnMut()| {
                 let ok = match helpers {
