@@ -560,6 +560,9 @@ pub struct StepScratch {
     keep: Vec<bool>,
     slot_map: Vec<u32>,
     targets: Vec<TargetInfo>,
+    /// `prev_acc * dt` of every agent: its last observed change of velocity (for the
+    /// constant-acceleration prediction; apart from `targets`, which the common case reads).
+    last_change: Vec<Vec2>,
     /// [`crate::geometry::axes`] of every agent (computed once per step, not once per edge).
     axes: Vec<(f64, f64)>,
     /// One per observe worker (thread).
@@ -1001,7 +1004,6 @@ impl World {
         s.targets.extend((0..n).map(|j| TargetInfo {
             pos: a.pos[j],
             vel: a.vel[j],
-            last_change: a.prev_acc[j] * dt,
             acc_norm: a.acc[j].norm(),
             radius: match a.shape[j] {
                 Shape::Disc { radius } => radius,
@@ -1014,6 +1016,8 @@ impl World {
                 0.0
             },
         }));
+        s.last_change.clear();
+        s.last_change.extend(a.prev_acc.iter().map(|&p| p * dt));
         s.axes.clear();
         s.axes.extend((0..n).map(|j| match a.shape[j] {
             Shape::Rect { .. } => a.heading[j].sin_cos(),
@@ -1033,6 +1037,7 @@ impl World {
         }
         let inputs = ObserveInputs {
             targets: &s.targets,
+            last_change: &s.last_change,
             axes: &s.axes,
             agents: &self.agents,
             old: &self.edges,
@@ -1544,25 +1549,27 @@ fn finish_move((pos, vel): (Vec2, Vec2), heading: f64) -> (Vec2, Vec2, f64, f64)
 
 /// What an observer reads of a target, gathered once per observe pass into one record per slot
 /// (one cache line and one bounds check per edge instead of one per field). `repr(C)`, as the
-/// AVX-512 pass gathers its fields by offset.
+/// AVX-512 pass gathers its fields by offset, and one cache line each.
 #[derive(Debug, Clone, Copy, Default)]
-#[repr(C)]
+#[repr(C, align(64))]
 struct TargetInfo {
     pos: Vec2,
     vel: Vec2,
-    /// `prev_acc * dt`: the last observed change of velocity (constant-acceleration prediction).
-    last_change: Vec2,
     acc_norm: f64,
     /// Disc radius; NaN for a rectangle.
     radius: f64,
-    id: AgentId,
     /// 1 for a vehicle, 0 for a pedestrian (as the force loop selects on it).
     veh: f64,
+    id: AgentId,
 }
+
+const _: () = assert!(std::mem::size_of::<TargetInfo>() == 64);
 
 /// What every observe worker reads: the state, the previous edges (beliefs), the grid.
 struct ObserveInputs<'a> {
     targets: &'a [TargetInfo],
+    /// Each target's last observed change of velocity, by slot.
+    last_change: &'a [Vec2],
     /// [`crate::geometry::axes`] by slot.
     axes: &'a [(f64, f64)],
     agents: &'a Agents,
@@ -2411,7 +2418,7 @@ fn edge_state(
     let (seen, k) = stamp[t.id as usize];
     let (belief, u) = if seen == epoch {
         let mut b = inp.old.belief(k as usize);
-        let mu_p = b.predict(model, t.last_change);
+        let mu_p = b.predict(model, inp.last_change[j]);
         let u = b.update(mu_p, vj, inp.schedule);
         (b, u)
     } else {

@@ -36,6 +36,8 @@ const _: () = assert!(size_of::<TargetInfo>().is_multiple_of(8));
 const _: () = assert!(offset_of!(TargetInfo, id).is_multiple_of(4));
 const _: () = assert!(size_of::<AgentId>() == 4);
 const _: () = assert!(size_of::<(u32, u32)>() == 8);
+// A `Vec2` (of `last_change`) is its two coordinates, x first (nalgebra's array storage).
+const _: () = assert!(size_of::<Vec2>() == 16);
 
 /// `stamp` entry fields, as 4-byte offsets.
 const STAMP_EPOCH: usize = offset_of!((u32, u32), 0) / 4;
@@ -90,9 +92,10 @@ pub(super) unsafe fn edge_states(
         field(offset_of!(TargetInfo, vel)),
         field(offset_of!(TargetInfo, vel) + 8),
     );
+    assert!(inp.last_change.len() == targets.len());
     let (t_lx, t_ly) = (
-        field(offset_of!(TargetInfo, last_change)),
-        field(offset_of!(TargetInfo, last_change) + 8),
+        inp.last_change.as_ptr().cast::<f64>(),
+        inp.last_change.as_ptr().cast::<f64>().add(1),
     );
     let t_acc = field(offset_of!(TargetInfo, acc_norm));
     let t_radius = field(offset_of!(TargetInfo, radius));
@@ -200,9 +203,11 @@ pub(super) unsafe fn edge_states(
         // belief has had an update.
         let (mp_x, mp_y) = if constant_acc {
             let had = _mm256_mask_cmpneq_epi32_mask(seen, updates, _mm256_setzero_si256());
+            let j2 = _mm256_add_epi32(j, j);
             (
-                _mm512_mask_add_pd(mu_x, had, mu_x, gather!(t_lx)),
-                _mm512_mask_add_pd(mu_y, had, mu_y, gather!(t_ly)),
+                // `last_change` is two words per slot.
+                _mm512_mask_add_pd(mu_x, had, mu_x, _mm512_i32gather_pd::<8>(j2, t_lx)),
+                _mm512_mask_add_pd(mu_y, had, mu_y, _mm512_i32gather_pd::<8>(j2, t_ly)),
             )
         } else {
             (mu_x, mu_y)
