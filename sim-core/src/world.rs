@@ -1684,11 +1684,13 @@ impl ForceConsts {
 /// Scratch and output of one observe worker: it handles a contiguous range of observers.
 ///
 /// Each observer is done in three passes over its edges: a gather of the candidates within the
-/// perception radius (branch-free compaction; four at a time with AVX2), a scalar pass that
-/// reads the targets' state and updates the beliefs (random access), writing the edges straight
-/// into the edge store, and one branch-free loop over structure-of-arrays scratch for the risk
-/// and the social forces, which the compiler vectorises (with [`fastmath::exp`]). The whole
-/// pass is compiled twice, portable and AVX2 (chosen at run time), with identical arithmetic.
+/// perception radius (branch-free compaction; four at a time with AVX2, eight with AVX-512), a
+/// pass that reads the targets' state and updates the beliefs (random access: scalar, or by
+/// gathers eight edges at a time with AVX-512, `avx512::edge_states`), writing the edges
+/// straight into the edge store, and one branch-free loop over structure-of-arrays scratch for
+/// the risk and the social forces, which the compiler vectorises (with [`fastmath::exp`]). The
+/// whole pass is compiled three times, portable, AVX2 and AVX-512 ([`Kernels`], chosen at run
+/// time), with identical arithmetic.
 /// A threaded pass runs in two halves ([`ObserveWorker::gather_all`], then
 /// [`ObserveWorker::edges_into`]) so that the workers write into one store.
 #[derive(Debug, Clone, Default)]
