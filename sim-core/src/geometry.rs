@@ -173,15 +173,15 @@ pub fn clearance(a: &Placed, b: &Placed) -> f64 {
 /// (the direction of the repulsive force that `b` exerts on `a`). For a rectangle the direction
 /// starts at its nearest point; for coincident centres it is the zero vector.
 pub fn clearance_and_normal(a: &Placed, b: &Placed) -> (f64, Vec2) {
-    clearance_and_normal_oriented(a, axes(a), b, axes(b))
+    clearance_and_normal_oriented(a, axes(a.shape, a.heading), b, axes(b.shape, b.heading))
 }
 
-/// `p.heading.sin_cos()` for a rectangle, which [`clearance_and_normal_oriented`] needs; any
+/// `heading.sin_cos()` for a rectangle, which [`clearance_and_normal_oriented`] needs; any
 /// value for a disc, which it ignores.
 #[inline]
-pub fn axes(p: &Placed) -> (f64, f64) {
-    match p.shape {
-        Shape::Rect { .. } => p.heading.sin_cos(),
+pub fn axes(shape: Shape, heading: f64) -> (f64, f64) {
+    match shape {
+        Shape::Rect { .. } => heading.sin_cos(),
         Shape::Disc { .. } => (0.0, 1.0),
     }
 }

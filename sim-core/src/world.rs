@@ -19,7 +19,9 @@ use std::sync::Arc;
 
 use crate::cognition::{Belief, VarianceSchedule};
 use crate::fastmath;
-use crate::geometry::{clearance_and_normal, clearance_and_normal_oriented, Placed, Shape, Vec2};
+use crate::geometry::{
+    self, clearance_and_normal, clearance_and_normal_oriented, Placed, Shape, Vec2,
+};
 use crate::grid::Grid;
 use crate::helpers::Helpers;
 use crate::metrics::{EpisodeMetrics, EpisodeStatus};
@@ -563,7 +565,7 @@ pub struct StepScratch {
     /// `prev_acc * dt` of every agent: its last observed change of velocity (for the
     /// constant-acceleration prediction; apart from `targets`, which the common case reads).
     last_change: Vec<Vec2>,
-    /// [`crate::geometry::axes`] of every agent (computed once per step, not once per edge).
+    /// [`geometry::axes`] of every agent (computed once per step, not once per edge).
     axes: Vec<(f64, f64)>,
     /// One per observe worker (thread).
     workers: Vec<ObserveWorker>,
@@ -1019,10 +1021,8 @@ impl World {
         s.last_change.clear();
         s.last_change.extend(a.prev_acc.iter().map(|&p| p * dt));
         s.axes.clear();
-        s.axes.extend((0..n).map(|j| match a.shape[j] {
-            Shape::Rect { .. } => a.heading[j].sin_cos(),
-            Shape::Disc { .. } => (0.0, 1.0),
-        }));
+        s.axes
+            .extend((0..n).map(|j| geometry::axes(a.shape[j], a.heading[j])));
         let threads = if n >= PARALLEL_MIN_AGENTS {
             self.threads.min(n)
         } else {
@@ -1570,7 +1570,7 @@ struct ObserveInputs<'a> {
     targets: &'a [TargetInfo],
     /// Each target's last observed change of velocity, by slot.
     last_change: &'a [Vec2],
-    /// [`crate::geometry::axes`] by slot.
+    /// [`geometry::axes`] by slot.
     axes: &'a [(f64, f64)],
     agents: &'a Agents,
     old: &'a EdgeStore,
@@ -2364,7 +2364,7 @@ struct Observer {
     placed: Placed,
     /// Disc radius; NaN for a rectangle.
     radius: f64,
-    /// [`crate::geometry::axes`] of `placed`.
+    /// [`geometry::axes`] of `placed`.
     axes: (f64, f64),
 }
 
@@ -2381,6 +2381,19 @@ impl Observer {
             radius: inp.targets[i].radius,
             axes: inp.axes[i],
         }
+    }
+
+    /// Clearance to the agent in slot `j` and the push direction, by the footprints' exact
+    /// geometry (what an edge with a rectangle on either side takes).
+    #[inline]
+    fn footprint_clearance(&self, inp: &ObserveInputs, j: usize) -> (f64, Vec2) {
+        let a = inp.agents;
+        let placed_j = Placed {
+            shape: a.shape[j],
+            position: a.pos[j],
+            heading: a.heading[j],
+        };
+        clearance_and_normal_oriented(&self.placed, self.axes, &placed_j, inp.axes[j])
     }
 }
 
@@ -2432,13 +2445,7 @@ fn edge_state(
     let (clearance, normal, rect) = if !radii.is_nan() {
         ((dist - radii).max(0.0), d, 0.0)
     } else {
-        let a = inp.agents;
-        let placed_j = Placed {
-            shape: a.shape[j],
-            position: t.pos,
-            heading: a.heading[j],
-        };
-        let (c, n) = clearance_and_normal_oriented(placed_i, observer.axes, &placed_j, inp.axes[j]);
+        let (c, n) = observer.footprint_clearance(inp, j);
         (c, n, 1.0)
     };
     EdgeState {

@@ -6,14 +6,14 @@
 //! Every lane does the operations of `edge_state` in the same order, without FMA, so the
 //! results are bit-identical to the scalar loop's (the 796-episode dump of
 //! `scenarios/examples/step_timing.rs` compares equal, and `tests/threads.rs` compares the
-//! kernels). Edges that involve a rectangle take the scalar `clearance_and_normal_oriented` lane
-//! by lane.
+//! kernels). Edges that involve a rectangle take the scalar `Observer::footprint_clearance`
+//! lane by lane.
 
 use std::arch::x86_64::*;
 use std::mem::{offset_of, size_of, MaybeUninit};
 
 use super::{AgentId, EdgeSink, ObserveInputs, Observer, TargetInfo};
-use crate::geometry::{clearance_and_normal_oriented, Placed, Vec2};
+use crate::geometry::Vec2;
 use crate::params::PredictionModel;
 
 /// The per-edge columns the risk and force loop reads after step 3 (see `ObserveWorker`).
@@ -281,15 +281,7 @@ pub(super) unsafe fn edge_states(
         while lanes_left != 0 {
             let c = o + lanes_left.trailing_zeros() as usize;
             lanes_left &= lanes_left - 1;
-            let slot = cand[c] as usize;
-            let a = inp.agents;
-            let placed_j = Placed {
-                shape: a.shape[slot],
-                position: targets[slot].pos,
-                heading: a.heading[slot],
-            };
-            let (c_ij, normal) =
-                clearance_and_normal_oriented(placed_i, observer.axes, &placed_j, inp.axes[slot]);
+            let (c_ij, normal) = observer.footprint_clearance(inp, cand[c] as usize);
             contact |= c_ij <= 0.0;
             out.clearance[c] = MaybeUninit::new(c_ij);
             cols.nnx[c] = normal.x;
