@@ -39,12 +39,19 @@ const _: () = assert!(size_of::<(u32, u32)>() == 8);
 // A `Vec2` (of `last_change`) is its two coordinates, x first (nalgebra's array storage).
 const _: () = assert!(size_of::<Vec2>() == 16);
 
+/// The mask of the first `min(left, 8)` lanes.
+#[inline]
+fn lanes(left: usize) -> __mmask8 {
+    (0xffu16 >> (8 - left.min(8))) as u8
+}
+
 /// `stamp` entry fields, as 4-byte offsets.
 const STAMP_EPOCH: usize = offset_of!((u32, u32), 0) / 4;
 const STAMP_EDGE: usize = offset_of!((u32, u32), 1) / 4;
 
-/// Writes edges `0..cand.len()` of `observer` into `out` and `cols`, as the scalar loop of `observer_edges` does with
-/// `edge_state`: target id and slot, the updated belief, `u`, the clearance, and the columns.
+/// Writes edges `0..cand.len()` of `observer` into `out` and `cols`, as the scalar loop of
+/// `observer_edges` does with `edge_state`: target id and slot, the updated belief, `u`, the
+/// clearance, and the columns.
 /// Returns whether some clearance is `<= 0`.
 ///
 /// # Safety
@@ -125,9 +132,7 @@ pub(super) unsafe fn edge_states(
         for (column, regs) in columns.iter().zip(&mut rows) {
             for (q, reg) in regs.iter_mut().enumerate() {
                 let from = (1 + 8 * q).min(schedule_len);
-                let count = (schedule_len - from).min(8);
-                let k: __mmask8 = (0xffu16 >> (8 - count)) as u8;
-                *reg = _mm512_maskz_loadu_pd(k, column.as_ptr().add(from));
+                *reg = _mm512_maskz_loadu_pd(lanes(schedule_len - from), column.as_ptr().add(from));
             }
         }
     }
@@ -142,8 +147,7 @@ pub(super) unsafe fn edge_states(
     // dependent gathers (slot, id, stamp) of several chunks; so does pass 2 with its own.
     let mut o = 0;
     while o < m {
-        let lanes = (m - o).min(8);
-        let k8: __mmask8 = (0xffu16 >> (8 - lanes)) as u8;
+        let k8 = lanes(m - o);
         let j = _mm256_maskz_loadu_epi32(k8, cand.as_ptr().add(o).cast());
         assert!(
             _mm256_mask_cmpge_epu32_mask(k8, j, n_targets) == 0,
@@ -173,8 +177,7 @@ pub(super) unsafe fn edge_states(
     let mut contact = false;
     let mut o = 0;
     while o < m {
-        let lanes = (m - o).min(8);
-        let k8: __mmask8 = (0xffu16 >> (8 - lanes)) as u8;
+        let k8 = lanes(m - o);
         // Lanes past `m` read slot 0 (a valid target) and are never stored.
         let j = _mm256_maskz_loadu_epi32(k8, cand.as_ptr().add(o).cast());
         let jw = _mm256_mullo_epi32(j, words);
@@ -361,8 +364,7 @@ pub(super) unsafe fn index_stamps(
     let base = stamp.as_mut_ptr().cast::<i64>();
     let mut o = 0;
     while o < m {
-        let lanes = (m - o).min(8);
-        let k8: __mmask8 = (0xffu16 >> (8 - lanes)) as u8;
+        let k8 = lanes(m - o);
         let t = _mm256_maskz_loadu_epi32(k8, targets.as_ptr().add(o).cast());
         assert!(
             _mm256_mask_cmpge_epu32_mask(k8, t, n_stamp) == 0,
