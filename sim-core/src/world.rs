@@ -1075,21 +1075,16 @@ impl World {
                     t += 1;
                 }
             }
+            // Every bound below `threads` is set by the last observer (`acc` is then the total).
             bounds[threads] = n;
-            for t in 1..=threads {
-                bounds[t] = bounds[t].max(bounds[t - 1]);
-            }
+            debug_assert!(bounds.windows(2).all(|b| b[0] <= b[1]));
             let range = |t: usize| bounds[t]..bounds[t + 1];
-            let helpers = self.helpers.as_deref();
+            let helpers = self
+                .helpers
+                .as_deref()
+                .expect("`set_threads` starts the helpers of a world of several threads");
             let run = |jobs: Vec<Box<dyn FnOnce() + Send + '_>>, here: &mut dyn FnMut()| {
-                let ok = match helpers {
-                    Some(h) => h.run(jobs, here),
-                    None => {
-                        here();
-                        jobs.into_iter().for_each(|job| job());
-                        Vec::new()
-                    }
-                };
+                let ok = helpers.run(jobs, here);
                 assert!(ok.iter().all(|&ok| ok), "an observe worker panicked");
             };
             {
@@ -1921,11 +1916,7 @@ impl ObserveWorker {
         let s = a.edge_start[i] as usize;
         let old_range = s..s + a.edge_len[i] as usize;
         let old_targets = &old.target[old_range.clone()];
-        #[cfg(target_arch = "x86_64")]
-        let vectorised = AVX512 && old_targets.len() >= VECTOR_STATE_MIN_EDGES;
-        #[cfg(not(target_arch = "x86_64"))]
-        let vectorised = false;
-        if vectorised {
+        if AVX512 && old_targets.len() >= VECTOR_STATE_MIN_EDGES {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `AVX512` is only set in `dispatch_avx512`, which runs where the CPU has
             // these features.
@@ -2008,13 +1999,9 @@ impl ObserveWorker {
         let rects = &mut self.rect[..m];
         let model = inp.params.cognition.prediction;
         let observer = Observer::of(inp, i);
-        // Below about two chunks of eight the gathers' set-up costs more than they save.
-        #[cfg(target_arch = "x86_64")]
-        let vectorised = AVX512 && m >= VECTOR_STATE_MIN_EDGES;
-        #[cfg(not(target_arch = "x86_64"))]
-        let vectorised = false;
         let mut contact = false;
-        if vectorised {
+        // Below about two chunks of eight the gathers' set-up costs more than they save.
+        if AVX512 && m >= VECTOR_STATE_MIN_EDGES {
             #[cfg(target_arch = "x86_64")]
             {
                 let out = EdgeSink {
@@ -2253,8 +2240,7 @@ const PREFETCH_MIN_EDGES: usize = 32;
 const AVX512_MIN_AGENTS: usize = 32;
 
 /// Observers with at least this many targets update their beliefs eight edges at a time
-/// (`avx512::edge_states`) where the CPU has AVX-512.
-#[cfg(target_arch = "x86_64")]
+/// (`avx512::edge_states`) where the CPU has AVX-512 (`AVX512` is only set on x86-64).
 const VECTOR_STATE_MIN_EDGES: usize = 16;
 
 /// Observers with at most this many targets take [`ObserveWorker::small_observer_edges`].
