@@ -224,7 +224,8 @@ fn episode(
     let label = format!("{} {:?} {}", scenario.name, config, params.horizon_extra);
     let mut w = World::new(scenario, params, config).expect("world");
     if portable {
-        w.use_portable_kernels();
+        w.use_kernels(Kernels::Portable)
+            .expect("the portable kernels always run");
     }
     let mut hash = Sha256::new();
     let mut buf = Vec::new();

@@ -737,14 +737,6 @@ impl World {
         }
     }
 
-    /// Runs the observe pass with the baseline instructions of the build target even where the
-    /// CPU has wider vector units (results are bit-identical either way; this is how the tests
-    /// check that).
-    #[doc(hidden)]
-    pub fn use_portable_kernels(&mut self) {
-        self.kernels = Kernels::Portable;
-    }
-
     /// Steps with the `kernels` variant of the observe pass from now on (same results, other
     /// speed); refused, changing nothing, when the CPU does not run it.
     pub fn use_kernels(&mut self, kernels: Kernels) -> Result<(), KernelsUnavailable> {
