@@ -1600,9 +1600,10 @@ pub enum Kernels {
 impl Kernels {
     /// The widest variant this CPU runs (what a new world uses).
     pub fn detect() -> Self {
-        *Self::available()
-            .last()
-            .expect("the portable variant always runs")
+        [Kernels::Avx512, Kernels::Avx2]
+            .into_iter()
+            .find(|k| k.is_available())
+            .unwrap_or(Kernels::Portable)
     }
 
     /// Whether this CPU runs the variant.
