@@ -45,6 +45,17 @@ fn lanes(left: usize) -> __mmask8 {
     (0xffu16 >> (8 - left.min(8))) as u8
 }
 
+/// Panics, naming `what`, unless every lane of `v` in `k` is below `bound` (unsigned): every
+/// index these kernels gather or scatter with is checked first.
+#[target_feature(enable = "avx512f,avx512vl")]
+#[inline]
+fn assert_below(k: __mmask8, v: __m256i, bound: __m256i, what: &str) {
+    assert!(
+        _mm256_mask_cmpge_epu32_mask(k, v, bound) == 0,
+        "{what} out of range"
+    );
+}
+
 /// `stamp` entry fields, as 4-byte offsets.
 const STAMP_EPOCH: usize = offset_of!((u32, u32), 0) / 4;
 const STAMP_EDGE: usize = offset_of!((u32, u32), 1) / 4;
@@ -149,24 +160,15 @@ pub(super) unsafe fn edge_states(
     while o < m {
         let k8 = lanes(m - o);
         let j = _mm256_maskz_loadu_epi32(k8, cand.as_ptr().add(o).cast());
-        assert!(
-            _mm256_mask_cmpge_epu32_mask(k8, j, n_targets) == 0,
-            "slot out of range"
-        );
+        assert_below(k8, j, n_targets, "slot");
         let jw = _mm256_mullo_epi32(j, words);
         let id = _mm256_mmask_i32gather_epi32::<4>(none, k8, _mm256_add_epi32(jw, jw), t_id);
-        assert!(
-            _mm256_mask_cmpge_epu32_mask(k8, id, n_stamp) == 0,
-            "agent id out of range"
-        );
+        assert_below(k8, id, n_stamp, "agent id");
         let sid = _mm256_add_epi32(id, id);
         let seen = _mm256_mmask_i32gather_epi32::<4>(none, k8, sid, s_epoch);
         let seen = _mm256_mask_cmpeq_epi32_mask(k8, seen, epoch_v);
         let k = _mm256_mmask_i32gather_epi32::<4>(none, seen, sid, s_edge);
-        assert!(
-            _mm256_mask_cmpge_epu32_mask(seen, k, n_old) == 0,
-            "belief out of range"
-        );
+        assert_below(seen, k, n_old, "belief");
         _mm256_mask_storeu_epi32(out.target.as_mut_ptr().add(o).cast(), k8, id);
         _mm256_mask_storeu_epi32(out.slot.as_mut_ptr().add(o).cast(), k8, j);
         _mm256_mask_storeu_epi32(cols.belief_at.as_mut_ptr().add(o).cast(), k8, k);
@@ -366,10 +368,7 @@ pub(super) unsafe fn index_stamps(
     while o < m {
         let k8 = lanes(m - o);
         let t = _mm256_maskz_loadu_epi32(k8, targets.as_ptr().add(o).cast());
-        assert!(
-            _mm256_mask_cmpge_epu32_mask(k8, t, n_stamp) == 0,
-            "agent id out of range"
-        );
+        assert_below(k8, t, n_stamp, "agent id");
         let edge = _mm256_add_epi32(_mm256_set1_epi32((first as usize + o) as i32), lane);
         let edge_word =
             _mm512_slli_epi64::<{ 32 * STAMP_EDGE as u32 }>(_mm512_cvtepu32_epi64(edge));
