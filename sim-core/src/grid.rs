@@ -52,14 +52,17 @@ impl Grid {
         // would have far more cells than agents (memory stays O(N)).
         let mut cell = radius.max(1e-9);
         let max_cells = (4 * n + 64) as f64;
-        let cells_for = |c: f64| ((extent.x / c).floor() + 1.0) * ((extent.y / c).floor() + 1.0);
+        // `floor` of these non-negative quotients by truncation (`floor` is a libm call on the
+        // baseline x86_64 target); past 2^64 both only compare above `max_cells`.
+        let whole = |q: f64| (q as u64) as f64;
+        let cells_for = |c: f64| (whole(extent.x / c) + 1.0) * (whole(extent.y / c) + 1.0);
         while cells_for(cell) > max_cells {
             cell *= 2.0;
         }
         self.origin = lo;
         self.cell = cell;
-        self.nx = (extent.x / cell).floor() as usize + 1;
-        self.ny = (extent.y / cell).floor() as usize + 1;
+        self.nx = (extent.x / cell) as usize + 1;
+        self.ny = (extent.y / cell) as usize + 1;
         let ncell = self.nx * self.ny;
         if ncell == 1 {
             // One cell (every scene smaller than the radius): the counting sort below would
@@ -128,8 +131,9 @@ impl Grid {
     }
 
     fn cell_coords(&self, p: Vec2) -> (usize, usize) {
-        let cx = (((p.x - self.origin.x) / self.cell).floor().max(0.0) as usize).min(self.nx - 1);
-        let cy = (((p.y - self.origin.y) / self.cell).floor().max(0.0) as usize).min(self.ny - 1);
+        // Truncating the clamped quotient is its floor (and NaN gives 0 either way).
+        let cx = ((((p.x - self.origin.x) / self.cell).max(0.0)) as usize).min(self.nx - 1);
+        let cy = ((((p.y - self.origin.y) / self.cell).max(0.0)) as usize).min(self.ny - 1);
         (cx, cy)
     }
 
