@@ -15,8 +15,9 @@
 //! the warmed-up world's edges with every input already laid out contiguously, eight lanes wide
 //! where the CPU has AVX-512, and then the step itself, and prints the ratio. It does none of
 //! the step's other work (the gathers of each target's state and belief, the grid and
-//! candidate search, the edge store, the moves), so it is a lower bound on the step's cost:
-//! a step can not be made faster than that fraction of its time by removing everything else.
+//! candidate search, the edge store, the moves), and leaves out a few of the step's selects, so
+//! it bounds the step from below for as long as the step does this arithmetic in this form:
+//! removing everything else would not make a step faster than that fraction of its time.
 //!
 //! `STEP_TIMING_KERNELS=portable|avx2|avx512` makes `time`, `steps` and `allocs` run that
 //! variant of the observe pass instead of the widest one the CPU has (`STEP_TIMING_PORTABLE=1`
@@ -325,7 +326,6 @@ struct FloorOutputs {
 /// footprints, CR-SFM force): inputs are the centre offset, the target's velocity, acceleration
 /// norm and the sum of radii, and the observer's belief.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn floor_edge(
     (dx, dy): (f64, f64),
     (vx, vy): (f64, f64),
