@@ -324,7 +324,11 @@ struct FloorOutputs {
 
 /// The arithmetic of one edge as `World::step` does it (constant-velocity prediction, disc
 /// footprints, CR-SFM force): inputs are the centre offset, the target's velocity, acceleration
-/// norm and the sum of radii, and the observer's belief.
+/// norm and the sum of radii, and the observer's belief. It restates the operations of
+/// sim-core's private `edge_state`, `edge_risk` and `edge_force` (`sim_core::world`) with the
+/// default parameters folded in, less their selects on vehicle targets, rectangles and
+/// coincident risk; the public `risk` and `cognition` functions are the unfolded reference
+/// forms, with branches and a logarithm, which the step does not run.
 #[inline(always)]
 fn floor_edge(
     (dx, dy): (f64, f64),
@@ -402,6 +406,7 @@ fn floor(n: usize, seconds: f64) {
     let base = bench_world(n);
     let agents: std::collections::HashMap<AgentId, sim_core::world::AgentView> =
         base.agents().map(|a| (a.id, a)).collect();
+    // The AV's rectangle stands in as a 1 m disc: the operations, not the values, are timed.
     let radius = |a: &sim_core::world::AgentView| match a.shape {
         sim_core::Shape::Disc { radius } => radius,
         _ => 1.0,
