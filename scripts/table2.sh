@@ -1,36 +1,86 @@
 #!/usr/bin/env bash
-# `make table2`: the paper's Table II. Trains the three variants (g_sac_cog, g_sac_nocog, s_sac)
-# with the same budget and seed AT THE SAME TIME against ONE server and its one scenario pool
-# (three trainers sharing a server), evaluates each on the test split, and writes
-# out/table2/<variant>/eval.json plus docs/table2.json. Budget: TABLE2_FRAMES (default 12 000).
+# `make table2`: the paper's Table II with seeds (docs/RESULTS.md).
+#
+# Trains every variant (g_sac_cog, g_sac_nocog, s_sac) for every seed with the same budget, all
+# trainers AT THE SAME TIME against ONE server and its one scenario pool, evaluates each on the
+# test split, then writes the table (python -m sharedspace.train.table2): per variant the mean
+# and spread over seeds, pooled Wilson intervals, paired per-scenario comparisons, the scripted
+# drivers, the human driver and the paper's rows.
+#
+# Every run checkpoints (with its replay buffer) and this script resumes unfinished runs from
+# their last checkpoint, so a budget can span several sittings: run it again with the same
+# TABLE2_OUT. Finished runs are not trained again.
+#
+#   TABLE2_SEEDS     seeds (default "0 1 2")
+#   TABLE2_FRAMES    env transitions per run (default 200000)
+#   TABLE2_VARIANTS  variants (default "g_sac_cog g_sac_nocog s_sac")
+#   TABLE2_OUT       run folder (default out/table2; large: replay buffers)
+#   TABLE2_PARAMS    world parameters of the server (default params/table2.json5)
+#   TABLE2_DEVICE    torch device of the trainers (default cpu; "cuda" where a GPU is present)
+#   TABLE2_CKPT      frames between checkpoints (default 20000)
+#   TABLE2_EVAL      frames between test-split evaluations logged as learning curves (default 50000)
+#   TABLE2_DOC       markdown file whose table2 block is rewritten (default docs/RESULTS.md; "" = none)
+#   TABLE2_TRAIN     0 = skip training, only evaluate and tabulate what is there (default 1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 server=target/release/sim-server
 py=.venv/bin/python
-frames=${TABLE2_FRAMES:-12000}
-seed=${TABLE2_SEED:-0}
-out=out/table2
-rm -rf "$out"
+seeds=${TABLE2_SEEDS:-0 1 2}
+frames=${TABLE2_FRAMES:-200000}
+variants=${TABLE2_VARIANTS:-g_sac_cog g_sac_nocog s_sac}
+out=${TABLE2_OUT:-out/table2}
+params=${TABLE2_PARAMS:-params/table2.json5}
+device=${TABLE2_DEVICE:-cpu}
+ckpt_every=${TABLE2_CKPT:-20000}
+eval_every=${TABLE2_EVAL:-50000}
+doc=${TABLE2_DOC-docs/RESULTS.md}
 mkdir -p "$out"
+
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 endpoint="tcp/127.0.0.1:$port"
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
-    --cfg server_id:table2 > "$out/server.log" 2>&1 &
+    --cfg server_id:table2 --cfg "params:\"$params\"" >> "$out/server.log" 2>&1 &
 server_pid=$!
-trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
-remote=(env_backend=remote "server_endpoint=$endpoint" server_prefix=sharedspace)
-start=$(date +%s)
 pids=()
-for variant in g_sac_cog g_sac_nocog s_sac; do
-    "$py" -m sharedspace.train --set "variant=$variant" "seed=$seed" "total_frames=$frames" \
-        init_random_frames=2000 num_envs=8 eval_interval=0 "checkpoint_interval=$frames" \
-        progress=false "log_dir=$out/$variant" "${remote[@]}" > "$out/$variant.log" 2>&1 &
-    pids+=($!)
-done
-for pid in "${pids[@]}"; do wait "$pid"; done
-echo "trained 3 variants x $frames frames concurrently in $(( $(date +%s) - start )) s" | tee "$out/walltime.txt"
-for variant in g_sac_cog g_sac_nocog s_sac; do
-    echo "== $variant"
-    "$py" -m sharedspace.train.evaluate --checkpoint "$out/$variant/checkpoints/last.pt" --split test \
-        --json "$out/$variant/eval.json" --set "${remote[@]}"
-done
+cleanup() {
+    for pid in "${pids[@]}"; do kill "$pid" 2>/dev/null || true; done
+    kill "$server_pid" 2>/dev/null || true
+    wait 2>/dev/null || true
+}
+trap cleanup EXIT
+remote=(env_backend=remote "server_endpoint=$endpoint" server_prefix=sharedspace)
+
+if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
+    start=$(date +%s)
+    for seed in $seeds; do
+        for variant in $variants; do
+            run="$out/$variant-s$seed"
+            last="$run/checkpoints/last.pt"
+            args=(--set "${remote[@]}" "total_frames=$frames" "device=$device")
+            if [ -f "$last" ]; then
+                done_frames=$("$py" -c "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['counters']['frames'])" "$last")
+                if [ "$done_frames" -ge "$frames" ]; then
+                    echo "== $variant seed $seed: done ($done_frames frames)"
+                    continue
+                fi
+                echo "== $variant seed $seed: resuming at $done_frames frames"
+                args=(--resume "$last" "${args[@]}")
+            else
+                echo "== $variant seed $seed: training"
+                args+=("variant=$variant" "seed=$seed" init_random_frames=2000 num_envs=8
+                    "eval_interval=$eval_every" "checkpoint_interval=$ckpt_every" save_buffer=true
+                    progress=false "log_dir=$run")
+            fi
+            "$py" -m sharedspace.train "${args[@]}" >> "$out/$variant-s$seed.log" 2>&1 &
+            pids+=($!)
+        done
+    done
+    status=0
+    for pid in "${pids[@]}"; do wait "$pid" || status=1; done
+    pids=()
+    echo "trained in $(( $(date +%s) - start )) s (this sitting)" | tee -a "$out/walltime.txt"
+    [ "$status" = 0 ] || { echo "a trainer failed: see $out/*.log"; exit 1; }
+fi
+
+"$py" -m sharedspace.train.table2 --runs "$out" --frames "$frames" --params "$params" \
+    --json docs/table2.json ${doc:+--doc "$doc"} --set "${remote[@]}"

@@ -111,4 +111,4 @@ def test_resume_continues_counters(run, tmp_path):
     assert state["counters"]["updates"] > first["counters"]["updates"]
     assert state["counters"]["iterations"] == first["counters"]["iterations"] + 4
     before = torch.load(ckpt, weights_only=False)
-    assert not torch.equal(before["loss"]["log_alpha"], state["loss"]["log_alpha"])
+    assert not torch.equal(before["learner"]["log_alpha"], state["learner"]["log_alpha"])

@@ -3,7 +3,7 @@
 A GCN layer is ``H' = sigma(D^-1/2 (A + I) D^-1/2 H W)`` (Kipf & Welling) on a batch of padded
 graphs ``[B, M, M]``: padding rows and columns of ``A`` are zeroed, self-loops are added on present
 nodes only and ``D`` is the row degree of ``A + I`` (``A[i][j]`` is the influence of ``j`` on ``i``,
-so node ``i`` aggregates its row). Padding nodes get zero embeddings.
+so node ``i`` aggregates its row). Padding nodes are left out of the readout.
 
 Variants (paper Table II):
 
@@ -25,7 +25,9 @@ __all__ = [
     "GraphEncoder",
     "normalized_adjacency",
     "uniform_adjacency",
+    "aggregate",
     "mlp",
+    "readout",
 ]
 
 #: Fixed scale of the node features (FEATURE_NAMES order), so that inputs are O(1).
@@ -60,7 +62,25 @@ class GCNLayer(nn.Module):
         self.activation = nn.ReLU() if activation else nn.Identity()
 
     def forward(self, h: torch.Tensor, a_hat: torch.Tensor) -> torch.Tensor:
-        return self.activation(a_hat @ self.linear(h) + self.bias)
+        return self.activation(aggregate(h, a_hat, self.linear.weight.T, self.bias))
+
+
+def aggregate(
+    h: torch.Tensor, a_hat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor
+) -> torch.Tensor:
+    """``A_hat H W + b`` for ``h [*, M, F]``, ``a_hat [*, M, M]``, ``weight [F, O]``.
+
+    The product is associative, so it aggregates first when that is the narrower side
+    (``F < O``, e.g. the first layer's 11 features against 64) and the bias joins the last
+    matmul: on the CPU a GCN layer is bound by memory traffic over ``[B, M, O]`` tensors, so
+    every pass saved counts (docs/BENCHMARKS.md, "Learner")."""
+    if h.shape[-1] < weight.shape[-1]:
+        ah = a_hat @ h
+        return torch.addmm(bias, ah.flatten(0, -2), weight).reshape(*ah.shape[:-1], -1)
+    hw = h @ weight
+    if hw.dim() == 3 and a_hat.dim() == 3:
+        return torch.baddbmm(bias.expand_as(hw), a_hat, hw)
+    return a_hat @ hw + bias
 
 
 def mlp(
@@ -110,19 +130,41 @@ class GraphEncoder(nn.Module):
             raise ValueError(f"unknown variant {variant!r}")
 
     def forward(self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor):
+        return self.embed(*self.prepare(features, adjacency, mask))
+
+    def prepare(
+        self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """The parameter-free part of the encoder: ``(h, a_hat, m)`` = scaled and masked node
+        features ``[*, M, F]``, the normalised adjacency ``[*, M, M]`` (``None`` for ``s_sac``)
+        and the mask as ``[*, M, 1]`` floats. It depends on the variant only, so the actor and
+        the critics of one update share it (:mod:`sharedspace.train.update`)."""
         m = mask.to(features.dtype).unsqueeze(-1)
         h = features / self.scale * m
         if self.variant == "s_sac":
-            return self.flat(torch.cat([h, m], -1).flatten(-2))
+            return h, None, m
         adj = adjacency if self.variant == "g_sac_cog" else uniform_adjacency(mask)
-        a_hat = normalized_adjacency(adj.to(h.dtype), mask)
+        return h, normalized_adjacency(adj.to(h.dtype), mask), m
+
+    def embed(self, h: torch.Tensor, a_hat: torch.Tensor | None, m: torch.Tensor) -> torch.Tensor:
+        """``[*, out_features]`` from :meth:`prepare`'s output."""
+        if self.variant == "s_sac":
+            return self.flat(torch.cat([h, m], -1).flatten(-2))
+        # Padding nodes are not masked between layers: their columns of a_hat are 0, so they
+        # never reach a present node, and the readout masks them.
         for layer in self.layers:
-            h = layer(h, a_hat) * m
-        ego = h[..., 0, :]
-        if self.readout == "ego":
-            return ego
-        mean = h.sum(-2) / m.sum(-2).clamp_min(1.0)
-        return torch.cat([ego, mean], -1)
+            h = layer(h, a_hat)
+        return readout(h, m, self.readout)
+
+
+def readout(h: torch.Tensor, m: torch.Tensor, kind: str) -> torch.Tensor:
+    """Graph readout of node embeddings ``h [*, M, H]`` with mask ``m [*, M, 1]``: the ego node
+    (node 0), and for ``ego_mean`` the mean over present nodes after it."""
+    ego = h[..., 0, :]
+    if kind == "ego":
+        return ego
+    mean = (m.transpose(-1, -2) @ h).squeeze(-2) / m.sum(-2).clamp_min(1.0)
+    return torch.cat([ego, mean], -1)
 
 
 class ActorNet(nn.Module):

@@ -18,6 +18,7 @@ from torchrl.objectives.sac import SACLoss
 
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.gcn import ActorNet, GraphEncoder, QNet
+from sharedspace.train.update import SACUpdate
 
 __all__ = [
     "OBS_KEYS",
@@ -26,6 +27,7 @@ __all__ = [
     "make_critic",
     "make_loss",
     "make_optimizers",
+    "make_update",
     "make_replay_buffer",
     "make_collector",
 ]
@@ -158,6 +160,23 @@ def make_optimizers(cfg: TrainConfig, loss: SACLoss) -> dict[str, optim.Optimize
         "critic": optim.Adam(list(loss.qvalue_network_params.flatten_keys().values()), lr=cfg.lr),
         "alpha": optim.Adam([loss.log_alpha], lr=cfg.lr),
     }
+
+
+def make_update(cfg: TrainConfig, actor, action_spec, num_critics: int = 2) -> SACUpdate:
+    """The learner: SAC's losses, target critics, optimisers and gradient step
+    (:mod:`sharedspace.train.update`), training ``actor`` in place. Its critics are initialised
+    like ``num_critics`` separate :func:`make_critic` networks."""
+    qnets = [make_critic(cfg, action_spec).module for _ in range(num_critics)]
+    return SACUpdate(
+        actor,
+        qnets,
+        gamma=cfg.gamma,
+        tau=cfg.tau,
+        lr=cfg.lr,
+        alpha_init=cfg.alpha_init,
+        loss_function=cfg.loss_function,
+        action_dim=action_spec.shape[-1],
+    ).to(cfg.device)
 
 
 def make_replay_buffer(cfg: TrainConfig) -> TensorDictReplayBuffer:

@@ -29,11 +29,9 @@ from sharedspace.train.evaluate import evaluate_policy
 from sharedspace.train.sac import (
     make_actor,
     make_collector,
-    make_critic,
     make_env,
-    make_loss,
-    make_optimizers,
     make_replay_buffer,
+    make_update,
     seed_everything,
 )
 
@@ -104,13 +102,16 @@ class EpisodeTracker:
         return ended
 
 
-def save_checkpoint(path: Path, cfg, actor, loss, optimizers, counters, buffer=None) -> None:
+def save_checkpoint(path: Path, cfg, actor, update, counters, buffer=None) -> None:
+    """Everything a run needs to continue in a new process: config, actor (what ``evaluate``
+    loads), the learner (critics, targets, temperature), its optimisers, counters, torch RNG
+    and optionally the replay buffer (written beside the checkpoint)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {
         "config": cfg.to_dict(),
         "actor": actor.state_dict(),
-        "loss": loss.state_dict(),
-        "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
+        "learner": update.state_dict(),
+        "optimizers": update.optimizer_state(),
         "counters": dict(counters),
         "torch_rng": torch.get_rng_state(),
     }
@@ -141,20 +142,22 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     # ---- env, networks, loss, optimisers, buffer
     env = make_env(cfg, split="train", seed=cfg.seed + counters["frames"])
     actor = make_actor(cfg, env.action_spec_unbatched)
-    critic = make_critic(cfg, env.action_spec_unbatched)
     with torch.no_grad():
-        probe = env.fake_tensordict().to(cfg.device)
-        actor(probe)
-        critic(actor(probe))
-    loss, target_update = make_loss(cfg, actor, critic)
-    optimizers = make_optimizers(cfg, loss)
+        actor(env.fake_tensordict().to(cfg.device))
+    update = make_update(cfg, actor, env.action_spec_unbatched)
     buffer = make_replay_buffer(cfg)
     if ckpt is not None:
-        loss.load_state_dict(ckpt["loss"])
-        for k, o in optimizers.items():
-            o.load_state_dict(ckpt["optimizers"][k])
+        if "learner" not in ckpt:
+            raise ValueError(
+                f"{resume} was written by the TorchRL SACLoss learner (before 2026-12-03); it "
+                "can be evaluated but not resumed"
+            )
+        update.load_state_dict(ckpt["learner"])
+        update.load_optimizer_state(ckpt["optimizers"])
         if ckpt.get("buffer_dir") and Path(ckpt["buffer_dir"]).exists():
             buffer.loads(ckpt["buffer_dir"])
+        if "torch_rng" in ckpt:
+            torch.set_rng_state(ckpt["torch_rng"])
 
     # ---- collector over the remaining frames
     remaining = max(cfg.total_frames - counters["frames"], 0)
@@ -195,17 +198,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         losses: dict[str, list[float]] = {}
         if counters["frames"] >= cfg.init_random_frames and len(buffer) >= cfg.batch_size:
             for _ in range(num_updates):
-                batch = buffer.sample().to(cfg.device)
-                out = loss(batch)
-                for o in optimizers.values():
-                    o.zero_grad(set_to_none=True)
-                # The actor loss sees detached critic parameters and the alpha loss a detached
-                # log-prob (SACLoss), so one backward through the sum updates each net by its own.
-                total = out["loss_qvalue"] + out["loss_actor"] + out["loss_alpha"]
-                total.backward()
-                for o in optimizers.values():
-                    o.step()
-                target_update.step()
+                out = update.step(buffer.sample().to(cfg.device))
                 counters["updates"] += 1
                 for key in ("loss_qvalue", "loss_actor", "loss_alpha", "alpha", "entropy"):
                     losses.setdefault(key, []).append(float(out[key].detach()))
@@ -255,11 +248,11 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
             logger.log({f"eval/{k}": v for k, v in last_eval.items()}, counters["frames"])
         if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
             next_ckpt = _next_multiple(counters["frames"], cfg.checkpoint_interval)
-            _checkpoint(log_dir, cfg, actor, loss, optimizers, counters, buffer)
+            _checkpoint(log_dir, cfg, actor, update, counters, buffer)
 
     pbar.close()
     collector.shutdown()
-    _checkpoint(log_dir, cfg, actor, loss, optimizers, counters, buffer)
+    _checkpoint(log_dir, cfg, actor, update, counters, buffer)
     logger.close()
     return {
         "counters": counters,
@@ -272,13 +265,13 @@ def _next_multiple(frames: int, interval: int) -> int:
     return (frames // interval + 1) * interval if interval else sys.maxsize
 
 
-def _checkpoint(log_dir, cfg, actor, loss, optimizers, counters, buffer) -> None:
+def _checkpoint(log_dir, cfg, actor, update, counters, buffer) -> None:
     d = log_dir / "checkpoints"
-    buf = buffer if cfg.save_buffer else None
+    save_checkpoint(d / f"step_{counters['frames']}.pt", cfg, actor, update, counters)
+    # The replay buffer goes with last.pt only: it is what a resumed run continues from.
     save_checkpoint(
-        d / f"step_{counters['frames']}.pt", cfg, actor, loss, optimizers, counters, buf
+        d / "last.pt", cfg, actor, update, counters, buffer if cfg.save_buffer else None
     )
-    save_checkpoint(d / "last.pt", cfg, actor, loss, optimizers, counters, buf)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

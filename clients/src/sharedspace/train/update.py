@@ -1,0 +1,272 @@
+"""One SAC gradient step, written for the CPU: the learner's hot loop.
+
+:class:`SACUpdate` computes exactly the losses of TorchRL's ``SACLoss`` (v2: two critics,
+target critics, learned temperature with target entropy ``-|A|``, TD(0) target bootstrapped on
+``terminated``) for the networks of :mod:`sharedspace.train.gcn`, and steps Adam on their sum as
+the trainer always did. What it does differently is only how the arithmetic is laid out:
+
+- **the critics are one ensemble** (:class:`CriticEnsemble`): their weights are stacked
+  ``[E, in, out]`` and every layer is one batched matmul; the first GCN layer, whose input is
+  shared, is one matmul against the concatenated weights, and so is its aggregation;
+- **shared inputs are computed once**: the scaled features and normalised adjacency of the
+  observation (and of the next one) feed the actor and both critics; the critics' graph
+  embedding of the observation and its part of the first head layer serve both the critic loss
+  and the actor loss (the actor loss sees them detached, as ``SACLoss`` sees detached critic
+  parameters);
+- no TensorDict plumbing or ``vmap`` inside the step, and Adam's fused CPU kernel.
+
+``clients/tests/test_update.py`` checks, for every variant, that the losses and every gradient
+equal ``SACLoss``'s on the same parameters, batch and random draws; ``bench/sac_update.py``
+times both side by side (docs/BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.modules.distributions import TanhNormal
+from torchrl.modules.distributions.utils import rsample_and_log_prob
+
+from sharedspace.train.gcn import GraphEncoder, QNet, aggregate
+
+__all__ = ["CriticEnsemble", "SACUpdate", "actor_net_of"]
+
+
+def _stack(tensors: Sequence[torch.Tensor]) -> nn.Parameter:
+    return nn.Parameter(torch.stack([t.detach().clone() for t in tensors]))
+
+
+class CriticEnsemble(nn.Module):
+    """``E`` critics :class:`~sharedspace.train.gcn.QNet` of one architecture with their
+    weights stacked along a leading ensemble dimension. Weights are stored transposed
+    (``[E, in, out]``) so that each layer is a batched ``x @ W``.
+
+    Built from ``E`` independently initialised :class:`QNet` (the same initialisation as
+    separate critics), and convertible back with :meth:`qnet_state_dicts`.
+    """
+
+    def __init__(self, qnets: Sequence[QNet]):
+        super().__init__()
+        enc: GraphEncoder = qnets[0].encoder
+        self.variant = enc.variant
+        self.readout = enc.readout
+        self.size = len(qnets)
+        if self.variant == "s_sac":
+            self.enc_w = nn.ParameterList([_stack([q.encoder.flat[0].weight.T for q in qnets])])
+            self.enc_b = nn.ParameterList([_stack([q.encoder.flat[0].bias for q in qnets])])
+        else:
+            n = len(enc.layers)
+            self.enc_w = nn.ParameterList(
+                [_stack([q.encoder.layers[i].linear.weight.T for q in qnets]) for i in range(n)]
+            )
+            self.enc_b = nn.ParameterList(
+                [_stack([q.encoder.layers[i].bias for q in qnets]) for i in range(n)]
+            )
+        linears = [[m for m in q.head if isinstance(m, nn.Linear)] for q in qnets]
+        self.head_w = nn.ParameterList(
+            [_stack([ls[i].weight.T for ls in linears]) for i in range(len(linears[0]))]
+        )
+        self.head_b = nn.ParameterList(
+            [_stack([ls[i].bias for ls in linears]) for i in range(len(linears[0]))]
+        )
+        self.embed_features = self.head_w[0].shape[1] - self._action_dim(qnets[0])
+
+    @staticmethod
+    def _action_dim(q: QNet) -> int:
+        return q.head[0].in_features - q.encoder.out_features
+
+    def qnet_state_dicts(self) -> list[dict[str, torch.Tensor]]:
+        """The ensemble as ``E`` :class:`QNet` state dicts (layer names of ``QNet``)."""
+        out = []
+        for e in range(self.size):
+            sd: dict[str, torch.Tensor] = {}
+            if self.variant == "s_sac":
+                sd["encoder.flat.0.weight"] = self.enc_w[0][e].T.detach().clone()
+                sd["encoder.flat.0.bias"] = self.enc_b[0][e].detach().clone()
+            else:
+                for i, (w, b) in enumerate(zip(self.enc_w, self.enc_b, strict=True)):
+                    sd[f"encoder.layers.{i}.linear.weight"] = w[e].T.detach().clone()
+                    sd[f"encoder.layers.{i}.bias"] = b[e].detach().clone()
+            for i, (w, b) in enumerate(zip(self.head_w, self.head_b, strict=True)):
+                sd[f"head.{2 * i}.weight"] = w[e].T.detach().clone()
+                sd[f"head.{2 * i}.bias"] = b[e].detach().clone()
+            out.append(sd)
+        return out
+
+    def embed(self, h: torch.Tensor, a_hat: torch.Tensor | None, m: torch.Tensor) -> torch.Tensor:
+        """Every critic's graph embedding ``[E, B, D]`` of prepared inputs
+        (:meth:`GraphEncoder.prepare`: ``h [B, M, F]``, ``a_hat [B, M, M]``, ``m [B, M, 1]``)."""
+        e = self.size
+        if self.variant == "s_sac":
+            x = torch.cat([h, m], -1).flatten(-2)  # [B, M (F + 1)], shared by every critic
+            w, b = self.enc_w[0], self.enc_b[0]
+            y = x @ w.permute(1, 0, 2).reshape(w.shape[1], -1) + b.reshape(-1)
+            return torch.relu(y).reshape(x.shape[0], e, -1).transpose(0, 1)
+        batch, nodes, _ = h.shape
+        # The critics' node embeddings stay side by side, [B, M, E H]: the first layer's input is
+        # shared, so its weights are concatenated, and a later layer's weights form one
+        # block-diagonal matrix; a_hat mixes nodes only, so one aggregation serves every critic.
+        x = h
+        for w, b in zip(self.enc_w, self.enc_b, strict=True):
+            weight = w.permute(1, 0, 2).reshape(w.shape[1], -1) if x is h else torch.block_diag(*w)
+            x = torch.relu(aggregate(x, a_hat, weight, b.reshape(-1)))
+        ego = x[:, 0].reshape(batch, e, -1).transpose(0, 1)
+        if self.readout == "ego":
+            return ego
+        count = m.sum(-2).clamp_min(1.0)  # [B, 1]
+        mean = (m.transpose(-1, -2) @ x).reshape(batch, e, -1).transpose(0, 1) / count
+        return torch.cat([ego, mean], -1)
+
+    def first_layer(self, embedding: torch.Tensor) -> torch.Tensor:
+        """The embedding's part of the first head layer, bias included: ``[E, B, H]``."""
+        w = self.head_w[0][:, : self.embed_features]
+        return torch.baddbmm(self.head_b[0].unsqueeze(1), embedding, w)
+
+    def q_values(
+        self, first: torch.Tensor, action: torch.Tensor, detach_params: bool = False
+    ) -> torch.Tensor:
+        """``Q [E, B]`` from :meth:`first_layer`'s output and the action ``[B, A]``; with
+        ``detach_params`` no gradient reaches the critics' weights (only the action's)."""
+        ws = [w.detach() if detach_params else w for w in self.head_w]
+        bs = [b.detach() if detach_params else b for b in self.head_b]
+        x = torch.relu(first + action @ ws[0][:, self.embed_features :])
+        for w, b in zip(ws[1:-1], bs[1:-1], strict=True):
+            x = torch.relu(torch.baddbmm(b.unsqueeze(1), x, w))
+        return torch.baddbmm(bs[-1].unsqueeze(1), x, ws[-1]).squeeze(-1)
+
+    def forward(self, h, a_hat, m, action) -> torch.Tensor:
+        """``Q [E, B]`` of prepared inputs and actions."""
+        return self.q_values(self.first_layer(self.embed(h, a_hat, m)), action)
+
+
+def actor_net_of(actor) -> nn.Module:
+    """The plain module inside the trainer's ``ProbabilisticActor`` (``sac.make_actor``):
+    observation keys in, ``(loc, scale)`` out."""
+    return actor.module[0].module
+
+
+class SACUpdate(nn.Module):
+    """Parameters, target critics, optimisers and one gradient step of SAC.
+
+    Args:
+        actor: the trainer's ``ProbabilisticActor`` (its weights are trained in place, so the
+            collector and the evaluation keep using it).
+        qnets: ``E`` freshly initialised :class:`QNet` critics (weights are copied).
+        gamma, tau, lr, alpha_init, loss_function: as :class:`~sharedspace.train.config.
+            TrainConfig`.
+        action_dim: ``|A|``; the target entropy is ``-action_dim``.
+    """
+
+    def __init__(
+        self,
+        actor,
+        qnets: Sequence[QNet],
+        *,
+        gamma: float,
+        tau: float,
+        lr: float,
+        alpha_init: float,
+        loss_function: str = "l2",
+        action_dim: int = 2,
+    ):
+        super().__init__()
+        if loss_function not in ("l2", "smooth_l1"):
+            raise ValueError(f"loss_function must be l2 or smooth_l1, not {loss_function!r}")
+        self.actor = actor_net_of(actor)
+        self.critics = CriticEnsemble(qnets)
+        self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
+        self.log_alpha = nn.Parameter(torch.tensor(math.log(alpha_init)))
+        self.gamma, self.tau = gamma, tau
+        self.loss_function = loss_function
+        self.target_entropy = -float(action_dim)
+        fused = {"fused": True} if _fused_adam_ok(self.log_alpha.device) else {}
+        self.optimizers = {
+            "actor": torch.optim.Adam(self.actor.parameters(), lr=lr, **fused),
+            "critic": torch.optim.Adam(self.critics.parameters(), lr=lr, **fused),
+            "alpha": torch.optim.Adam([self.log_alpha], lr=lr, **fused),
+        }
+
+    def _policy(self, h, a_hat, m) -> TanhNormal:
+        net = self.actor.net
+        loc, scale = self.actor.extract(net.head(net.encoder.embed(h, a_hat, m)))
+        return TanhNormal(loc, scale, low=-1.0, high=1.0, tanh_loc=False)
+
+    def losses(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """SACLoss's ``loss_qvalue``, ``loss_actor``, ``loss_alpha`` (with graphs), ``alpha``
+        and ``entropy`` on a replay batch. Random draws in SACLoss's order: the next actions
+        (target) first, then the actions of the actor loss."""
+        encoder = self.actor.net.encoder
+        nxt = batch["next"]
+        alpha = self.log_alpha.detach().exp()
+        with torch.no_grad():
+            h1, a1, m1 = encoder.prepare(nxt["features"], nxt["adjacency"], nxt["mask"])
+            next_action, next_log_prob = rsample_and_log_prob(self._policy(h1, a1, m1))
+            next_q = self.target_critics(h1, a1, m1, next_action)  # [E, B]
+            next_value = (next_q - alpha * next_log_prob).min(0)[0]
+            not_terminated = 1.0 - nxt["terminated"].reshape(-1).to(next_value.dtype)
+            target = nxt["reward"].reshape(-1) + self.gamma * not_terminated * next_value
+
+        h, a_hat, m = encoder.prepare(batch["features"], batch["adjacency"], batch["mask"])
+        first = self.critics.first_layer(self.critics.embed(h, a_hat, m))
+        pred = self.critics.q_values(first, batch["action"])
+        if self.loss_function == "l2":
+            loss_q = (pred - target).square().sum(0).mean()
+        else:
+            loss_q = (
+                nn.functional.smooth_l1_loss(pred, target.expand_as(pred), reduction="none")
+                .sum(0)
+                .mean()
+            )
+
+        action, log_prob = rsample_and_log_prob(self._policy(h, a_hat, m))
+        q_new = self.critics.q_values(first.detach(), action, detach_params=True).min(0)[0]
+        loss_actor = (alpha * log_prob - q_new).mean()
+        loss_alpha = (-self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
+        return {
+            "loss_qvalue": loss_q,
+            "loss_actor": loss_actor,
+            "loss_alpha": loss_alpha,
+            "alpha": alpha,
+            "entropy": -log_prob.detach().mean(),
+        }
+
+    def step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One gradient step on ``batch`` and the soft target update; returns the losses."""
+        out = self.losses(batch)
+        for o in self.optimizers.values():
+            o.zero_grad(set_to_none=True)
+        # Each loss reaches only its own network's weights (the actor loss sees detached critic
+        # weights, the alpha loss a detached log-prob), so one backward of the sum suffices.
+        (out["loss_qvalue"] + out["loss_actor"] + out["loss_alpha"]).backward()
+        for o in self.optimizers.values():
+            o.step()
+        self.update_targets()
+        return out
+
+    @torch.no_grad()
+    def update_targets(self) -> None:
+        """``theta' <- theta' + tau (theta - theta')`` (TorchRL's ``SoftUpdate``)."""
+        target = list(self.target_critics.parameters())
+        torch._foreach_lerp_(target, list(self.critics.parameters()), self.tau)
+
+    def optimizer_state(self) -> dict[str, dict]:
+        return {k: o.state_dict() for k, o in self.optimizers.items()}
+
+    def load_optimizer_state(self, state: dict[str, dict]) -> None:
+        for k, o in self.optimizers.items():
+            o.load_state_dict(state[k])
+
+
+def _fused_adam_ok(device: torch.device) -> bool:
+    """Fused Adam runs on CPU and CUDA in the torch versions we pin; test it once."""
+    try:
+        p = nn.Parameter(torch.zeros(1, device=device))
+        torch.optim.Adam([p], fused=True)
+        return True
+    except (RuntimeError, TypeError):
+        return False
