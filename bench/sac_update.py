@@ -1,35 +1,40 @@
-"""SAC update cost, old and new side by side: TorchRL's ``SACLoss`` (the trainer's learner until
-2026-12-03) against :class:`sharedspace.train.update.SACUpdate`, on the same networks, batch
-size and thread count, in interleaved rounds (docs/BENCHMARKS.md, "Learner").
+"""SAC update cost, old and new side by side: the trainer's learner as it was at git revision
+``--baseline`` (TorchRL's ``SACLoss`` over that revision's networks, stepped as that revision's
+trainer stepped it) against today's :class:`sharedspace.train.update.SACUpdate`, on the same
+network shapes, batch size and thread count, in interleaved rounds (docs/BENCHMARKS.md,
+"Learner").
 
     .venv/bin/python bench/sac_update.py [--variant g_sac_cog] [--batch 256] [--rounds 5]
-        [--updates 50] [--threads 1] [--json out.json]
+        [--updates 50] [--threads 1] [--baseline 3dd5f1a] [--json out.json]
 
-Each round times ``--updates`` gradient steps of each learner (replay sampling excluded: both
-get the same pre-sampled batches) and reports ms per update; the summary is the median and
-minimum over rounds and the ratio old / new of the medians.
+The baseline's ``gcn.py`` and ``sac.py`` are read with ``git show`` into a scratch package, so
+the "old" column is that code, not today's code with a flag. Each round times ``--updates``
+gradient steps of each learner (replay sampling excluded: both get the same pre-sampled
+batches) and reports ms per update; the summary is the median and minimum over rounds and the
+ratio old / new of the medians.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 from torchrl.data import Bounded
 
 from sharedspace.train.config import VARIANTS, TrainConfig
-from sharedspace.train.sac import (
-    make_actor,
-    make_critic,
-    make_loss,
-    make_optimizers,
-    make_update,
-)
+from sharedspace.train.sac import make_actor, make_update
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def fake_batch(batch: int, max_agents: int = 8, features: int = 11) -> TensorDict:
@@ -58,15 +63,55 @@ def fake_batch(batch: int, max_agents: int = 8, features: int = 11) -> TensorDic
     )
 
 
-def torchrl_learner(cfg: TrainConfig):
+def env_batches(count: int, batch: int, seed: int = 0) -> list[TensorDict]:
+    """``count`` replay batches sampled from transitions of the paper pool's train split
+    (the in-process env, a uniform random policy): real observations, whose masks fill 4 of
+    the 8 nodes as the paper's scenes do."""
+    from sharedspace.local_env import LocalBatchedEnv
+
+    env = LocalBatchedEnv(num_envs=16, max_agents=8, split="train", seed=seed)
+    torch.manual_seed(seed)
+    data = env.rollout(64, break_when_any_done=False).reshape(-1)
+    env.close()
+    gen = torch.Generator().manual_seed(seed)
+    return [
+        data[torch.randint(len(data), (batch,), generator=gen)] for _ in range(count)
+    ]
+
+
+def baseline_modules(rev: str):
+    """``(gcn, sac)`` modules of the trainer at git revision ``rev``, importable side by side
+    with today's package (their ``sharedspace.train.gcn`` imports point at the copies)."""
+    scratch = Path(tempfile.mkdtemp(prefix="sac_baseline_")) / "baseline_train"
+    scratch.mkdir()
+    (scratch / "__init__.py").write_text("")
+    for name in ("gcn", "sac"):
+        text = subprocess.run(
+            ["git", "show", f"{rev}:clients/src/sharedspace/train/{name}.py"],
+            cwd=REPO,
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+        text = text.replace(
+            "from sharedspace.train.gcn import", "from baseline_train.gcn import"
+        )
+        (scratch / f"{name}.py").write_text(text)
+    sys.path.insert(0, str(scratch.parent))
+    return importlib.import_module("baseline_train.gcn"), importlib.import_module(
+        "baseline_train.sac"
+    )
+
+
+def baseline_learner(cfg: TrainConfig, rev: str):
     """The old learner: SACLoss + three Adams + SoftUpdate, stepped as the trainer did."""
+    _, sac = baseline_modules(rev)
     spec = Bounded(-1.0, 1.0, (2,))
-    actor, critic = make_actor(cfg, spec), make_critic(cfg, spec)
-    probe = fake_batch(2)
+    actor, critic = sac.make_actor(cfg, spec), sac.make_critic(cfg, spec)
     with torch.no_grad():
-        critic(actor(probe))
-    loss, target_update = make_loss(cfg, actor, critic)
-    optimizers = make_optimizers(cfg, loss)
+        critic(actor(fake_batch(2)))
+    loss, target_update = sac.make_loss(cfg, actor, critic)
+    optimizers = sac.make_optimizers(cfg, loss)
 
     def step(batch):
         out = loss(batch)
@@ -107,13 +152,25 @@ def main() -> int:
         "--updates", type=int, default=50, help="updates per learner per round"
     )
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    ap.add_argument(
+        "--baseline", default="3dd5f1a", help="git revision of the old learner"
+    )
+    ap.add_argument(
+        "--data",
+        default="env",
+        choices=("env", "random"),
+        help="env: observations of the paper pool; random: every node present or not at random",
+    )
     ap.add_argument("--json", default="", help="write the figures to this file")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     cfg = TrainConfig(variant=args.variant, batch_size=args.batch)
-    learners = {"torchrl": torchrl_learner(cfg), "fused": fused_learner(cfg)}
-    batches = [fake_batch(args.batch) for _ in range(args.updates)]
+    learners = {"old": baseline_learner(cfg, args.baseline), "new": fused_learner(cfg)}
+    if args.data == "env":
+        batches = env_batches(args.updates, args.batch)
+    else:
+        batches = [fake_batch(args.batch) for _ in range(args.updates)]
     for step in learners.values():  # warm-up: allocator, oneDNN primitives
         time_updates(step, batches[:5])
     ms: dict[str, list[float]] = {k: [] for k in learners}
@@ -128,17 +185,19 @@ def main() -> int:
     result = {
         "variant": args.variant,
         "batch": args.batch,
+        "data": args.data,
         "threads": args.threads,
         "torch": torch.__version__,
         "machine": platform.processor() or platform.machine(),
         "ms_per_update": ms,
         "median_ms": med,
         "min_ms": {k: min(v) for k, v in ms.items()},
-        "speedup_of_medians": med["torchrl"] / med["fused"],
+        "baseline": args.baseline,
+        "speedup_of_medians": med["old"] / med["new"],
     }
     print(
-        f"{args.variant} batch {args.batch}, {args.threads} thread(s): torchrl {med['torchrl']:.2f}"
-        f" ms, fused {med['fused']:.2f} ms per update (median of {args.rounds} rounds):"
+        f"{args.variant} batch {args.batch}, {args.threads} thread(s): old ({args.baseline})"
+        f" {med['old']:.2f} ms, new {med['new']:.2f} ms per update (median of {args.rounds} rounds):"
         f" {result['speedup_of_medians']:.2f}x"
     )
     if args.json:

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "GCNLayer",
     "GraphEncoder",
     "normalized_adjacency",
+    "present_nodes",
     "uniform_adjacency",
     "aggregate",
     "mlp",
@@ -32,6 +34,14 @@ __all__ = [
 
 #: Fixed scale of the node features (FEATURE_NAMES order), so that inputs are O(1).
 FEATURE_SCALE = (10.0, 10.0, 5.0, 5.0, 5.0, 3.14159, 1.0, 1.0, 20.0, 20.0, 20.0)
+
+
+def present_nodes(mask: torch.Tensor) -> int:
+    """``1 +`` the index of the last node present in any observation of ``mask [*, M]`` (at
+    least 1): the nodes after it are padding everywhere."""
+    any_present = mask.reshape(-1, mask.shape[-1]).any(0)
+    idx = torch.nonzero(any_present)
+    return int(idx[-1, 0]) + 1 if idx.numel() else 1
 
 
 def uniform_adjacency(mask: torch.Tensor) -> torch.Tensor:
@@ -59,7 +69,7 @@ class GCNLayer(nn.Module):
         super().__init__()
         self.linear = nn.Linear(in_features, out_features, bias=False)  # W
         self.bias = nn.Parameter(torch.zeros(out_features))  # added after aggregation
-        self.activation = nn.ReLU() if activation else nn.Identity()
+        self.activation = nn.ReLU(inplace=True) if activation else nn.Identity()
 
     def forward(self, h: torch.Tensor, a_hat: torch.Tensor) -> torch.Tensor:
         return self.activation(aggregate(h, a_hat, self.linear.weight.T, self.bias))
@@ -89,7 +99,7 @@ def mlp(
     """Linear + ReLU stack through ``sizes`` (then a plain ``Linear`` to ``out`` if given)."""
     layers: list[nn.Module] = []
     for a, b in zip(sizes[:-1], sizes[1:], strict=True):
-        layers += [nn.Linear(a, b), nn.ReLU()]
+        layers += [nn.Linear(a, b), nn.ReLU(inplace=True)]  # a Linear's backward needs no output
     if out is not None:
         layers.append(nn.Linear(sizes[-1], out))
     elif not final_activation and layers:
@@ -138,7 +148,14 @@ class GraphEncoder(nn.Module):
         """The parameter-free part of the encoder: ``(h, a_hat, m)`` = scaled and masked node
         features ``[*, M, F]``, the normalised adjacency ``[*, M, M]`` (``None`` for ``s_sac``)
         and the mask as ``[*, M, 1]`` floats. It depends on the variant only, so the actor and
-        the critics of one update share it (:mod:`sharedspace.train.update`)."""
+        the critics of one update share it (:mod:`sharedspace.train.update`).
+
+        Trailing nodes that are padding in every sample are dropped (``M`` becomes the last
+        present node + 1): padding never reaches a present node, so the embedding is the same,
+        and the paper's scenes fill 4 of the default 8 nodes."""
+        k = present_nodes(mask)
+        if k < mask.shape[-1]:
+            features, adjacency, mask = features[..., :k, :], adjacency[..., :k, :k], mask[..., :k]
         m = mask.to(features.dtype).unsqueeze(-1)
         h = features / self.scale * m
         if self.variant == "s_sac":
@@ -149,7 +166,9 @@ class GraphEncoder(nn.Module):
     def embed(self, h: torch.Tensor, a_hat: torch.Tensor | None, m: torch.Tensor) -> torch.Tensor:
         """``[*, out_features]`` from :meth:`prepare`'s output."""
         if self.variant == "s_sac":
-            return self.flat(torch.cat([h, m], -1).flatten(-2))
+            x = torch.cat([h, m], -1).flatten(-2)
+            first = self.flat[0]  # dropped padding nodes are zero inputs: their weights go too
+            return torch.relu(F.linear(x, first.weight[:, : x.shape[-1]], first.bias))
         # Padding nodes are not masked between layers: their columns of a_hat are 0, so they
         # never reach a present node, and the readout masks them.
         for layer in self.layers:

@@ -104,9 +104,9 @@ class CriticEnsemble(nn.Module):
         e = self.size
         if self.variant == "s_sac":
             x = torch.cat([h, m], -1).flatten(-2)  # [B, M (F + 1)], shared by every critic
-            w, b = self.enc_w[0], self.enc_b[0]
+            w, b = self.enc_w[0][:, : x.shape[-1]], self.enc_b[0]  # dropped padding: zeros
             y = x @ w.permute(1, 0, 2).reshape(w.shape[1], -1) + b.reshape(-1)
-            return torch.relu(y).reshape(x.shape[0], e, -1).transpose(0, 1)
+            return torch.relu_(y).reshape(x.shape[0], e, -1).transpose(0, 1)
         batch, nodes, _ = h.shape
         # The critics' node embeddings stay side by side, [B, M, E H]: the first layer's input is
         # shared, so its weights are concatenated, and a later layer's weights form one
@@ -114,7 +114,7 @@ class CriticEnsemble(nn.Module):
         x = h
         for w, b in zip(self.enc_w, self.enc_b, strict=True):
             weight = w.permute(1, 0, 2).reshape(w.shape[1], -1) if x is h else torch.block_diag(*w)
-            x = torch.relu(aggregate(x, a_hat, weight, b.reshape(-1)))
+            x = torch.relu_(aggregate(x, a_hat, weight, b.reshape(-1)))
         ego = x[:, 0].reshape(batch, e, -1).transpose(0, 1)
         if self.readout == "ego":
             return ego
@@ -134,9 +134,12 @@ class CriticEnsemble(nn.Module):
         ``detach_params`` no gradient reaches the critics' weights (only the action's)."""
         ws = [w.detach() if detach_params else w for w in self.head_w]
         bs = [b.detach() if detach_params else b for b in self.head_b]
-        x = torch.relu(first + action @ ws[0][:, self.embed_features :])
+        # in-place ReLUs: the matmuls' backward does not need their outputs, and a fresh
+        # [E, B, H] buffer per activation costs more than the arithmetic on this CPU
+        w_action = ws[0][:, self.embed_features :]
+        x = torch.relu_(torch.baddbmm(first, action.expand(self.size, *action.shape), w_action))
         for w, b in zip(ws[1:-1], bs[1:-1], strict=True):
-            x = torch.relu(torch.baddbmm(b.unsqueeze(1), x, w))
+            x = torch.relu_(torch.baddbmm(b.unsqueeze(1), x, w))
         return torch.baddbmm(bs[-1].unsqueeze(1), x, ws[-1]).squeeze(-1)
 
     def forward(self, h, a_hat, m, action) -> torch.Tensor:
