@@ -2,6 +2,7 @@
 
     python -m sharedspace.train.evaluate --checkpoint runs/x/checkpoints/last.pt --split test
         [--json out.json] [--traces traces.json] [--set key=value ...]
+    python -m sharedspace.train.evaluate --driver pursuit_3 ...   # a scripted reference driver
 
 Every scenario of the split is played once with the deterministic policy (the TanhNormal's
 mode) in a batched env with one sub-env per scenario (``scenario_order="sequential"``). The human
@@ -25,6 +26,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from sharedspace.local_env import load_pool, split_indices
 from sharedspace.reference import _recorded_headings, episode_metrics
 from sharedspace.train.config import TrainConfig, apply_overrides
+from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.sac import make_actor, make_env
 
 __all__ = [
@@ -175,7 +177,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--checkpoint", required=True, help="checkpoint .pt written by the trainer")
+    who = ap.add_mutually_exclusive_group(required=True)
+    who.add_argument("--checkpoint", help="checkpoint .pt written by the trainer")
+    who.add_argument(
+        "--driver",
+        choices=sorted(DRIVERS),
+        help="a scripted reference driver instead of a checkpoint (sharedspace.train.drivers)",
+    )
     ap.add_argument("--split", default="test", help="train | test | all")
     ap.add_argument("--json", default="", help="write the table and episodes to this JSON file")
     ap.add_argument(
@@ -189,17 +197,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--device", default="cpu")
     args = ap.parse_args(argv)
 
-    cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
+    if args.checkpoint:
+        cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
+        name = cfg.variant
+    else:
+        cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
+        actor, name = make_driver(args.driver), args.driver
     result = evaluate_policy(cfg, actor, args.split)
     pool = load_pool(cfg.scenario_pool or None)
     human = human_episodes(pool, split_indices(pool, args.split))
-    rows = {cfg.variant: result["summary"], "human": summarize(human)}
+    rows = {name: result["summary"], "human": summarize(human)}
     print(format_table(rows))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(
                 {
                     "checkpoint": args.checkpoint,
+                    "driver": args.driver,
                     "split": args.split,
                     "table": rows,
                     "episodes": result["episodes"],

@@ -1,0 +1,203 @@
+"""Scripted reference drivers and the kinematic reachability of each scenario's goal.
+
+They say what a learned policy must beat (docs/RESULTS.md, Table II) and whether the paper's
+success rate is reachable on our scenario extraction at all:
+
+- :class:`HoldDriver` holds the initial speed and heading (action ``[0, 0]``): doing nothing.
+- :class:`StopDriver` brakes to a standstill: what collides even then is unavoidable.
+- :class:`PursuitDriver` steers toward the goal within the yaw-rate limit at a cruise speed,
+  slows where the turn to the goal needs a tighter circle than the yaw-rate limit allows at its
+  speed, and brakes to a stop while a pedestrian is close ahead.
+- :func:`reachability` plays, for every scenario, the pursuit law with no pedestrians from the
+  recorded initial state at every cruise speed of a grid and reports the earliest arrival within
+  the horizon, with the vehicle limits of model.md section 2.
+
+The drivers read only the observation (ENV_CONTRACT.md: ego-frame node features, mask), so
+they run through the same evaluator and env as a learned actor
+(``python -m sharedspace.train.evaluate --driver pursuit``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+
+__all__ = [
+    "DRIVERS",
+    "VehicleLimits",
+    "HoldDriver",
+    "StopDriver",
+    "PursuitDriver",
+    "make_driver",
+    "reachability",
+]
+
+# Node feature columns (protocol/SPEC.md section 7).
+_REL_X, _REL_Y, _SPEED, _GOAL_DX, _GOAL_DY, _GOAL_DIST = 0, 1, 4, 8, 9, 10
+
+
+@dataclass(frozen=True)
+class VehicleLimits:
+    """model.md section 2 (sim-core ``VehicleParams``)."""
+
+    acc_max: float = 2.0  # m/s^2: action[0] = acc / acc_max
+    omega_max: float = 0.2  # rad/s: action[1] = omega / omega_max
+    speed_max: float = 6.0  # m/s
+    goal_radius: float = 2.0  # m
+    dt: float = 0.5  # s
+
+
+def _turn_speed_cap(limits: VehicleLimits, heading_error, goal_dist):
+    """Highest speed at which the circle of the yaw-rate limit still passes through the goal
+    (radius ``v / omega_max`` at most ``d / (2 sin|e|)``), for arrays or floats."""
+    sin_e = np.abs(np.sin(heading_error))
+    with np.errstate(divide="ignore"):
+        return np.where(sin_e > 1e-6, limits.omega_max * goal_dist / (2 * sin_e), np.inf)
+
+
+def pursuit_action(
+    heading_error,
+    goal_dist,
+    speed,
+    cruise: float,
+    limits: VehicleLimits,
+    brake=None,
+) -> tuple[Any, Any]:
+    """(acc, omega), physical units, of the pursuit law; arrays broadcast. ``brake`` (bool)
+    sets the target speed to 0."""
+    omega = np.clip(heading_error / limits.dt, -limits.omega_max, limits.omega_max)
+    target = np.minimum(cruise, _turn_speed_cap(limits, heading_error, goal_dist))
+    target = np.maximum(target, 0.5)  # never stall for the turn cap alone
+    if brake is not None:
+        target = np.where(brake, 0.0, target)
+    acc = np.clip((target - speed) / limits.dt, -limits.acc_max, limits.acc_max)
+    return acc, omega
+
+
+class HoldDriver(nn.Module):
+    """Action ``[0, 0]``: the initial speed and heading, whatever happens."""
+
+    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return features.new_zeros((*features.shape[:-2], 2))
+
+
+class StopDriver(nn.Module):
+    """Full braking, straight on: the least an AV can do to avoid anyone."""
+
+    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        action = features.new_zeros((*features.shape[:-2], 2))
+        action[..., 0] = -1.0
+        return action
+
+
+class PursuitDriver(nn.Module):
+    """Pure pursuit toward the goal at ``cruise`` m/s, braking to a stop while a present
+    pedestrian's centre is within ``brake_ahead`` m ahead and ``brake_side`` m to either side.
+
+    Args:
+        cruise: target speed, m/s.
+        brake_ahead, brake_side: the braking box in the ego frame, m.
+        limits: vehicle limits (the action normalisation).
+    """
+
+    def __init__(
+        self,
+        cruise: float = 3.0,
+        brake_ahead: float = 8.0,
+        brake_side: float = 2.5,
+        limits: VehicleLimits = VehicleLimits(),  # noqa: B008 - frozen dataclass
+    ):
+        super().__init__()
+        self.cruise, self.brake_ahead, self.brake_side = cruise, brake_ahead, brake_side
+        self.limits = limits
+
+    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        f = features.detach().cpu().numpy()
+        present = mask.detach().cpu().numpy().astype(bool)
+        ego = f[..., 0, :]
+        heading_error = np.arctan2(ego[..., _GOAL_DY], ego[..., _GOAL_DX])
+        others = f[..., 1:, :]
+        is_ped = others[..., 7] < 0.5
+        ahead = (others[..., _REL_X] > 0.0) & (others[..., _REL_X] < self.brake_ahead)
+        beside = np.abs(others[..., _REL_Y]) < self.brake_side
+        brake = (present[..., 1:] & is_ped & ahead & beside).any(-1)
+        acc, omega = pursuit_action(
+            heading_error, ego[..., _GOAL_DIST], ego[..., _SPEED], self.cruise, self.limits, brake
+        )
+        action = np.stack([acc / self.limits.acc_max, omega / self.limits.omega_max], -1)
+        return torch.as_tensor(action, dtype=features.dtype, device=features.device)
+
+
+#: Reference drivers by name (``evaluate --driver NAME``; Table II rows).
+DRIVERS = {
+    "hold": lambda: HoldDriver(),
+    "stop": lambda: StopDriver(),
+    "pursuit_3": lambda: PursuitDriver(cruise=3.0),
+    "pursuit_5": lambda: PursuitDriver(cruise=5.0),
+}
+
+
+def make_driver(name: str) -> TensorDictModule:
+    """A driver of :data:`DRIVERS` as a policy over the env's tensordicts."""
+    if name not in DRIVERS:
+        raise ValueError(f"unknown driver {name!r}; known: {', '.join(DRIVERS)}")
+    return TensorDictModule(DRIVERS[name](), in_keys=["features", "mask"], out_keys=["action"])
+
+
+def reachability(
+    scenarios: Sequence[dict[str, Any]],
+    horizon_extra: float = 15.0,
+    cruises: Sequence[float] = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0),
+    limits: VehicleLimits = VehicleLimits(),  # noqa: B008 - frozen dataclass
+) -> list[dict[str, Any]]:
+    """Per scenario, the pursuit law with no pedestrians from the recorded initial state
+    (position, speed, heading of the first frame), the semi-implicit unicycle of model.md
+    section 2, for each cruise speed: the earliest arrival step within the horizon (recorded
+    steps + ``horizon_extra`` s), or ``None`` if no cruise speed arrives."""
+    from sharedspace.reference import _recorded_headings
+
+    out = []
+    for sc in scenarios:
+        ego = sc["agents"][int(sc["ego"])]
+        pos = np.asarray(ego["positions"], dtype=float).reshape(-1, 2)
+        vel = np.asarray(ego["velocities"], dtype=float).reshape(-1, 2)
+        dt = float(sc.get("dt", limits.dt))
+        recorded_steps = len(pos) - 1
+        horizon = recorded_steps + int(round(horizon_extra / dt))
+        goal = pos[-1]
+        theta0 = float(_recorded_headings(vel)[0])
+        best: dict[str, Any] = {"steps": None, "cruise": None}
+        for cruise in cruises:
+            x, y, th, v = float(pos[0, 0]), float(pos[0, 1]), theta0, float(np.hypot(*vel[0]))
+            for step in range(1, horizon + 1):
+                dx, dy = goal[0] - x, goal[1] - y
+                err = math.atan2(dy, dx) - th
+                err = math.atan2(math.sin(err), math.cos(err))
+                acc, omega = pursuit_action(err, math.hypot(dx, dy), v, cruise, limits)
+                v = min(max(v + float(acc) * dt, 0.0), limits.speed_max)
+                th += float(omega) * dt
+                x += v * math.cos(th) * dt
+                y += v * math.sin(th) * dt
+                if math.hypot(goal[0] - x, goal[1] - y) <= limits.goal_radius:
+                    if best["steps"] is None or step < best["steps"]:
+                        best = {"steps": step, "cruise": cruise}
+                    break
+        out.append(
+            {
+                "scenario": sc["name"],
+                "horizon_steps": horizon,
+                "recorded_steps": recorded_steps,
+                "initial_speed": float(np.hypot(*vel[0])),
+                "reachable": best["steps"] is not None,
+                "earliest_arrival_steps": best["steps"],
+                "at_cruise": best["cruise"],
+            }
+        )
+    return out

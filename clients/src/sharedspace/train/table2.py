@@ -1,0 +1,423 @@
+"""The paper's Table II from the runs of ``make table2`` (scripts/table2.sh).
+
+    python -m sharedspace.train.table2 --runs out/table2 [--json docs/table2.json]
+        [--doc docs/RESULTS.md] [--set env_backend=remote server_endpoint=...]
+
+For every run folder ``{variant}-s{seed}`` with ``checkpoints/last.pt`` it evaluates the
+checkpoint on every test scenario (cached in ``eval_test.json`` beside the checkpoints, keyed by
+its frame count), then evaluates the scripted drivers and the first-step reachability against
+the same server, scores the human driver, and writes:
+
+- per variant: mean and sample standard deviation over seeds of every Table II column;
+- pooled over seeds: success / collision / timeout counts with Wilson 95 % intervals;
+- paired per-scenario comparisons of the variants (success averaged over seeds per scenario:
+  mean difference with a bootstrap 95 % interval over scenarios, and an exact sign test);
+- the scripted drivers, the human driver, the paper's rows;
+- the scenarios whose goal is kinematically reachable (:func:`drivers.reachability`) and those
+  where every extreme action collides on the first step (unavoidable collisions);
+- the learning curves (test-split evaluations logged while training, mean over seeds).
+
+The JSON goes to ``--json``; with ``--doc`` the block between ``<!-- table2:begin -->`` and
+``<!-- table2:end -->`` of that markdown file is replaced by the rendered tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import math
+import platform
+import re
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+
+from sharedspace.local_env import load_pool, split_indices
+from sharedspace.train.config import VARIANTS, TrainConfig, apply_overrides
+from sharedspace.train.drivers import DRIVERS, make_driver, reachability
+from sharedspace.train.evaluate import (
+    COLUMNS,
+    evaluate_policy,
+    human_episodes,
+    load_checkpoint_actor,
+    summarize,
+)
+from sharedspace.train.sac import make_env
+
+__all__ = ["wilson", "sign_test", "paired_bootstrap", "main"]
+
+#: The paper's Table II (model.md section 9): success, collision, timeout, speed, jerk, max acc.
+PAPER_ROWS = {
+    "G-SAC-Cog (paper)": (0.94, 0.06, 0.0, 4.470, 0.524, 1.621),
+    "G-SAC-NoCog (paper)": (0.83, 0.11, 0.06, None, None, None),
+    "S-SAC (paper)": (0.78, 0.22, 0.0, None, None, None),
+    "UAW-PCG (paper)": (0.83, 0.17, 0.0, None, None, None),
+    "Human (paper)": (1.0, 0.0, 0.0, 2.924, 0.609, 4.240),
+}
+VARIANT_NAMES = {"g_sac_cog": "G-SAC-Cog", "g_sac_nocog": "G-SAC-NoCog", "s_sac": "S-SAC"}
+STATUSES = ("success", "collision", "timeout")
+
+
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion ``k / n`` (95 % by default)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """Exact two-sided sign test p-value (ties dropped)."""
+    n = wins + losses
+    if n == 0:
+        return 1.0
+    k = min(wins, losses)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2**n
+    return min(1.0, 2 * tail)
+
+
+def paired_bootstrap(
+    diffs: Sequence[float], resamples: int = 10_000, seed: int = 0
+) -> tuple[float, float]:
+    """95 % percentile interval of the mean of ``diffs`` resampled over scenarios."""
+    d = np.asarray(diffs, dtype=float)
+    if d.size == 0:
+        return (0.0, 0.0)
+    rng = np.random.default_rng(seed)
+    means = d[rng.integers(0, d.size, (resamples, d.size))].mean(1)
+    return (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
+
+
+def find_runs(runs: Path) -> dict[str, dict[int, Path]]:
+    """``{variant: {seed: run folder}}`` of the folders holding ``checkpoints/last.pt``."""
+    out: dict[str, dict[int, Path]] = {}
+    for ckpt in sorted(runs.glob("*-s*/checkpoints/last.pt")):
+        m = re.fullmatch(r"(.+)-s(\d+)", ckpt.parent.parent.name)
+        if m and m.group(1) in VARIANTS:
+            out.setdefault(m.group(1), {})[int(m.group(2))] = ckpt.parent.parent
+    return out
+
+
+def evaluate_run(run: Path, overrides: Sequence[str]) -> dict[str, Any]:
+    """The test-split evaluation of ``run``'s last checkpoint (cached per frame count)."""
+    ckpt = run / "checkpoints" / "last.pt"
+    frames = int(torch.load(ckpt, weights_only=False)["counters"]["frames"])
+    cache = run / "eval_test.json"
+    if cache.exists():
+        cached = json.loads(cache.read_text())
+        if cached.get("frames") == frames:
+            return cached
+    cfg, actor = load_checkpoint_actor(str(ckpt), overrides)
+    result = evaluate_policy(cfg, actor, "test")
+    out = {"frames": frames, **result}
+    cache.write_text(json.dumps(out))
+    return out
+
+
+class _ConstantAction(nn.Module):
+    def __init__(self, action: Sequence[float]):
+        super().__init__()
+        self.register_buffer("action", torch.tensor(action, dtype=torch.float32))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.action.expand(*features.shape[:-2], 2)
+
+
+def unavoidable_first_step(cfg: TrainConfig) -> list[int]:
+    """Test scenarios (pool indices) in which each of the 9 actions of ``{-1, 0, 1}^2`` ends
+    the first step in a collision: no action avoids it."""
+    pool = load_pool(cfg.scenario_pool or None)
+    indices = split_indices(pool, "test")
+    collided = {i: 0 for i in indices}
+    for action in itertools.product((-1.0, 0.0, 1.0), repeat=2):
+        env = make_env(cfg, split="test", num_envs=len(indices), scenario_order="sequential")
+        try:
+            policy = TensorDictModule(
+                _ConstantAction(action), in_keys=["features"], out_keys=["action"]
+            )
+            td = policy(env.reset())
+            nxt = env.step(td)["next"]
+            scen = td["scenario_index"].reshape(-1).tolist()
+            for k, idx in enumerate(scen):
+                collided[int(idx)] += int(bool(nxt["episode_collision"][k]))
+        finally:
+            env.close()
+    return sorted(i for i, c in collided.items() if c == 9)
+
+
+def variant_stats(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
+    """Mean and spread over seeds, pooled counts with Wilson intervals."""
+    summaries = [r["summary"] for r in per_seed.values()]
+    episodes = [e for r in per_seed.values() for e in r["episodes"]]
+    stats: dict[str, Any] = {"seeds": sorted(per_seed), "frames": {}}
+    stats["frames"] = {str(s): r["frames"] for s, r in per_seed.items()}
+    for key, _ in COLUMNS:
+        vals = np.array([s[key] for s in summaries], dtype=float)
+        stats[key] = {
+            "mean": float(vals.mean()),
+            "std": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
+            "per_seed": vals.tolist(),
+        }
+    n = len(episodes)
+    for status in STATUSES:
+        k = sum(e["status"] == status for e in episodes)
+        stats[f"pooled_{status}"] = {
+            "k": k,
+            "n": n,
+            "rate": k / n if n else 0.0,
+            "wilson95": wilson(k, n),
+        }
+    return stats
+
+
+def per_scenario_success(per_seed: dict[int, dict[str, Any]]) -> dict[int, float]:
+    """Scenario -> success averaged over seeds."""
+    by: dict[int, list[float]] = {}
+    for r in per_seed.values():
+        for e in r["episodes"]:
+            by.setdefault(int(e["scenario_index"]), []).append(float(e["status"] == "success"))
+    return {k: float(np.mean(v)) for k, v in by.items()}
+
+
+def paired(a: dict[int, float], b: dict[int, float]) -> dict[str, Any]:
+    common = sorted(set(a) & set(b))
+    diffs = [a[i] - b[i] for i in common]
+    wins = sum(d > 0 for d in diffs)
+    losses = sum(d < 0 for d in diffs)
+    return {
+        "scenarios": len(common),
+        "mean_diff": float(np.mean(diffs)) if diffs else 0.0,
+        "bootstrap95": paired_bootstrap(diffs),
+        "better": wins,
+        "worse": losses,
+        "tied": len(common) - wins - losses,
+        "sign_test_p": sign_test(wins, losses),
+    }
+
+
+def learning_curves(runs: dict[int, Path]) -> dict[str, dict[str, float]]:
+    """``{frames: {metric: mean over seeds}}`` of the ``eval/`` metrics logged in training."""
+    acc: dict[int, dict[str, list[float]]] = {}
+    for run in runs.values():
+        path = run / "metrics.csv"
+        if not path.exists():
+            continue
+        with path.open() as f:
+            for row in csv.DictReader(f):
+                if row["metric"] in ("eval/success", "eval/collision", "eval/avg_speed"):
+                    key = row["metric"].removeprefix("eval/")
+                    acc.setdefault(int(row["frames"]), {}).setdefault(key, []).append(
+                        float(row["value"])
+                    )
+    return {
+        str(fr): {k: float(np.mean(v)) for k, v in m.items()} | {"runs": len(m["success"])}
+        for fr, m in sorted(acc.items())
+        if "success" in m
+    }
+
+
+def _fmt(x: float | None, digits: int = 3) -> str:
+    return "–" if x is None else f"{x:.{digits}f}"
+
+
+def render(table: dict[str, Any]) -> str:
+    """The markdown block of docs/RESULTS.md."""
+    lines = []
+    meta = table["meta"]
+    lines.append(
+        f"Generated by `make table2` on {meta['date']} ({meta['machine']}); runs in "
+        f"`{meta['runs']}`; world parameters `{meta['params']}`; {meta['test_scenarios']} test "
+        "scenarios, each played once per checkpoint with the deterministic policy."
+    )
+    lines.append("")
+    head = "| Model | seeds | frames | Success | Collision | Timeout | Avg speed (m/s) | "
+    head += "Avg \\|jerk\\| (m/s³) | Avg max \\|acc\\| (m/s²) |"
+    lines += [head, "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for v, s in table["variants"].items():
+        frames = sorted(set(s["frames"].values()))
+        cells = [f"{s[c]['mean']:.3f} ± {s[c]['std']:.3f}" for c, _ in COLUMNS]
+        lines.append(
+            f"| {VARIANT_NAMES.get(v, v)} | {len(s['seeds'])} | "
+            f"{'/'.join(str(f) for f in frames)} | " + " | ".join(cells) + " |"
+        )
+    for name, row in table["drivers"].items():
+        lines.append(
+            f"| scripted: {name} | – | – | " + " | ".join(_fmt(row[c]) for c, _ in COLUMNS) + " |"
+        )
+    h = table["human"]
+    lines.append(
+        "| Human driver (record) | – | – | " + " | ".join(_fmt(h[c]) for c, _ in COLUMNS) + " |"
+    )
+    for name, row in PAPER_ROWS.items():
+        lines.append(f"| {name} | – | – | " + " | ".join(_fmt(x) for x in row) + " |")
+    lines.append("")
+    lines.append(
+        "Mean ± sample standard deviation over seeds. Pooled over seeds, with Wilson 95 %"
+        " intervals:"
+    )
+    lines.append("")
+    lines += ["| Model | Success | Collision | Timeout |", "|---|---|---|---|"]
+    for v, s in table["variants"].items():
+        cells = []
+        for st in STATUSES:
+            p = s[f"pooled_{st}"]
+            lo, hi = p["wilson95"]
+            cells.append(f"{p['k']}/{p['n']} = {p['rate']:.3f} [{lo:.3f}, {hi:.3f}]")
+        lines.append(f"| {VARIANT_NAMES.get(v, v)} | " + " | ".join(cells) + " |")
+    lines.append("")
+    if table["paired"]:
+        lines.append("Paired per scenario (success averaged over seeds, A − B):")
+        lines.append("")
+        lines += [
+            "| A vs B | mean diff [bootstrap 95 %] | A better / worse / tied | sign test p |",
+            "|---|---|---|---|",
+        ]
+        for key, p in table["paired"].items():
+            a, b = key.split(" vs ")
+            lo, hi = p["bootstrap95"]
+            lines.append(
+                f"| {VARIANT_NAMES.get(a, a)} vs {VARIANT_NAMES.get(b, b)} | "
+                f"{p['mean_diff']:+.3f} [{lo:+.3f}, {hi:+.3f}] | "
+                f"{p['better']} / {p['worse']} / {p['tied']} | {p['sign_test_p']:.3f} |"
+            )
+        lines.append("")
+    reach = table["reachability"]
+    n_reach = sum(r["reachable"] for r in reach)
+    lines.append(
+        f"Reachability: the goal is kinematically reachable within the horizon in {n_reach} of "
+        f"{len(reach)} test scenarios (pursuit law without pedestrians, model.md limits). "
+        f"Unavoidable: in {len(table['unavoidable_first_step'])} test scenario(s) "
+        f"({', '.join(table['unavoidable_names']) or 'none'}) every action of "
+        "{-1, 0, 1}² collides on the first step, so success is at most "
+        f"{table['success_ceiling']:.3f} and collision at least "
+        f"{1 - table['success_ceiling']:.3f} for any policy."
+    )
+    curves = table["learning_curves"]
+    if curves:
+        lines.append("")
+        lines.append(
+            "Learning curves (test-split success logged during training, mean over seeds):"
+        )
+        lines.append("")
+        frames = sorted({int(f) for c in curves.values() for f in c}, key=int)
+        lines.append("| Model | " + " | ".join(f"{f // 1000}k" for f in frames) + " |")
+        lines.append("|---|" + "---:|" * len(frames))
+        for v, c in curves.items():
+            cells = [f"{c[str(f)]['success']:.2f}" if str(f) in c else "–" for f in frames]
+            lines.append(f"| {VARIANT_NAMES.get(v, v)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def replace_block(doc: Path, body: str) -> None:
+    text = doc.read_text()
+    begin, end = "<!-- table2:begin -->", "<!-- table2:end -->"
+    if begin not in text or end not in text:
+        raise SystemExit(f"{doc} has no {begin} ... {end} block")
+    i, j = text.index(begin) + len(begin), text.index(end)
+    doc.write_text(text[:i] + "\n" + body + "\n" + text[j:])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m sharedspace.train.table2",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--runs", required=True, help="folder of {variant}-s{seed} run folders")
+    ap.add_argument("--json", default="", help="write the table here")
+    ap.add_argument("--doc", default="", help="markdown file with a table2 block to rewrite")
+    ap.add_argument("--params", default="", help="world-parameter file the server ran with")
+    ap.add_argument("--frames", type=int, default=0, help="the budget per run (reported)")
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        action="extend",
+        default=[],
+        metavar="KEY=VALUE",
+        help="env overrides (env_backend=remote server_endpoint=...)",
+    )
+    args = ap.parse_args(argv)
+    t0 = time.time()
+    runs = find_runs(Path(args.runs))
+    if not runs:
+        raise SystemExit(f"no runs with checkpoints/last.pt under {args.runs}")
+    cfg = apply_overrides(TrainConfig(), args.set)
+    pool = load_pool(cfg.scenario_pool or None)
+    test = split_indices(pool, "test")
+
+    evaluated = {
+        v: {s: evaluate_run(p, args.set) for s, p in sorted(r.items())} for v, r in runs.items()
+    }
+    variants = {v: variant_stats(evaluated[v]) for v in VARIANTS if v in evaluated}
+    success = {v: per_scenario_success(evaluated[v]) for v in variants}
+    pairs = {
+        f"{a} vs {b}": paired(success[a], success[b])
+        for a, b in itertools.combinations(list(variants), 2)
+    }
+    drivers = {}
+    for name in DRIVERS:
+        drivers[name] = evaluate_policy(cfg, make_driver(name), "test")["summary"]
+    human = summarize(human_episodes(pool, test))
+    reach = reachability([pool[i] for i in test])
+    unavoidable = unavoidable_first_step(cfg)
+    table = {
+        "meta": {
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "machine": f"{platform.machine()}, {platform.processor() or 'cpu'}",
+            "runs": args.runs,
+            "params": args.params,
+            "budget_frames": args.frames,
+            "test_scenarios": len(test),
+            "tabulation_s": None,
+        },
+        "variants": variants,
+        "per_run": {
+            v: {
+                str(s): {
+                    "frames": r["frames"],
+                    "summary": r["summary"],
+                    "episodes": [
+                        {k: e[k] for k in ("scenario_index", "status", "avg_speed", "steps")}
+                        for e in r["episodes"]
+                    ],
+                }
+                for s, r in per.items()
+            }
+            for v, per in evaluated.items()
+        },
+        "paired": pairs,
+        "drivers": drivers,
+        "human": human,
+        "paper": {
+            k: dict(zip([c for c, _ in COLUMNS], row, strict=True)) for k, row in PAPER_ROWS.items()
+        },
+        "reachability": reach,
+        "unavoidable_first_step": unavoidable,
+        "unavoidable_names": [pool[i]["name"] for i in unavoidable],
+        "success_ceiling": 1 - len(unavoidable) / len(test),
+        "learning_curves": {v: learning_curves(runs[v]) for v in variants},
+    }
+    table["meta"]["tabulation_s"] = round(time.time() - t0, 1)
+    text = render(table)
+    print(text)
+    if args.json:
+        Path(args.json).write_text(json.dumps(table, indent=1))
+    if args.doc:
+        replace_block(Path(args.doc), text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
