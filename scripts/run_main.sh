@@ -1,12 +1,16 @@
 #!/usr/bin/env bash
 # `make run`: the main job end to end on the embedded default scenario pool (no data files needed).
 #
-# 1. starts `sim-server serve` on a free loopback port (multicast scouting off);
+# 1. starts `sim-server serve` on a free loopback port (multicast scouting off), with the world
+#    parameters of the paper's Table II runs (params/table2.json5);
 # 2. trains a short G-SAC-Cog run against it over Zenoh (progress bar: steps/s, return, success);
 # 3. evaluates the checkpoint on the test split and prints the paper's Table II columns next to
 #    the recorded human driver;
 # 4. writes plots (learning curves, speed/acceleration/heading profiles, a scene with its risk
-#    graph) to out/main/plots; then stops the server.
+#    graph) to out/main/plots;
+# 5. evaluates the shipped G-SAC-Cog policy of the Table II runs
+#    (results/table2/policies/g_sac_cog-s0.pt, docs/RESULTS.md) on the test split next to the
+#    human driver: the real result, in a minute; then stops the server.
 # Budget: RUN_FRAMES env transitions (default 12 000, a few minutes on 2 cores).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,7 +24,7 @@ mkdir -p "$out"
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 endpoint="tcp/127.0.0.1:$port"
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
-    --cfg server_id:main > "$out/server.log" 2>&1 &
+    --cfg server_id:main --cfg 'params:"params/table2.json5"' > "$out/server.log" 2>&1 &
 server_pid=$!
 trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
 echo "== sim-server serving on $endpoint (log: $out/server.log)"
@@ -39,3 +43,16 @@ echo
 echo "== plots -> $out/plots"
 "$py" -m sharedspace.train.plots --run "$out" --eval-json "$out/eval.json" --scene 2 --out "$out/plots"
 ls "$out/plots"
+
+shipped=results/table2/policies/g_sac_cog-s0.pt
+if [ -f "$shipped" ]; then
+    echo
+    echo "== the shipped G-SAC-Cog policy of the Table II runs ($shipped, $("$py" -c \
+        "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['counters']['frames'])" \
+        "$shipped") frames) on the test split"
+    "$py" -m sharedspace.train.evaluate --checkpoint "$shipped" --split test \
+        --json "$out/shipped_eval.json" --set "${remote[@]}"
+else
+    echo "no shipped policy at $shipped: \`make table2\` trains and ships it" >&2
+    exit 1
+fi

@@ -21,6 +21,8 @@
 #   TABLE2_EVAL      frames between test-split evaluations logged as learning curves (default 50000)
 #   TABLE2_DOC       markdown file whose table2 block is rewritten (default docs/RESULTS.md; "" = none)
 #   TABLE2_TRAIN     0 = skip training, only evaluate and tabulate what is there (default 1)
+#   TABLE2_SHIP      folder for the trained policies (actor + config; default results/table2/policies;
+#                    "" = none): `make run` evaluates results/table2/policies/g_sac_cog-s0.pt
 set -euo pipefail
 cd "$(dirname "$0")/.."
 server=target/release/sim-server
@@ -34,6 +36,7 @@ device=${TABLE2_DEVICE:-cpu}
 ckpt_every=${TABLE2_CKPT:-20000}
 eval_every=${TABLE2_EVAL:-50000}
 doc=${TABLE2_DOC-docs/RESULTS.md}
+ship=${TABLE2_SHIP-results/table2/policies}
 mkdir -p "$out"
 
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
@@ -83,4 +86,4 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
 fi
 
 "$py" -m sharedspace.train.table2 --runs "$out" --frames "$frames" --params "$params" \
-    --json docs/table2.json ${doc:+--doc "$doc"} --set "${remote[@]}"
+    --json docs/table2.json ${doc:+--doc "$doc"} ${ship:+--ship "$ship"} --set "${remote[@]}"

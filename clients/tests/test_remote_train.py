@@ -89,3 +89,24 @@ def test_remote_train_with_a_zenoh_config_file(sim_server, tmp_path):
     )
     out = train(cfg)
     assert out["counters"]["frames"] == 32
+
+
+def test_same_seed_same_machine_trains_bit_identical_weights(sim_server, tmp_path):
+    """Determinism (docs/RESULTS.md): the same seed, config and machine give the same weights
+    bit for bit: the server's worlds are deterministic and the trainer seeds torch."""
+    import torch
+
+    remote = [
+        "env_backend=remote",
+        f"server_endpoint={sim_server.endpoint}",
+        f"server_prefix={sim_server.prefix}",
+    ]
+    weights = []
+    for run in ("a", "b"):
+        cfg = load_config(None, [*TINY, *remote, "total_frames=96", f"log_dir={tmp_path / run}"])
+        train(cfg)
+        state = torch.load(tmp_path / run / "checkpoints" / "last.pt", weights_only=False)
+        weights.append(state["learner"])
+    assert weights[0].keys() == weights[1].keys()
+    for key in weights[0]:
+        assert torch.equal(weights[0][key], weights[1][key]), key

@@ -141,6 +141,9 @@ class RemoteBatchedEnv(EnvBase):
         if scenario_order == "sequential" and not self._split_names:
             raise ValueError("scenario_order='sequential' needs the pool file (pool=...)")
         self.env_time_s = 0.0
+        #: Each reward term of the last step, ``{term: [K]}`` (weighted, model.md 7; ``reward``
+        #: is their sum): a side channel for analyses, not part of the specs.
+        self.last_reward_terms: dict[str, np.ndarray] = {}
         self._seed = int(seed)
         self._reseed_pending = False
         self._cursor = [0] * k
@@ -280,6 +283,10 @@ class RemoteBatchedEnv(EnvBase):
         self._obs["adjacency"][:] = obs["adjacency"][:, 0]
         self._obs["mask"][:] = obs["mask"][:, 0]
         out["reward"] = np.array(res["reward"], dtype=np.float32).reshape(-1, 1)
+        self.last_reward_terms = {
+            term: np.array(v, dtype=np.float64).reshape(-1)
+            for term, v in res.get("reward_terms", {}).items()
+        }
         out["terminated"] = res["terminated"].reshape(-1, 1).astype(bool)
         out["truncated"] = res["truncated"].reshape(-1, 1).astype(bool)
         for entry in res["metrics"]:

@@ -5,6 +5,8 @@ success rate is reachable on our scenario extraction at all:
 
 - :class:`HoldDriver` holds the initial speed and heading (action ``[0, 0]``): doing nothing.
 - :class:`StopDriver` brakes to a standstill: what collides even then is unavoidable.
+- :class:`HumanReplayDriver` replays the recorded driver's speed and heading changes open loop
+  among the simulated pedestrians.
 - :class:`PursuitDriver` steers toward the goal within the yaw-rate limit at a cruise speed,
   slows where the turn to the goal needs a tighter circle than the yaw-rate limit allows at its
   speed, and brakes to a stop while a pedestrian is close ahead.
@@ -33,6 +35,7 @@ __all__ = [
     "DRIVERS",
     "VehicleLimits",
     "HoldDriver",
+    "HumanReplayDriver",
     "StopDriver",
     "PursuitDriver",
     "make_driver",
@@ -135,6 +138,48 @@ class PursuitDriver(nn.Module):
         return torch.as_tensor(action, dtype=features.dtype, device=features.device)
 
 
+class HumanReplayDriver(nn.Module):
+    """The recorded driver's speeds and headings replayed open loop as actions: at step ``t``
+    the acceleration and yaw rate that take the recorded speed and heading of frame ``t`` to
+    those of frame ``t + 1`` (clipped to the limits), then full braking after the record ends.
+    It reads ``scenario_index`` and counts its calls, so it plays one episode per sub-env, all
+    started together (as the evaluator plays them).
+
+    Args:
+        pool: the scenario dicts of the pool (``scenario_index`` indexes it).
+    """
+
+    def __init__(self, pool: Sequence[dict[str, Any]], limits: VehicleLimits = VehicleLimits()):  # noqa: B008
+        super().__init__()
+        from sharedspace.reference import _recorded_headings
+
+        self.limits = limits
+        self.speeds, self.headings = [], []
+        for sc in pool:
+            vel = np.asarray(sc["agents"][int(sc["ego"])]["velocities"], dtype=float)
+            vel = vel.reshape(-1, 2)
+            self.speeds.append(np.hypot(vel[:, 0], vel[:, 1]))
+            self.headings.append(np.asarray(_recorded_headings(vel), dtype=float))
+        self.t = 0
+
+    def forward(self, scenario_index: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        lim = self.limits
+        out = np.zeros((len(scenario_index.reshape(-1)), 2))
+        for k, idx in enumerate(scenario_index.reshape(-1).tolist()):
+            v, th = self.speeds[int(idx)], self.headings[int(idx)]
+            if self.t + 1 < len(v):
+                acc = (v[self.t + 1] - v[self.t]) / lim.dt
+                turn = th[self.t + 1] - th[self.t]
+                omega = math.atan2(math.sin(turn), math.cos(turn)) / lim.dt
+                out[k] = (acc / lim.acc_max, omega / lim.omega_max)
+            else:
+                out[k] = (-1.0, 0.0)
+        self.t += 1
+        return torch.as_tensor(np.clip(out, -1.0, 1.0), dtype=features.dtype).reshape(
+            *features.shape[:-2], 2
+        )
+
+
 #: Reference drivers by name (``evaluate --driver NAME``; Table II rows).
 DRIVERS = {
     "hold": lambda: HoldDriver(),
@@ -144,10 +189,20 @@ DRIVERS = {
 }
 
 
-def make_driver(name: str) -> TensorDictModule:
-    """A driver of :data:`DRIVERS` as a policy over the env's tensordicts."""
+def make_driver(name: str, pool: Sequence[dict[str, Any]] | None = None) -> TensorDictModule:
+    """A driver of :data:`DRIVERS` (or ``human_replay``, which needs the scenario ``pool``) as
+    a policy over the env's tensordicts. A driver keeps no state but ``human_replay``'s step
+    count: make a new one per evaluation."""
+    if name == "human_replay":
+        if pool is None:
+            from sharedspace.local_env import load_pool
+
+            pool = load_pool()
+        return TensorDictModule(
+            HumanReplayDriver(pool), in_keys=["scenario_index", "features"], out_keys=["action"]
+        )
     if name not in DRIVERS:
-        raise ValueError(f"unknown driver {name!r}; known: {', '.join(DRIVERS)}")
+        raise ValueError(f"unknown driver {name!r}; known: {', '.join([*DRIVERS, 'human_replay'])}")
     return TensorDictModule(DRIVERS[name](), in_keys=["features", "mask"], out_keys=["action"])
 
 

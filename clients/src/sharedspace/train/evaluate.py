@@ -67,12 +67,16 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
             td = env.step(td)
             nxt = td["next"]
             done = nxt["done"].reshape(-1)
+            terms = getattr(env, "last_reward_terms", None) or {}
             for i in range(k):
                 if records[i] is not None:
                     continue
                 traces[i]["speeds"].append(float(nxt["features"][i, 0, 4]))
                 traces[i]["actions"].append(td["action"][i].tolist())
                 traces[i]["return"] += float(nxt["reward"][i])
+                for term, values in terms.items():
+                    sums = traces[i].setdefault("reward_terms", {})
+                    sums[term] = sums.get(term, 0.0) + float(values[i])
                 if done[i]:
                     status = next(
                         (
@@ -181,7 +185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     who.add_argument("--checkpoint", help="checkpoint .pt written by the trainer")
     who.add_argument(
         "--driver",
-        choices=sorted(DRIVERS),
+        choices=sorted([*DRIVERS, "human_replay"]),
         help="a scripted reference driver instead of a checkpoint (sharedspace.train.drivers)",
     )
     ap.add_argument("--split", default="test", help="train | test | all")
@@ -202,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         name = cfg.variant
     else:
         cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
-        actor, name = make_driver(args.driver), args.driver
+        actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver
     result = evaluate_policy(cfg, actor, args.split)
     pool = load_pool(cfg.scenario_pool or None)
     human = human_episodes(pool, split_indices(pool, args.split))

@@ -117,7 +117,8 @@ def evaluate_run(run: Path, overrides: Sequence[str]) -> dict[str, Any]:
     cache = run / "eval_test.json"
     if cache.exists():
         cached = json.loads(cache.read_text())
-        if cached.get("frames") == frames:
+        fresh = all("reward_terms" in e for e in cached.get("episodes", []))
+        if cached.get("frames") == frames and fresh:
             return cached
     cfg, actor = load_checkpoint_actor(str(ckpt), overrides)
     result = evaluate_policy(cfg, actor, "test")
@@ -207,6 +208,15 @@ def paired(a: dict[int, float], b: dict[int, float]) -> dict[str, Any]:
     }
 
 
+def reward_terms(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """Mean over episodes of each reward term's sum along the episode (model.md 7)."""
+    sums: dict[str, list[float]] = {}
+    for e in episodes:
+        for term, value in e.get("reward_terms", {}).items():
+            sums.setdefault(term, []).append(value)
+    return {term: float(np.mean(v)) for term, v in sums.items()}
+
+
 def learning_curves(runs: dict[int, Path]) -> dict[str, dict[str, float]]:
     """``{frames: {metric: mean over seeds}}`` of the ``eval/`` metrics logged in training."""
     acc: dict[int, dict[str, list[float]]] = {}
@@ -226,6 +236,32 @@ def learning_curves(runs: dict[int, Path]) -> dict[str, dict[str, float]]:
         for fr, m in sorted(acc.items())
         if "success" in m
     }
+
+
+def ship(runs: dict[str, dict[int, Path]], evaluated: dict, out: Path) -> list[Path]:
+    """Writes each run's policy as ``{variant}-s{seed}.pt`` (config, actor weights, counters:
+    what ``evaluate --checkpoint`` loads, a few hundred kB) and its test-split record as
+    ``{variant}-s{seed}.json`` (summary and per-scenario status) into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for variant, per_seed in runs.items():
+        for seed, run in per_seed.items():
+            ckpt = torch.load(run / "checkpoints" / "last.pt", weights_only=False)
+            name = f"{variant}-s{seed}"
+            torch.save({k: ckpt[k] for k in ("config", "actor", "counters")}, out / f"{name}.pt")
+            rec = evaluated[variant][seed]
+            (out / f"{name}.json").write_text(
+                json.dumps(
+                    {
+                        "frames": rec["frames"],
+                        "summary": rec["summary"],
+                        "status": {str(e["scenario_index"]): e["status"] for e in rec["episodes"]},
+                    },
+                    indent=1,
+                )
+            )
+            written.append(out / f"{name}.pt")
+    return written
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -293,6 +329,16 @@ def render(table: dict[str, Any]) -> str:
                 f"{p['better']} / {p['worse']} / {p['tied']} | {p['sign_test_p']:.3f} |"
             )
         lines.append("")
+    if table["reward_terms"]:
+        names = sorted({t for row in table["reward_terms"].values() for t in row})
+        lines.append("Reward terms along the test episodes (mean per episode of each term's sum):")
+        lines.append("")
+        lines += ["| Model | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+        for who, row in table["reward_terms"].items():
+            lines.append(
+                f"| {who} | " + " | ".join(f"{row.get(t, 0.0):+.2f}" for t in names) + " |"
+            )
+        lines.append("")
     reach = table["reachability"]
     n_reach = sum(r["reachable"] for r in reach)
     lines.append(
@@ -341,6 +387,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--params", default="", help="world-parameter file the server ran with")
     ap.add_argument("--frames", type=int, default=0, help="the budget per run (reported)")
     ap.add_argument(
+        "--ship", default="", help="write each run's policy (actor + config) into this folder"
+    )
+    ap.add_argument(
         "--set",
         nargs="*",
         action="extend",
@@ -366,9 +415,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{a} vs {b}": paired(success[a], success[b])
         for a, b in itertools.combinations(list(variants), 2)
     }
-    drivers = {}
-    for name in DRIVERS:
-        drivers[name] = evaluate_policy(cfg, make_driver(name), "test")["summary"]
+    drivers, terms = {}, {}
+    for name in [*DRIVERS, "human_replay"]:
+        result = evaluate_policy(cfg, make_driver(name, pool), "test")
+        drivers[name] = result["summary"]
+        terms[f"scripted: {name}"] = reward_terms(result["episodes"])
+    for v, per in evaluated.items():
+        terms[VARIANT_NAMES.get(v, v)] = reward_terms(
+            [e for r in per.values() for e in r["episodes"]]
+        )
     human = summarize(human_episodes(pool, test))
     reach = reachability([pool[i] for i in test])
     unavoidable = unavoidable_first_step(cfg)
@@ -399,6 +454,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         "paired": pairs,
         "drivers": drivers,
+        "reward_terms": terms,
         "human": human,
         "paper": {
             k: dict(zip([c for c, _ in COLUMNS], row, strict=True)) for k, row in PAPER_ROWS.items()
@@ -416,6 +472,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         Path(args.json).write_text(json.dumps(table, indent=1))
     if args.doc:
         replace_block(Path(args.doc), text)
+    if args.ship:
+        for path in ship(runs, evaluated, Path(args.ship)):
+            print(f"shipped {path}")
     return 0
 
 
