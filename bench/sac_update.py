@@ -134,6 +134,45 @@ def fused_learner(cfg: TrainConfig):
     return update.step
 
 
+def gemm_floor(cfg: TrainConfig, batch: int, dtype: torch.dtype = torch.float32):
+    """The dense matrix products of one update of the default G-SAC networks (two critics,
+    4 present nodes), alone: a floor under any fp32 implementation of the same algorithm and
+    shapes. Forward: actor and target critics on the next observation, critics (twice: the
+    replayed and the new action) and actor on the observation; backward: input and weight
+    gradients where the update needs them. Returns a step-like callable."""
+    h, g, nodes, feats = cfg.hidden_sizes[0], cfg.gcn_hidden, 4, 11
+    emb = 2 * g  # ego ++ mean readout
+
+    def mat(*shape):
+        return torch.randn(*shape, dtype=dtype)
+
+    head_in = mat(batch, emb)
+    hidden = mat(batch, h)
+    w_in, w_hid, w_out = mat(emb, h), mat(h, h), mat(h, 4)
+    gcn_x0, gcn_x1 = mat(batch * nodes, feats), mat(batch * nodes, g)
+    w_g0, w_g1 = mat(feats, g), mat(g, g)
+    # (products of a forward pass of one network, count in the update)
+    fwd = [
+        (head_in, w_in),
+        (hidden, w_hid),
+        (hidden, w_out),
+        (gcn_x0, w_g0),
+        (gcn_x1, w_g1),
+    ]
+    # actor next + target x2 + critics x2 + actor = 6 full forwards; the critics' second head
+    # pass (2 x [hidden, out]); backward ~2 x forward for critics x2 and actor, 1 x for the
+    # critics' second pass (input gradients only).
+    plan = [(fwd, 6), (fwd[1:3], 2), (fwd, 6), (fwd[1:3], 2)]
+
+    def step(_batch=None):
+        for products, times in plan:
+            for _ in range(times):
+                for a, b in products:
+                    a @ b
+
+    return step
+
+
 def time_updates(step, batches) -> float:
     t0 = time.perf_counter()
     for b in batches:
@@ -166,7 +205,12 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     cfg = TrainConfig(variant=args.variant, batch_size=args.batch)
-    learners = {"old": baseline_learner(cfg, args.baseline), "new": fused_learner(cfg)}
+    learners = {
+        "old": baseline_learner(cfg, args.baseline),
+        "new": fused_learner(cfg),
+        "gemm_floor_fp32": gemm_floor(cfg, args.batch),
+        "gemm_floor_bf16": gemm_floor(cfg, args.batch, torch.bfloat16),
+    }
     if args.data == "env":
         batches = env_batches(args.updates, args.batch)
     else:
@@ -198,7 +242,8 @@ def main() -> int:
     print(
         f"{args.variant} batch {args.batch}, {args.threads} thread(s): old ({args.baseline})"
         f" {med['old']:.2f} ms, new {med['new']:.2f} ms per update (median of {args.rounds} rounds):"
-        f" {result['speedup_of_medians']:.2f}x"
+        f" {result['speedup_of_medians']:.2f}x; the update's matrix products alone:"
+        f" {med['gemm_floor_fp32']:.2f} ms fp32, {med['gemm_floor_bf16']:.2f} ms bf16"
     )
     if args.json:
         with open(args.json, "w") as f:

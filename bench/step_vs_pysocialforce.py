@@ -54,7 +54,9 @@ def time_pysocialforce(n: int, seconds: float, max_steps: int, seed: int = 0) ->
     return (time.perf_counter() - start) / steps
 
 
-def time_pysocialforce_isolated(n: int, seconds: float, max_steps: int, mem_gib: float) -> float | None:
+def time_pysocialforce_isolated(
+    n: int, seconds: float, max_steps: int, mem_gib: float
+) -> float | None:
     """`time_pysocialforce` in a child process under an address-space limit: pysocialforce's
     pairwise arrays need O(N^2) memory (about 20 GiB at N = 10 000) and must not take the machine
     down. Returns None when the child ran out of memory."""
@@ -64,9 +66,19 @@ def time_pysocialforce_isolated(n: int, seconds: float, max_steps: int, mem_gib:
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
     child = subprocess.run(
-        [sys.executable, __file__, "--pysf-only", str(n), "--seconds", str(seconds),
-         "--pysf-max-steps", str(max_steps)],
-        capture_output=True, text=True, preexec_fn=cap,
+        [
+            sys.executable,
+            __file__,
+            "--pysf-only",
+            str(n),
+            "--seconds",
+            str(seconds),
+            "--pysf-max-steps",
+            str(max_steps),
+        ],
+        capture_output=True,
+        text=True,
+        preexec_fn=cap,
     )
     if child.returncode != 0:
         if "MemoryError" in child.stderr or "Unable to allocate" in child.stderr:
@@ -77,14 +89,23 @@ def time_pysocialforce_isolated(n: int, seconds: float, max_steps: int, mem_gib:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--server", default="target/release/sim-server", help="sim-server binary")
-    parser.add_argument("--n", type=int, nargs="+", default=[3, 10, 100, 1000, 10000])
-    parser.add_argument("--seconds", type=float, default=3.0, help="timing budget per side and N")
     parser.add_argument(
-        "--pysf-max-steps", type=int, default=200, help="cap on pysocialforce steps per N"
+        "--server", default="target/release/sim-server", help="sim-server binary"
+    )
+    parser.add_argument("--n", type=int, nargs="+", default=[3, 10, 100, 1000, 10000])
+    parser.add_argument(
+        "--seconds", type=float, default=3.0, help="timing budget per side and N"
+    )
+    parser.add_argument(
+        "--pysf-max-steps",
+        type=int,
+        default=200,
+        help="cap on pysocialforce steps per N",
     )
     parser.add_argument("--json", help="also write the rows to this file")
-    parser.add_argument("--pysf-mem-gib", type=float, default=16.0, help="memory cap for pysocialforce")
+    parser.add_argument(
+        "--pysf-mem-gib", type=float, default=16.0, help="memory cap for pysocialforce"
+    )
     parser.add_argument("--pysf-only", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     logging.disable(logging.CRITICAL)  # pysocialforce logs every step at DEBUG
@@ -93,12 +114,18 @@ def main() -> None:
         return
 
     rows = []
-    print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
-    print(f"{'N':>6} {'rust us/step':>14} {'pysf us/step':>14} {'ratio':>9} {'rust us/ped':>12}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}"
+    )
+    print(
+        f"{'N':>6} {'rust us/step':>14} {'pysf us/step':>14} {'ratio':>9} {'rust us/ped':>12}"
+    )
     for n in args.n:
         rust = time_rust(args.server, n, args.seconds)
         pysf_steps = args.pysf_max_steps if n < 5000 else 1
-        pysf = time_pysocialforce_isolated(n, args.seconds, pysf_steps, args.pysf_mem_gib)
+        pysf = time_pysocialforce_isolated(
+            n, args.seconds, pysf_steps, args.pysf_mem_gib
+        )
         row = {
             "n": n,
             "rust_us_per_step": rust * 1e6,
@@ -107,7 +134,9 @@ def main() -> None:
             "rust_us_per_ped": rust * 1e6 / n,
         }
         rows.append(row)
-        pysf_text = f"{pysf * 1e6:>14.1f}" if pysf is not None else f"{'out of memory':>14}"
+        pysf_text = (
+            f"{pysf * 1e6:>14.1f}" if pysf is not None else f"{'out of memory':>14}"
+        )
         ratio_text = f"{pysf / rust:>8.0f}x" if pysf is not None else f"{'-':>9}"
         print(
             f"{n:>6} {rust * 1e6:>14.2f} {pysf_text} {ratio_text} {rust * 1e6 / n:>12.4f}",
