@@ -162,6 +162,18 @@ def test_no_server():
         Transport(endpoint, "nobody", mode="client")
 
 
+def test_unreachable_endpoint_is_a_connection_error_not_a_timeout():
+    # Nothing listens there: the error comes after the 1 s connection grace, not after the
+    # 5 s query timeout, and says it could not connect.
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    t0 = time.monotonic()
+    with SimClient(endpoint, "nobody", timeout=5.0) as c:
+        with pytest.raises(NoServer, match="cannot connect") as err:
+            c.create(1)
+    assert time.monotonic() - t0 < 4.0
+    assert endpoint in str(err.value)
+
+
 def test_observer_receives(sim_server, sim_client):
     got: dict[str, dict] = {}
     with Observer(transport=sim_client.transport, env_id="*") as obs:

@@ -55,6 +55,9 @@ log = logging.getLogger("sharedspace")
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_PREFIX = "sharedspace"
+#: Seconds without any zenoh connection to the configured endpoints after which looking for a
+#: server gives up with a connection error instead of waiting out the whole timeout.
+_CONNECT_GRACE = 1.0
 #: Query timeout of every request but ``env/create`` (SPEC section 1 suggests 5 s).
 DEFAULT_TIMEOUT = 5.0
 #: Timeout of ``env/create`` (SPEC section 1 suggests 10 s).
@@ -350,15 +353,29 @@ class Transport:
         """
         excluded = set(exclude)
         total = self.timeout if timeout is None else float(timeout)
-        deadline = time.monotonic() + total
+        start = time.monotonic()
+        deadline = start + total
         while True:
             infos = [
                 i
-                for i in self.servers(timeout=max(deadline - time.monotonic(), 0.05))
+                for i in self.servers(
+                    timeout=max(min(deadline, start + 1.0) - time.monotonic(), 0.05)
+                )
                 if str(i["server_id"]) not in excluded
             ]
             if infos or time.monotonic() >= deadline:
                 break
+            if (
+                self.endpoints
+                and time.monotonic() - start >= _CONNECT_GRACE
+                and not self.connected()
+            ):
+                raise NoServer(
+                    self.endpoint,
+                    _CONNECT_GRACE,
+                    f"cannot connect to {self.endpoint!r}: no zenoh peer or router answered "
+                    f"there within {_CONNECT_GRACE:g} s (is a server or router listening on it?)",
+                )
             time.sleep(0.05)
         if not infos:
             extra = f" (excluding {sorted(excluded)})" if excluded else ""
@@ -378,6 +395,11 @@ class Transport:
             )
         roomy = [i for i in same if int(i.get("capacity", 0)) - int(i.get("load", 0)) >= need]
         return (roomy or same)[0]
+
+    def connected(self) -> bool:
+        """Whether this session is connected to at least one zenoh peer or router."""
+        info = self.session.info
+        return bool(list(info.peers_zid()) or list(info.routers_zid()))
 
     # ----------------------------------------------------------------------------------------
 
