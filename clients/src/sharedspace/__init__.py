@@ -6,6 +6,8 @@
 - :mod:`sharedspace.transport`: the zenoh session, server discovery, liveliness;
 - :mod:`sharedspace.client`: :class:`SimClient` and the batched :class:`VectorClient` (failover);
 - :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``;
+- :mod:`sharedspace.gym_env`: ``SharedSpaceEnv``, registered with Gymnasium as
+  ``sharedspace/SharedSpace-v0`` on import (when gymnasium is installed);
 - :mod:`sharedspace.torchrl_env`: ``RemoteBatchedEnv`` (imported lazily: needs torch/torchrl);
 - :mod:`sharedspace.observer`: :class:`Observer` of the envs' publications.
 """
@@ -31,7 +33,17 @@ _LAZY = {
     "parallel_env": ("pettingzoo_env", "parallel_env"),
     "SharedSpaceParallelEnv": ("pettingzoo_env", "SharedSpaceParallelEnv"),
     "RemoteBatchedEnv": ("torchrl_env", "RemoteBatchedEnv"),
+    "SharedSpaceEnv": ("gym_env", "SharedSpaceEnv"),
 }
+
+try:  # `gymnasium.make("sharedspace/SharedSpace-v0")` after `import sharedspace`
+    import gymnasium as _gymnasium  # noqa: F401 - only to know it is there
+except ImportError:  # the codec-only install has no gymnasium
+    pass
+else:
+    from .gym_env import register as _register_gym
+
+    _register_gym()
 
 
 def __getattr__(name: str):
@@ -59,5 +71,6 @@ __all__ = [
     "parallel_env",
     "SharedSpaceParallelEnv",
     "RemoteBatchedEnv",
+    "SharedSpaceEnv",
     "__version__",
 ]

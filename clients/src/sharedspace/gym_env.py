@@ -1,0 +1,145 @@
+"""Gymnasium env: the one controlled vehicle of one server env, registered on import.
+
+.. code-block:: python
+
+    import gymnasium as gym
+    import sharedspace  # registers the ids
+
+    env = gym.make("sharedspace/SharedSpace-v0", endpoint="tcp/127.0.0.1:7447")
+    obs, info = env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+
+In a process that has not imported sharedspace (a vector env's worker), name the module in the
+id: ``gym.make("sharedspace:sharedspace/SharedSpace-v0", ...)`` imports it first.
+
+A thin adapter over :class:`~sharedspace.pettingzoo_env.SharedSpaceParallelEnv` with one
+external agent (``vehicle_0``, the scenario's recorded car): the same observation dict
+(``features [M, 11]``, ``adjacency [M, M]``, ``mask [M]``), action (normalised
+``[acc, omega]`` in ``[-1, 1]``), reward and infos. The server truncates at the scenario's
+horizon, so no ``TimeLimit`` is added.
+
+**Lazy connection, picklable.** The server env is created on the first ``reset``, not in the
+constructor, and pickling or copying keeps only the constructor's arguments: a copy (in this
+process or in a vector env's worker process) opens its own connection and its own server env
+when first reset. ``close()`` releases the server env; a closed env can be reset again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+
+__all__ = ["SharedSpaceEnv", "ENV_ID", "register"]
+
+#: The registered id (``gymnasium.make(ENV_ID, endpoint=...)``).
+ENV_ID = "sharedspace/SharedSpace-v0"
+_AGENT = "vehicle_0"
+NODE_FEATURES = 11
+
+
+class SharedSpaceEnv(gymnasium.Env):
+    """One server env's controlled vehicle as a Gymnasium env (see the module docstring).
+
+    Args:
+        endpoint, prefix, timeout: where the server is.
+        max_agents: M, nodes per observation.
+        split, pool, scenario, pedestrian_model, pedestrian_params, reward_weights, seed: the
+            server env's ``CreateEnv`` fields (SPEC 5.2); ``scenario`` pins one scenario.
+        render_mode: ``None`` or ``"rgb_array"``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+
+    def __init__(
+        self,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        *,
+        max_agents: int = 8,
+        split: str = "train",
+        pool: str | None = None,
+        scenario: str | None = None,
+        pedestrian_model: str = "cr_sfm",
+        pedestrian_params: Mapping[str, float] | None = None,
+        reward_weights: Mapping[str, float] | None = None,
+        seed: int = 0,
+        render_mode: str | None = None,
+        timeout: float = DEFAULT_TIMEOUT,
+    ):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self._kwargs: dict[str, Any] = dict(
+            endpoint=endpoint,
+            prefix=prefix,
+            max_agents=int(max_agents),
+            split=split,
+            pool=pool,
+            scenario=scenario,
+            pedestrian_model=pedestrian_model,
+            pedestrian_params=pedestrian_params,
+            reward_weights=reward_weights,
+            seed=int(seed),
+            render_mode=render_mode,
+            timeout=timeout,
+        )
+        m = int(max_agents)
+        self.observation_space = spaces.Dict(
+            {
+                "features": spaces.Box(-np.inf, np.inf, (m, NODE_FEATURES), np.float32),
+                "adjacency": spaces.Box(0.0, np.inf, (m, m), np.float32),
+                "mask": spaces.MultiBinary(m),
+            }
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self._parallel = None
+
+    def _env(self):
+        if self._parallel is None:
+            from .pettingzoo_env import SharedSpaceParallelEnv
+
+            self._parallel = SharedSpaceParallelEnv(external_agents=(_AGENT,), **self._kwargs)
+        return self._parallel
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs, infos = self._env().reset(seed=seed, options=options)
+        return obs[_AGENT], infos[_AGENT]
+
+    def step(self, action):
+        if self._parallel is None:
+            raise RuntimeError("call reset() before step()")
+        obs, rewards, terms, truncs, infos = self._parallel.step({_AGENT: action})
+        return obs[_AGENT], rewards[_AGENT], terms[_AGENT], truncs[_AGENT], infos[_AGENT]
+
+    def render(self):
+        return None if self._parallel is None else self._parallel.render()
+
+    def close(self) -> None:
+        if self._parallel is not None:
+            self._parallel.close()
+            self._parallel = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_parallel"] = None  # a copy connects on its own first reset
+        return state
+
+    def __deepcopy__(self, memo) -> SharedSpaceEnv:
+        import copy
+
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(copy.deepcopy(self.__getstate__(), memo))
+        return new
+
+
+def register() -> None:
+    """Registers :data:`ENV_ID` with Gymnasium (done on ``import sharedspace``)."""
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="sharedspace.gym_env:SharedSpaceEnv")
