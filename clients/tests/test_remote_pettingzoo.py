@@ -52,6 +52,25 @@ def test_seed_reproducible(penv):
         np.testing.assert_array_equal(x, y)
 
 
+def test_max_cycles_truncates_and_state_is_in_its_space(sim_client):
+    env = sharedspace.parallel_env(client=sim_client, max_agents=6, seed=2, max_cycles=3)
+    try:
+        obs, _ = env.reset(seed=2)
+        state = env.state()
+        assert env.state_space.contains(state) and state.shape == (6 * 11 + 36 + 6,)
+        np.testing.assert_array_equal(state[: 6 * 11], obs["vehicle_0"]["features"].ravel())
+        steps, trunc = 0, {}
+        while env.agents:
+            _, _, term, trunc, _ = env.step({"vehicle_0": np.zeros(2, np.float32)})
+            steps += 1
+        assert steps <= 3
+        assert steps == 3 and trunc["vehicle_0"] or term["vehicle_0"]
+        assert not env.state()[-6:].any()  # the vehicle has left: its part is zeros
+        parallel_api_test(env, num_cycles=20)
+    finally:
+        env.close()
+
+
 def test_errors(penv):
     penv.reset(seed=0)
     with pytest.raises(WrongShape, match=r"\[2\]"):

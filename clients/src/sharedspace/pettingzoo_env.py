@@ -58,6 +58,12 @@ class SharedSpaceParallelEnv(ParallelEnv):
         failover: re-create the env on a surviving server when its server dies (the step
             returns every agent truncated).
         client: an existing :class:`~sharedspace.client.SimClient` to share.
+        max_cycles: truncate every agent after this many steps of an episode (PettingZoo's
+            convention; ``None``: only the scenario's horizon, which the server enforces).
+
+    ``state()`` is the global state for centralised critics: every possible agent's
+    observation flattened (``features``, ``adjacency``, ``mask``) and concatenated, zeros for
+    an agent that has left; ``state_space`` is its ``Box``.
     """
 
     metadata = {
@@ -86,6 +92,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         timeout: float = DEFAULT_TIMEOUT,
         failover: bool = False,
         client: SimClient | None = None,
+        max_cycles: int | None = None,
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -107,6 +114,10 @@ class SharedSpaceParallelEnv(ParallelEnv):
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
         self._vec = VectorClient(1, client=client, failover=failover, **create)
         self.max_agents = int(max_agents)
+        if max_cycles is not None and int(max_cycles) < 1:
+            raise ValueError(f"max_cycles must be at least 1, got {max_cycles}")
+        self.max_cycles = None if max_cycles is None else int(max_cycles)
+        self._cycles = 0
         self.possible_agents = list(self._vec.external_agents)
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
@@ -141,6 +152,36 @@ class SharedSpaceParallelEnv(ParallelEnv):
     @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Box:
         return spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    @functools.cached_property
+    def state_space(self) -> spaces.Box:
+        """The ``Box`` of :meth:`state`: every possible agent's flattened observation."""
+        m = self.max_agents
+        return spaces.Box(
+            -np.inf,
+            np.inf,
+            (len(self.possible_agents) * (m * NODE_FEATURES + m * m + m),),
+            np.float32,
+        )
+
+    def state(self) -> np.ndarray:
+        """The global state (see the class docstring) of the current step."""
+        self._check_open()
+        if self._obs is None:
+            raise RuntimeError("call reset() before state()")
+        parts = []
+        for agent in self.possible_agents:
+            e = self._index[agent]
+            if agent in self.agents:
+                parts += [
+                    np.asarray(self._obs["features"][e], np.float32).ravel(),
+                    np.asarray(self._obs["adjacency"][e], np.float32).ravel(),
+                    np.asarray(self._obs["mask"][e], np.float32).ravel(),
+                ]
+            else:
+                m = self.max_agents
+                parts.append(np.zeros(m * NODE_FEATURES + m * m + m, np.float32))
+        return np.concatenate(parts)
 
     # ----------------------------------------------------------------------------------------
 
@@ -177,6 +218,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._step = int(r["step"])
         self._agents_desc = {int(a["id"]): a for a in r.get("agents", ())}
         self.agents = list(self.possible_agents)
+        self._cycles = 0
         info = {
             "scenario": r["scenario"],
             "episode": self._episode,
@@ -255,6 +297,9 @@ class SharedSpaceParallelEnv(ParallelEnv):
             }
             if a in metrics:
                 infos[a]["metrics"] = metrics[a]
+        self._cycles += 1
+        if self.max_cycles is not None and self._cycles >= self.max_cycles:
+            truncs = {a: truncs[a] or not terms[a] for a in live}
         self.agents = [a for a in live if not (terms[a] or truncs[a])]
         return obs, rewards, terms, truncs, infos
 
