@@ -30,12 +30,12 @@ def test_spaces(penv):
     assert obs_space["features"].shape == (6, 11) and obs_space["adjacency"].shape == (6, 6)
     obs, infos = penv.reset(seed=3)
     assert obs_space.contains(obs["vehicle_0"]), obs
-    assert "scenario" in infos["vehicle_0"]
+    assert isinstance(penv.scenario, str) and infos["vehicle_0"]["scenario_index"] >= 0
 
 
 def _play(env, seed, steps=12):
     obs, infos = env.reset(seed=seed)
-    trace = [infos["vehicle_0"]["scenario"], obs["vehicle_0"]["features"].copy()]
+    trace = [env.scenario, obs["vehicle_0"]["features"].copy()]
     for t in range(steps):
         if not env.agents:
             break
@@ -69,6 +69,39 @@ def test_max_cycles_truncates_and_state_is_in_its_space(sim_client):
         parallel_api_test(env, num_cycles=20)
     finally:
         env.close()
+
+
+def test_infos_are_numbers_with_the_same_keys_at_reset_and_step(penv):
+    from sharedspace.pettingzoo_env import INFO_KEYS
+
+    _, infos = penv.reset(seed=5)
+    seen = [infos["vehicle_0"]]
+    while penv.agents:
+        *_, infos = penv.step({"vehicle_0": np.array([1.0, 0.0], np.float32)})
+        seen.append(infos["vehicle_0"])
+    for info in seen:
+        assert tuple(info) == INFO_KEYS
+        assert all(isinstance(v, int | float | bool) for v in info.values()), info
+    last = seen[-1]
+    assert last["success"] + last["collision"] + last["timeout"] == 1
+    assert last["episode_steps"] == len(seen) - 1 and last["avg_speed"] > 0
+
+
+def test_torchrl_pettingzoo_wrapper_takes_the_env_as_it_is(sim_client):
+    pytest.importorskip("torchrl")
+    from torchrl.envs.libs.pettingzoo import PettingZooWrapper
+    from torchrl.envs.utils import check_env_specs
+
+    for use_mask in (False, True):
+        penv = sharedspace.parallel_env(client=sim_client, max_agents=6, seed=4)
+        env = PettingZooWrapper(penv, use_mask=use_mask)
+        try:
+            check_env_specs(env)
+            td = env.rollout(30, break_when_any_done=False)
+            assert td["vehicle", "observation", "features"].shape[-2:] == (6, 11)
+            assert td["next", "vehicle", "info", "reward_danger"].shape[0] == 30
+        finally:
+            env.close()
 
 
 def test_errors(penv):

@@ -19,6 +19,18 @@ the episode is over when ``env.agents`` is empty (then call ``reset``).
 
 ``reset(seed=s)`` re-seeds the env's scenario sequence (same seed and actions → same episode);
 ``reset()`` continues it; ``options={"scenario": name}`` picks the scenario.
+
+**Infos** are numbers only, with the same keys at ``reset`` and every ``step`` (:data:`INFO_KEYS`),
+so that wrappers which turn infos into tensors (TorchRL's ``PettingZooWrapper``, SuperSuit)
+take them as they are: ``step``, ``t``, ``scenario_index`` (position of the
+scenario in the pool file, -1 if the pool file is not at hand), ``action_clipped``,
+``failover``, one ``reward_<term>`` per reward term, and the episode's metrics
+(``success``, ``collision``, ``timeout``, ``episode_steps``, ``episode_return``, ``avg_speed``,
+``avg_abs_jerk``, ``max_abs_acc``: 0 until the step that ends the agent's episode). Names travel
+beside them: :attr:`SharedSpaceParallelEnv.scenario` (the current scenario's name),
+:attr:`~SharedSpaceParallelEnv.episode` (the env's episode counter, which a seeded reset does
+not restart), :attr:`~SharedSpaceParallelEnv.env_id`, :attr:`~SharedSpaceParallelEnv.server_id`,
+:attr:`~SharedSpaceParallelEnv.horizon_steps`.
 """
 
 from __future__ import annotations
@@ -38,10 +50,51 @@ from .errors import EnvClosed, WrongShape
 from .render import render_observation, render_scene
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
-__all__ = ["SharedSpaceParallelEnv", "parallel_env", "ENV_NAME"]
+__all__ = ["SharedSpaceParallelEnv", "parallel_env", "ENV_NAME", "INFO_KEYS"]
 
 ENV_NAME = "sharedspace_v1"
 NODE_FEATURES = 11
+_REWARD_TERMS = ("progress", "success", "collision", "danger", "comfort")
+_METRICS = ("episode_steps", "episode_return", "avg_speed", "avg_abs_jerk", "max_abs_acc")
+#: The keys of every agent's info dict, at reset and at every step (all numbers).
+INFO_KEYS = (
+    "step",
+    "t",
+    "scenario_index",
+    "action_clipped",
+    "failover",
+    *(f"reward_{t}" for t in _REWARD_TERMS),
+    "success",
+    "collision",
+    "timeout",
+    *_METRICS,
+)
+
+
+def _blank_info() -> dict[str, float | int | bool]:
+    info: dict[str, float | int | bool] = dict.fromkeys(INFO_KEYS, 0.0)
+    for key in ("step", "scenario_index", "episode_steps"):
+        info[key] = 0
+    for key in ("action_clipped", "failover", "success", "collision", "timeout"):
+        info[key] = False
+    return info
+
+
+def _pool_index(pool: str | None) -> dict[str, int]:
+    """Scenario name -> position in the pool file (the embedded pool's file by default)."""
+    import json
+    from pathlib import Path
+
+    path = (
+        Path(pool)
+        if pool
+        else Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
+    )
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return {sc["name"]: i for i, sc in enumerate(data.get("scenarios", []))}
 
 
 class SharedSpaceParallelEnv(ParallelEnv):
@@ -125,6 +178,11 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._obs: dict[str, np.ndarray] | None = None
         self._episode = 0
         self._step = 0
+        #: The current scenario's name (``None`` before the first reset).
+        self.scenario: str | None = None
+        #: Steps of the current episode at which the server truncates (from the reset).
+        self.horizon_steps: int | None = None
+        self._scenario_index = _pool_index(pool)
         self._agents_desc: dict[int, dict[str, Any]] = {}
         self._latest: dict[str, dict[str, Any]] = {}
         self._latest_lock = threading.Lock()
@@ -186,6 +244,11 @@ class SharedSpaceParallelEnv(ParallelEnv):
     # ----------------------------------------------------------------------------------------
 
     @property
+    def episode(self) -> int:
+        """The server env's episode counter (it counts every reset of this env)."""
+        return self._episode
+
+    @property
     def env_id(self) -> str:
         return self._vec.env_ids[0]
 
@@ -219,14 +282,17 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._agents_desc = {int(a["id"]): a for a in r.get("agents", ())}
         self.agents = list(self.possible_agents)
         self._cycles = 0
-        info = {
-            "scenario": r["scenario"],
-            "episode": self._episode,
-            "env_id": r["env_id"],
-            "horizon_steps": r.get("horizon_steps"),
-        }
+        self.scenario = r["scenario"]
+        self.horizon_steps = r.get("horizon_steps")
+        info = self._info()
         obs = {a: self._agent_obs(self._obs, self._index[a]) for a in self.agents}
         return obs, {a: dict(info) for a in self.agents}
+
+    def _info(self, t: float = 0.0) -> dict[str, float | int | bool]:
+        info = _blank_info()
+        info["step"], info["t"] = self._step, t
+        info["scenario_index"] = self._scenario_index.get(self.scenario, -1)
+        return info
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         self._check_open()
@@ -264,7 +330,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
             self.agents = []
             if self.render_mode == "rgb_array":
                 self._subscribe()
-            info = {"failover": True, "server_id": self.server_id}
+            info = self._info()
+            info["failover"] = True
             return (
                 obs,
                 zero,
@@ -276,7 +343,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._obs = {k: o[k][0] for k in ("features", "adjacency", "mask")}
         self._step = int(res["step"][0])
         self._episode = int(res["episode"][0])
-        t, scenario, clipped = float(res["t"][0]), res["scenario"][0], res["action_clipped"][0]
+        t, clipped = float(res["t"][0]), res["action_clipped"][0]
+        self.scenario = res["scenario"][0]
         reward = res["reward"][0]
         term = res["terminated"][0]
         trunc = res["truncated"][0]
@@ -288,15 +356,19 @@ class SharedSpaceParallelEnv(ParallelEnv):
             rewards[a] = float(reward[e])
             terms[a] = bool(term[e])
             truncs[a] = bool(trunc[e])
-            infos[a] = {
-                "step": self._step,
-                "t": t,
-                "scenario": scenario,
-                "action_clipped": bool(clipped[e]),
-                "reward_terms": {k: float(v[0][e]) for k, v in res["reward_terms"].items()},
-            }
+            info = self._info(t)
+            info["action_clipped"] = bool(clipped[e])
+            for term, v in res["reward_terms"].items():
+                info[f"reward_{term}"] = float(v[0][e])
             if a in metrics:
-                infos[a]["metrics"] = metrics[a]
+                m = metrics[a]
+                outcome = m.get("outcome")
+                for status in ("success", "collision", "timeout"):
+                    info[status] = outcome == status
+                info["episode_steps"] = int(m.get("steps", 0))
+                for key in _METRICS[1:]:
+                    info[key] = float(m.get(key, 0.0))
+            infos[a] = info
         self._cycles += 1
         if self.max_cycles is not None and self._cycles >= self.max_cycles:
             truncs = {a: truncs[a] or not terms[a] for a in live}
