@@ -133,3 +133,54 @@ def test_render_rgb(sim_client):
         assert blue > 20
     finally:
         env.close()
+
+
+def test_pickle_and_deepcopy_make_envs_of_their_own(sim_server, sim_client):
+    import copy
+    import pickle
+
+    env = sharedspace.parallel_env(client=sim_client, max_agents=6, seed=7, split="test")
+    try:
+        obs, _ = env.reset(seed=7)
+        for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
+            try:
+                assert clone.agents == [] and clone.possible_agents == env.possible_agents
+                o, _ = clone.reset(seed=7)  # its own server env and connection, same seed
+                assert clone.env_id != env.env_id
+                np.testing.assert_array_equal(
+                    o["vehicle_0"]["features"], obs["vehicle_0"]["features"]
+                )
+                clone.step({"vehicle_0": np.zeros(2, np.float32)})
+            finally:
+                clone.close()
+        env.step({"vehicle_0": np.zeros(2, np.float32)})  # the original is untouched
+    finally:
+        env.close()
+
+
+def test_supersuit_vector_env_trains_stable_baselines3_sac(sim_server):
+    supersuit = pytest.importorskip("supersuit")
+    sb3 = pytest.importorskip("stable_baselines3")
+
+    penv = sharedspace.parallel_env(
+        endpoint=sim_server.endpoint, prefix=sim_server.prefix, max_agents=6, seed=0
+    )
+    venv = supersuit.pettingzoo_env_to_vec_env_v1(penv)
+    venv = supersuit.concat_vec_envs_v1(venv, 2, num_cpus=0, base_class="stable_baselines3")
+    try:
+        model = sb3.SAC(
+            "MultiInputPolicy",
+            venv,
+            learning_starts=50,
+            batch_size=32,
+            buffer_size=1_000,
+            policy_kwargs={"net_arch": [32, 32]},
+            verbose=0,
+        )
+        model.learn(total_timesteps=300)
+        assert model.num_timesteps >= 300
+        action, _ = model.predict(venv.reset(), deterministic=True)
+        assert action.shape == (2, 2) and np.all(np.abs(action) <= 1.0)
+    finally:
+        venv.close()
+        penv.close()

@@ -71,6 +71,10 @@ INFO_KEYS = (
 )
 
 
+#: Attributes that hold a connection, a lock or a subscription: not pickled.
+_LIVE_STATE = ("_vec", "_latest", "_latest_lock", "_subs", "_sub_env", "_client")
+
+
 def _blank_info() -> dict[str, float | int | bool]:
     info: dict[str, float | int | bool] = dict.fromkeys(INFO_KEYS, 0.0)
     for key in ("step", "scenario_index", "episode_steps"):
@@ -165,13 +169,14 @@ class SharedSpaceParallelEnv(ParallelEnv):
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
-        self._vec = VectorClient(1, client=client, failover=failover, **create)
+        self._create, self._failover, self._client = create, failover, client
+        self._vec: VectorClient | None = None  # connected on first use (see _connected)
         self.max_agents = int(max_agents)
         if max_cycles is not None and int(max_cycles) < 1:
             raise ValueError(f"max_cycles must be at least 1, got {max_cycles}")
         self.max_cycles = None if max_cycles is None else int(max_cycles)
         self._cycles = 0
-        self.possible_agents = list(self._vec.external_agents)
+        self.possible_agents = list(external_agents)
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         self._closed = False
@@ -190,8 +195,51 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._sub_env = None
         #: What the last ``render()`` drew from: ``"publications"`` or ``"observation"``.
         self.render_source: str | None = None
-        if render_mode == "rgb_array":
-            self._subscribe()
+
+    @property
+    def _connected(self) -> VectorClient:
+        """The server env, created on first use: a constructed (or unpickled) env holds no
+        connection until it is reset or asked for its ``env_id``."""
+        if self._vec is None:
+            self._check_open()
+            self._vec = VectorClient(
+                1, client=self._client, failover=self._failover, **self._create
+            )
+        return self._vec
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The constructor's arguments and settings only: a copy creates its own server env
+        (and its own connection) when first reset. A shared ``client`` is replaced by its
+        endpoints and prefix."""
+        state = {k: v for k, v in self.__dict__.items() if k not in _LIVE_STATE}
+        if self._client is not None:
+            t = self._client.transport
+            state["_create"] = {
+                **self._create,
+                "endpoint": list(t.endpoints),
+                "prefix": t.prefix,
+                "timeout": t.timeout,
+            }
+        state["_client"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._vec = None
+        self._closed = False
+        self.agents = []
+        self._obs = None
+        self._latest = {}
+        self._latest_lock = threading.Lock()
+        self._subs = []
+        self._sub_env = None
+
+    def __deepcopy__(self, memo) -> SharedSpaceParallelEnv:
+        import copy
+
+        new = self.__class__.__new__(self.__class__)
+        new.__setstate__(copy.deepcopy(self.__getstate__(), memo))
+        return new
 
     # ----------------------------------------------------------------------------------------
     # Spaces
@@ -250,19 +298,19 @@ class SharedSpaceParallelEnv(ParallelEnv):
 
     @property
     def env_id(self) -> str:
-        return self._vec.env_ids[0]
+        return self._connected.env_ids[0]
 
     @property
     def server_id(self) -> str:
-        return self._vec.server_id
+        return self._connected.server_id
 
     @property
     def failovers(self) -> int:
-        return self._vec.failovers
+        return 0 if self._vec is None else self._vec.failovers
 
     @property
     def client(self) -> SimClient:
-        return self._vec.client
+        return self._connected.client
 
     def _check_open(self) -> None:
         if self._closed:
@@ -298,9 +346,9 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._check_open()
         scenario = (options or {}).get("scenario")
         if scenario is not None:
-            r = self._vec.client.reset(self.env_id, seed=seed, scenario=scenario)
+            r = self._connected.client.reset(self.env_id, seed=seed, scenario=scenario)
         else:
-            r = self._vec.reset(seed=seed)[0]
+            r = self._connected.reset(seed=seed)[0]
         if self._sub_env != self.env_id and self.render_mode == "rgb_array":
             self._subscribe()
         return self._take_reset(r)
@@ -322,7 +370,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
                     env_id=self.env_id,
                 )
             arr[0, self._index[agent]] = a
-        res = self._vec.step(arr)
+        res = self._connected.step(arr)
         live = list(self.agents)
         if res.get("failover"):
             obs = {a: self._agent_obs(self._obs, self._index[a]) for a in live}
@@ -384,7 +432,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
                 s.undeclare()
             except Exception:  # noqa: BLE001
                 pass
-        t = self._vec.client.transport
+        t = self._connected.client.transport
         env_id = self.env_id
         self._subs = [
             t.declare_subscriber(t.key("env", env_id, topic), self._on_pub)
@@ -451,7 +499,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
                 s.undeclare()
             except Exception:  # noqa: BLE001
                 pass
-        self._vec.close()
+        if self._vec is not None:
+            self._vec.close()
 
 
 def parallel_env(**kwargs: Any) -> SharedSpaceParallelEnv:
