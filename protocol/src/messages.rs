@@ -1181,6 +1181,20 @@ pub struct PoolSummary {
     pub train: u32,
     /// Scenarios in the test split.
     pub test: u32,
+    /// Every scenario of the pool in pool order (a scenario's index in this list is its
+    /// `scenario_index` on the client side): what `CreateEnv.scenario` and `Reset.scenario`
+    /// name. Absent in replies of servers older than this field: empty.
+    #[serde(default)]
+    pub scenarios: Vec<ScenarioSummary>,
+}
+
+/// One scenario of a pool, in `PoolSummary`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ScenarioSummary {
+    /// Scenario name, unique in its pool.
+    pub name: String,
+    /// Its split.
+    pub split: Split,
 }
 
 /// Reply to `InfoRequest`.

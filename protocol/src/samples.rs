@@ -329,11 +329,22 @@ pub fn server_info() -> ServerInfo {
                 name: "hbs_3ped".to_string(),
                 train: 60,
                 test: 18,
+                scenarios: vec![
+                    ScenarioSummary {
+                        name: "hbs-car1203".to_string(),
+                        split: Split::Train,
+                    },
+                    ScenarioSummary {
+                        name: "hbs-car1251".to_string(),
+                        split: Split::Test,
+                    },
+                ],
             },
             PoolSummary {
                 name: "hbs_all".to_string(),
                 train: 120,
                 test: 36,
+                scenarios: vec![],
             },
         ],
     }

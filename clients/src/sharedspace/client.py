@@ -558,6 +558,30 @@ class SimClient:
     def pick_server(self, exclude: Sequence[str] = (), need: int = 1) -> dict[str, Any]:
         return self.transport.pick_server(exclude, timeout=self.discover_timeout, need=need)
 
+    def pools(self, server_id: str | None = None) -> list[dict[str, Any]]:
+        """The scenario pools a server serves (``ServerInfo.pools``: name, split sizes and every
+        scenario's name and split in pool order); the least-loaded server's by default."""
+        info = self.info(server_id) if server_id else self.pick_server()
+        return list(info.get("pools", []))
+
+    def scenarios(
+        self, pool: str | None = None, server_id: str | None = None
+    ) -> tuple[str, list[tuple[str, str]]]:
+        """``(pool name, [(scenario name, split), ...])`` in pool order, as the server serves
+        them (``pool`` None: the server's default pool). A scenario's position in the list is
+        its ``scenario_index``; its name is what ``Reset``/``CreateEnv`` take."""
+        pools = self.pools(server_id)
+        chosen = pools[0] if pool is None and pools else None
+        for p in pools:
+            if p["name"] == pool:
+                chosen = p
+        if chosen is None:
+            names = [p["name"] for p in pools]
+            raise SharedspaceError(f"no scenario pool {pool!r} on the server (pools: {names})")
+        return str(chosen["name"]), [
+            (str(sc["name"]), str(sc["split"])) for sc in chosen.get("scenarios", [])
+        ]
+
     def _server_of(self, env_id: str) -> str:
         sid = self.env_server.get(env_id)
         if sid is None:

@@ -85,7 +85,8 @@ def _blank_info() -> dict[str, float | int | bool]:
 
 
 def _pool_index(pool: str | None) -> dict[str, int]:
-    """Scenario name -> position in the pool file (the embedded pool's file by default)."""
+    """Scenario name -> position in the pool file (the embedded pool's file in a checkout;
+    empty where there is none, and the env asks the server instead)."""
     import json
     from pathlib import Path
 
@@ -337,6 +338,10 @@ class SharedSpaceParallelEnv(ParallelEnv):
         return obs, {a: dict(info) for a in self.agents}
 
     def _info(self, t: float = 0.0) -> dict[str, float | int | bool]:
+        if not self._scenario_index:  # no pool file at hand (an installed package)
+            pool = self._create.get("pool")
+            _, names = self._connected.client.scenarios(pool, self.server_id)
+            self._scenario_index = {name: i for i, (name, _) in enumerate(names)}
         info = _blank_info()
         info["step"], info["t"] = self._step, t
         info["scenario_index"] = self._scenario_index.get(self.scenario, -1)

@@ -136,10 +136,6 @@ class RemoteBatchedEnv(EnvBase):
         self.pedestrian_model = pedestrian_model
         pool_name, pool_list = _pool_scenarios(pool)
         self.pool_name = pool_name
-        self._scenario_index = {name: i for i, (name, _) in enumerate(pool_list)}
-        self._split_names = [name for name, s in pool_list if s == split]
-        if scenario_order == "sequential" and not self._split_names:
-            raise ValueError("scenario_order='sequential' needs the pool file (pool=...)")
         self.env_time_s = 0.0
         #: Each reward term of the last step, ``{term: [K]}`` (weighted, model.md 7; ``reward``
         #: is their sum): a side channel for analyses, not part of the specs.
@@ -161,6 +157,15 @@ class RemoteBatchedEnv(EnvBase):
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
         self.vec = VectorClient(k, client=client, failover=failover, **create)
+        if not pool_list:  # no pool file at hand (an installed package): ask the server
+            self.pool_name, pool_list = self.vec.client.scenarios(
+                pool_name if pool is not None else None, self.vec.server_id
+            )
+        self._scenario_index = {name: i for i, (name, _) in enumerate(pool_list)}
+        self._split_names = [name for name, s in pool_list if s == split]
+        if scenario_order == "sequential" and not self._split_names:
+            self.vec.close()
+            raise ValueError(f"scenario_order='sequential': no {split} scenarios in the pool")
         action = self.vec.created["action"]
         self.dt = float(self.vec.created["dt"])
         self.vehicle_params = {

@@ -16,7 +16,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use protocol::PoolSummary;
+use protocol::{PoolSummary, ScenarioSummary};
 use scenarios::synthetic::SplitMix64;
 use sim_core::scenario::{AgentKind, Scenario, ScenarioPool, Split};
 use sim_core::world::AgentId;
@@ -118,6 +118,17 @@ impl ServedPool {
             name: self.name.clone(),
             train: count(Split::Train),
             test: count(Split::Test),
+            scenarios: self
+                .scenarios
+                .iter()
+                .map(|s| ScenarioSummary {
+                    name: s.scenario.name.clone(),
+                    split: match s.scenario.split {
+                        Split::Train => protocol::Split::Train,
+                        Split::Test => protocol::Split::Test,
+                    },
+                })
+                .collect(),
         }
     }
 }
