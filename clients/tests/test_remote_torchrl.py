@@ -100,3 +100,24 @@ def test_set_seed_restarts_the_sequence(sim_client):
         assert torch.equal(first, again)
     finally:
         env.close()
+
+
+def test_pickle_and_deepcopy_make_envs_of_their_own(sim_client):
+    import copy
+    import pickle
+
+    env = RemoteBatchedEnv(num_envs=2, max_agents=5, seed=3, client=sim_client)
+    try:
+        first = env.reset()
+        for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
+            try:
+                assert clone.batch_size == env.batch_size
+                assert set(clone.vec.env_ids).isdisjoint(env.vec.env_ids)
+                td = clone.reset()  # seeded like the original at creation: same first episodes
+                assert torch.equal(td["features"], first["features"])
+                clone.rand_step(td)
+            finally:
+                clone.close()
+        env.rand_step(first)  # the original is untouched
+    finally:
+        env.close()

@@ -113,6 +113,24 @@ class RemoteBatchedEnv(EnvBase):
     ):
         if num_envs < 1 or max_agents < 1:
             raise ValueError("num_envs and max_agents must be at least 1")
+        # What a copy needs to make its own server envs (see __reduce__).
+        self._init_kwargs = dict(
+            num_envs=num_envs,
+            max_agents=max_agents,
+            split=split,
+            seed=seed,
+            scenario_order=scenario_order,
+            pool=pool,
+            pedestrian_model=pedestrian_model,
+            device=str(device),
+            endpoint=list(client.transport.endpoints) if client is not None else endpoint,
+            prefix=client.transport.prefix if client is not None else prefix,
+            timeout=client.transport.timeout if client is not None else timeout,
+            failover=failover,
+            external_agents=tuple(external_agents),
+            reward_weights=reward_weights,
+            pedestrian_params=pedestrian_params,
+        )
         if scenario_order not in ("random", "sequential"):
             raise ValueError(f"unknown scenario_order {scenario_order!r}")
         if split not in ("train", "test"):
@@ -327,6 +345,12 @@ class RemoteBatchedEnv(EnvBase):
         self.env_time_s += time.perf_counter() - t0
         return td
 
+    def __reduce__(self):
+        """Pickling and copying make a new env from the constructor's arguments: its own
+        connection and its own K server envs, seeded like this one at creation (a shared
+        ``client`` is replaced by its endpoints and prefix)."""
+        return (_rebuild, (self.__class__, self._init_kwargs))
+
     def close(self, *, raise_if_closed: bool = True) -> None:
         try:
             self.vec.close()
@@ -336,3 +360,7 @@ class RemoteBatchedEnv(EnvBase):
             super().close(raise_if_closed=raise_if_closed)
         except TypeError:  # older signature
             super().close()
+
+
+def _rebuild(cls, kwargs: dict[str, Any]) -> RemoteBatchedEnv:
+    return cls(**kwargs)
