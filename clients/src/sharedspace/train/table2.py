@@ -238,14 +238,19 @@ def learning_curves(runs: dict[int, Path]) -> dict[str, dict[str, float]]:
     }
 
 
-def ship(runs: dict[str, dict[int, Path]], evaluated: dict, out: Path) -> list[Path]:
+def ship(
+    runs: dict[str, dict[int, Path]], evaluated: dict, out: Path, budget: int = 0
+) -> list[Path]:
     """Writes each run's policy as ``{variant}-s{seed}.pt`` (config, actor weights, counters:
     what ``evaluate --checkpoint`` loads, a few hundred kB) and its test-split record as
-    ``{variant}-s{seed}.json`` (summary and per-scenario status) into ``out``."""
+    ``{variant}-s{seed}.json`` (summary and per-scenario status) into ``out``. Runs that have
+    not reached ``budget`` frames are not shipped."""
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for variant, per_seed in runs.items():
         for seed, run in per_seed.items():
+            if evaluated[variant][seed]["frames"] < budget:
+                continue
             ckpt = torch.load(run / "checkpoints" / "last.pt", weights_only=False)
             name = f"{variant}-s{seed}"
             torch.save({k: ckpt[k] for k in ("config", "actor", "counters")}, out / f"{name}.pt")
@@ -473,7 +478,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.doc:
         replace_block(Path(args.doc), text)
     if args.ship:
-        for path in ship(runs, evaluated, Path(args.ship)):
+        for path in ship(runs, evaluated, Path(args.ship), args.frames):
             print(f"shipped {path}")
     return 0
 
