@@ -255,3 +255,33 @@ def test_observation_matches_reference(sim_client, server_params, scenario):
         if res["episode_over"]:
             break
     sim_client.close(env)
+
+
+def test_oversized_request_is_refused_and_the_server_serves_on(sim_server, sim_client):
+    from sharedspace.errors import LimitExceeded
+
+    t = sim_client.transport
+    sid = sim_client.pick_server()["server_id"]
+    big = b"\x00" * (2 << 20)  # 2 MiB of garbage: over the default 1 MiB, never decoded
+    with pytest.raises(LimitExceeded, match="not decoded"):
+        t.request(t.key("server", sid, "env", "create"), big)
+    env = sim_client.create(1)["env_ids"][0]  # the server goes on serving
+    sim_client.reset(env)
+    sim_client.close(env)
+
+
+def test_per_trainer_quota_names_itself_and_spares_other_trainers(server_factory):
+    from sharedspace.errors import LimitExceeded
+
+    srv = server_factory(f"quota{free_port()}", "q0", "max_envs_per_trainer:2")
+    with (
+        SimClient(srv.endpoint, srv.prefix) as greedy,
+        SimClient(srv.endpoint, srv.prefix) as other,
+    ):
+        greedy.create(2)
+        with pytest.raises(LimitExceeded, match="max_envs_per_trainer"):
+            greedy.create(1)
+        env = other.create(2)["env_ids"][0]
+        other.reset(env)
+        out = other.step(env, np.zeros((1, 2), np.float32))
+        assert np.isfinite(out["reward"]).all()

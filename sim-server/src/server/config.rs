@@ -25,10 +25,14 @@ pub struct ServerConfig {
     pub server_id: Option<String>,
     /// Maximum simultaneously open envs.
     pub capacity: u32,
+    /// Maximum simultaneously open envs of one trainer (client id); absent = `capacity`.
+    pub max_envs_per_trainer: Option<u32>,
     /// Maximum `CreateEnv.count` and `BatchStep` K.
     pub max_batch: u32,
     /// Maximum `CreateEnv.max_agents` (observation nodes).
     pub max_agents: u32,
+    /// Largest request payload in bytes; larger ones are refused before decoding.
+    pub max_request_bytes: u64,
     /// Seconds the envs of a trainer without a liveliness token survive.
     pub trainer_grace_s: f64,
     /// Scenario pool files (scenarios/FORMAT.md); empty = the embedded `hbs-paper` pool.
@@ -51,8 +55,10 @@ impl Default for ServerConfig {
             prefix: protocol::DEFAULT_PREFIX.to_string(),
             server_id: None,
             capacity: l.capacity,
+            max_envs_per_trainer: None,
             max_batch: l.max_batch,
             max_agents: l.max_agents,
+            max_request_bytes: l.max_request_bytes as u64,
             trainer_grace_s: l.trainer_grace.as_secs_f64(),
             pools: Vec::new(),
             params: None,
@@ -209,6 +215,11 @@ impl ServerConfig {
                 "capacity, max_batch and max_agents must be >= 1".into(),
             ));
         }
+        if self.max_envs_per_trainer == Some(0) || self.max_request_bytes == 0 {
+            return Err(ConfigError::Invalid(
+                "max_envs_per_trainer and max_request_bytes must be >= 1".into(),
+            ));
+        }
         if !(self.trainer_grace_s.is_finite() && self.trainer_grace_s >= 0.0) {
             return Err(ConfigError::Invalid(
                 "trainer_grace_s must be finite and >= 0".into(),
@@ -224,8 +235,10 @@ impl ServerConfig {
     pub fn limits(&self) -> Limits {
         Limits {
             capacity: self.capacity,
+            max_envs_per_trainer: self.max_envs_per_trainer.unwrap_or(self.capacity),
             max_batch: self.max_batch,
             max_agents: self.max_agents,
+            max_request_bytes: usize::try_from(self.max_request_bytes).unwrap_or(usize::MAX),
             trainer_grace: Duration::from_secs_f64(self.trainer_grace_s),
         }
     }

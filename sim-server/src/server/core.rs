@@ -39,10 +39,15 @@ pub const PARALLEL_MIN_BATCH: usize = 64;
 pub struct Limits {
     /// Maximum simultaneously open envs.
     pub capacity: u32,
+    /// Maximum simultaneously open envs of one trainer (client id). Default: `capacity`.
+    pub max_envs_per_trainer: u32,
     /// Maximum `CreateEnv.count` and `BatchStep` K.
     pub max_batch: u32,
     /// Maximum `CreateEnv.max_agents`.
     pub max_agents: u32,
+    /// Largest request payload, bytes: a larger one is refused before it is decoded.
+    /// Default 1 MiB (a `BatchStep` of 1 024 envs is about 10 kB).
+    pub max_request_bytes: usize,
     /// How long envs of a client without liveliness token survive.
     pub trainer_grace: Duration,
 }
@@ -51,8 +56,10 @@ impl Default for Limits {
     fn default() -> Self {
         Self {
             capacity: 4096,
+            max_envs_per_trainer: 4096,
             max_batch: 1024,
             max_agents: 64,
+            max_request_bytes: 1 << 20,
             trainer_grace: Duration::from_secs(10),
         }
     }
@@ -207,6 +214,11 @@ impl Response {
             pubs,
             realtime_envs: Vec::new(),
         }
+    }
+
+    /// An error reply and nothing else.
+    pub fn error(e: ErrorReply) -> Self {
+        Self::of(Err::<(), _>(e), Vec::new())
     }
 }
 
@@ -393,6 +405,18 @@ impl ServerCore {
     }
 
     /// `InfoRequest` → `Reply<ServerInfo>`.
+    /// The refusal of a request payload of `len` bytes above `max_request_bytes`, decided
+    /// before the payload is copied or decoded; `None` when it may be handled.
+    pub fn refuse_oversized(&self, len: usize) -> Option<Response> {
+        let max = self.limits.max_request_bytes;
+        (len > max).then(|| {
+            Response::error(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!("request of {len} bytes exceeds max_request_bytes {max}: not decoded"),
+            ))
+        })
+    }
+
     pub fn handle_info(&self, payload: &[u8]) -> Response {
         let r = decode_or_default::<InfoRequest>(payload)
             .map_err(bad)
@@ -546,6 +570,16 @@ impl ServerCore {
         });
         let mut reg = lock(&self.reg);
         let load = reg.envs.len() as u64;
+        let own = reg.clients.get(&req.client_id).map_or(0, |c| c.envs.len()) as u64;
+        if own + u64::from(req.count) > u64::from(lim.max_envs_per_trainer) {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!(
+                    "max_envs_per_trainer: trainer {:?} has {own} of {} envs open, {} more requested",
+                    req.client_id, lim.max_envs_per_trainer, req.count
+                ),
+            ));
+        }
         if load + u64::from(req.count) > u64::from(lim.capacity) {
             return Err(ErrorReply::new(
                 ErrorCode::LimitExceeded,
@@ -1109,6 +1143,58 @@ mod tests {
         req.max_agents = 9;
         let e = err_of(&c.handle_create(&encode(&req), Instant::now()).reply);
         assert_eq!(e.code, ErrorCode::LimitExceeded);
+    }
+
+    #[test]
+    fn a_trainer_at_its_quota_leaves_room_for_another() {
+        let c = core(Limits {
+            capacity: 8,
+            max_envs_per_trainer: 3,
+            ..Limits::default()
+        });
+        let mut req = CreateEnv::new("greedy");
+        req.count = 3;
+        create(&c, &req);
+        req.count = 1;
+        let e = err_of(&c.handle_create(&encode(&req), Instant::now()).reply);
+        assert_eq!(e.code, ErrorCode::LimitExceeded);
+        assert!(e.message.contains("max_envs_per_trainer"), "{e}");
+        assert!(e.message.contains("greedy"), "{e}");
+        let mut other = CreateEnv::new("modest");
+        other.count = 2;
+        let created = create(&c, &other);
+        let id = &created.env_ids[0];
+        assert!(c.handle_reset(id, &[], Gates::NONE).reply.len() > 16);
+        let step = encode(&Step::from_rows(&[[0.5, 0.0]]));
+        let r = c.handle_step(id, &step, Gates::NONE);
+        assert!(decode::<Reply<StepResult>>(&r.reply)
+            .unwrap()
+            .into_result()
+            .is_ok());
+        // closing frees the quota
+        decode::<Reply<Closed>>(&c.handle_close(&created.env_ids[1], &[]).reply)
+            .unwrap()
+            .into_result()
+            .unwrap();
+        assert_eq!(c.load(), 4);
+    }
+
+    #[test]
+    fn an_oversized_request_is_refused_before_decoding() {
+        let c = core(Limits {
+            max_request_bytes: 64,
+            ..Limits::default()
+        });
+        assert!(c.refuse_oversized(64).is_none());
+        let refused = c.refuse_oversized(65).expect("refused");
+        let e = err_of(&refused.reply);
+        assert_eq!(e.code, ErrorCode::LimitExceeded);
+        assert!(
+            e.message.contains("65 bytes") && e.message.contains("not decoded"),
+            "{e}"
+        );
+        assert!(refused.pubs.is_empty() && refused.realtime_envs.is_empty());
+        assert_eq!(c.load(), 0);
     }
 
     #[test]

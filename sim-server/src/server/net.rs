@@ -162,12 +162,17 @@ impl Ctx {
 
     /// The core's response to `query` and the key to reply on.
     fn respond(&self, kind: Kind, query: &Query) -> (Response, String) {
+        let key = query.key_expr().as_str().to_string();
+        let core = &self.core;
+        let len = query.payload().map_or(0, |p| p.len());
+        if let Some(refused) = core.refuse_oversized(len) {
+            tracing::debug!(key = %key, len, "request refused: too large");
+            return (refused, key);
+        }
         let payload: Vec<u8> = query
             .payload()
             .map(|p| p.to_bytes().into_owned())
             .unwrap_or_default();
-        let key = query.key_expr().as_str().to_string();
-        let core = &self.core;
         let gates = self.gates();
         let resp: Response = match kind {
             Kind::Info => core.handle_info(&payload),
