@@ -35,6 +35,10 @@ pub struct ServerConfig {
     pub max_request_bytes: u64,
     /// Seconds the envs of a trainer without a liveliness token survive.
     pub trainer_grace_s: f64,
+    /// Seconds the envs of a trainer whose token disappeared wait for it to reconnect
+    /// (0 = reaped at once). A silent link is noticed after zenoh's lease
+    /// (`zenoh/transport/link/tx/lease`, ms, default 10 000).
+    pub reconnect_grace_s: f64,
     /// Scenario pool files (scenarios/FORMAT.md); empty = the embedded `hbs-paper` pool.
     /// The first pool is the default.
     pub pools: Vec<PathBuf>,
@@ -60,6 +64,7 @@ impl Default for ServerConfig {
             max_agents: l.max_agents,
             max_request_bytes: l.max_request_bytes as u64,
             trainer_grace_s: l.trainer_grace.as_secs_f64(),
+            reconnect_grace_s: l.reconnect_grace.as_secs_f64(),
             pools: Vec::new(),
             params: None,
             batch_threads: 0,
@@ -225,6 +230,11 @@ impl ServerConfig {
                 "trainer_grace_s must be finite and >= 0".into(),
             ));
         }
+        if !(self.reconnect_grace_s.is_finite() && self.reconnect_grace_s >= 0.0) {
+            return Err(ConfigError::Invalid(
+                "reconnect_grace_s must be finite and >= 0".into(),
+            ));
+        }
         if !self.zenoh.is_object() {
             return Err(ConfigError::Invalid("zenoh must be an object".into()));
         }
@@ -240,6 +250,7 @@ impl ServerConfig {
             max_agents: self.max_agents,
             max_request_bytes: usize::try_from(self.max_request_bytes).unwrap_or(usize::MAX),
             trainer_grace: Duration::from_secs_f64(self.trainer_grace_s),
+            reconnect_grace: Duration::from_secs_f64(self.reconnect_grace_s),
         }
     }
 

@@ -50,6 +50,9 @@ pub struct Limits {
     pub max_request_bytes: usize,
     /// How long envs of a client without liveliness token survive.
     pub trainer_grace: Duration,
+    /// How long envs of a trainer whose liveliness token disappeared survive, waiting for it
+    /// to reconnect (its token reappearing keeps them). Zero (default): reaped at once.
+    pub reconnect_grace: Duration,
 }
 
 impl Default for Limits {
@@ -61,6 +64,7 @@ impl Default for Limits {
             max_agents: 64,
             max_request_bytes: 1 << 20,
             trainer_grace: Duration::from_secs(10),
+            reconnect_grace: Duration::ZERO,
         }
     }
 }
@@ -974,7 +978,24 @@ impl ServerCore {
         c.deadline = None;
     }
 
-    /// The liveliness token of `client_id` disappeared: its envs are reaped. Returns them.
+    /// The liveliness token of `client_id` disappeared at `now` (closed session, or a link
+    /// silent for zenoh's lease): its envs are reaped at once without a `reconnect_grace`,
+    /// else when it ends, unless the token reappears first ([`Self::trainer_alive`]).
+    /// Returns the envs reaped now.
+    pub fn trainer_lost(&self, client_id: &str, now: Instant) -> Vec<String> {
+        let grace = self.limits.reconnect_grace;
+        if grace.is_zero() {
+            return self.trainer_gone(client_id);
+        }
+        let mut reg = lock(&self.reg);
+        if let Some(c) = reg.clients.get_mut(client_id) {
+            c.alive = false;
+            c.deadline = Some(now + grace);
+        }
+        Vec::new()
+    }
+
+    /// The envs of `client_id` are reaped now. Returns them.
     pub fn trainer_gone(&self, client_id: &str) -> Vec<String> {
         let ids: Vec<String> = {
             let mut reg = lock(&self.reg);
@@ -1143,6 +1164,32 @@ mod tests {
         req.max_agents = 9;
         let e = err_of(&c.handle_create(&encode(&req), Instant::now()).reply);
         assert_eq!(e.code, ErrorCode::LimitExceeded);
+    }
+
+    #[test]
+    fn a_lost_trainer_that_reconnects_within_the_grace_keeps_its_envs() {
+        let c = core(Limits {
+            reconnect_grace: Duration::from_secs(5),
+            ..Limits::default()
+        });
+        let t0 = Instant::now();
+        c.trainer_alive("a");
+        c.trainer_alive("b");
+        create(&c, &CreateEnv::new("a"));
+        create(&c, &CreateEnv::new("b"));
+        assert!(c.trainer_lost("a", t0).is_empty());
+        assert!(c.trainer_lost("b", t0).is_empty());
+        c.trainer_alive("a"); // a's token is back within the grace
+        assert!(c.sweep(t0 + Duration::from_secs(4)).is_empty());
+        assert_eq!(
+            c.sweep(t0 + Duration::from_secs(6)),
+            vec!["s-1".to_string()]
+        );
+        assert_eq!(c.load(), 1);
+        // without a reconnect grace a lost trainer is reaped at once
+        let now = core(Limits::default());
+        create(&now, &CreateEnv::new("a"));
+        assert_eq!(now.trainer_lost("a", t0), vec!["s-0".to_string()]);
     }
 
     #[test]

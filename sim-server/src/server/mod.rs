@@ -38,9 +38,14 @@
 //!   is neither encoded nor put. When somebody subscribes to a topic of any env, that topic is
 //!   published for every env.
 //! * **Reaping.** The trainers' liveliness tokens `{p}/trainer/{client_id}` are watched with
-//!   history; when one disappears its envs are closed at once. Envs of a client without a token
-//!   are reaped after `trainer_grace_s` (default 10 s), checked every 250 ms. A trainer whose
-//!   network link is lost is detected by zenoh's transport lease (default 10 s).
+//!   history; when one disappears its envs are closed at once, or after `reconnect_grace_s`
+//!   (default 0) unless the token comes back first (a trainer that reconnects keeps its envs).
+//!   Envs of a client without a token are reaped after `trainer_grace_s` (default 10 s),
+//!   checked every 250 ms. A trainer whose network link is lost or silent is detected by
+//!   zenoh's transport lease (`zenoh/transport/link/tx/lease`, default 10 s).
+//! * **Quotas.** `capacity` open envs in all, `max_envs_per_trainer` per client id (default:
+//!   the capacity); a request payload over `max_request_bytes` (1 MiB) is refused before it is
+//!   copied or decoded.
 //! * **Realtime.** A realtime env's clock ticks every `dt / realtime_factor` seconds from its
 //!   creation; after a `Reset` every tick steps with the latest action per agent (zero-order
 //!   hold, `[0, 0]` until the first one), publishes the `StepResult` on `{p}/env/{id}/result` and

@@ -410,8 +410,8 @@ impl Server {
                                     core.trainer_alive(client);
                                 }
                                 SampleKind::Delete => {
-                                    let reaped = core.trainer_gone(client);
-                                    tracing::info!(client, envs = reaped.len(), "trainer gone, envs reaped");
+                                    let reaped = core.trainer_lost(client, Instant::now());
+                                    tracing::info!(client, envs = reaped.len(), "trainer gone, envs reaped (or kept for reconnect_grace_s)");
                                 }
                             }
                         }
