@@ -1,8 +1,8 @@
 """A trainer cut off by a network partition (its traffic dropped by a TCP proxy between it and
 the server, the sockets left open) is reaped within zenoh's lease plus the server's
-`reconnect_grace_s`, and not before the grace. (That a trainer whose token comes back within
-the grace keeps its envs is the core's test `a_lost_trainer_that_reconnects_within_the_grace_
-keeps_its_envs`; the Python client does not yet rejoin a server it saw lost.)"""
+`reconnect_grace_s`, and not before the grace; one whose link comes back within the grace
+reconnects (zenoh retries its connect endpoint), its liveliness token reappears and it steps
+its envs again."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import socket
 import threading
 import time
 
+import numpy as np
 import pytest
 from conftest import free_port, unique_prefix
 
@@ -100,7 +101,8 @@ def partitioned_setup(server_factory):
             f"zenoh/transport/link/tx/lease:{LEASE_MS}",
         )
         proxy = PartitionProxy(server.port)
-        lease = {"transport/link/tx/lease": LEASE_MS}
+        # a short lease, and a short handshake timeout so that reconnecting retries soon
+        lease = {"transport/link/tx/lease": LEASE_MS, "transport/unicast/open_timeout": 1000}
         trainer = SimClient(f"tcp/127.0.0.1:{proxy.port}", prefix, config=lease)
         observer = SimClient(server.endpoint, prefix)
         made.append((proxy, trainer, observer))
@@ -127,3 +129,24 @@ def test_a_partitioned_trainer_is_reaped_within_lease_plus_grace(partitioned_set
     assert _wait_for(lambda: _load(observer) == 0, LEASE_MS / 1000 + grace + 3.0)
     elapsed = time.monotonic() - t0
     assert elapsed >= grace, elapsed  # kept for the reconnect grace first
+
+
+def test_a_trainer_back_within_the_grace_keeps_its_envs(partitioned_setup):
+    grace = 10.0
+    proxy, trainer, observer = partitioned_setup(grace)
+    env = trainer.create(1)["env_ids"][0]
+    trainer.reset(env)
+    proxy.partitioned.set()
+    time.sleep(LEASE_MS / 1000 * 2)  # the lease has run out: the token is gone
+    proxy.partitioned.clear()
+
+    def steps() -> bool:
+        try:
+            out = trainer.step(env, np.zeros((1, 2), np.float32))
+        except Exception:  # noqa: BLE001 - reconnecting
+            return False
+        return bool(np.isfinite(out["reward"]).all())
+
+    assert _wait_for(steps, grace - 3.0), "the trainer did not get its env back"
+    time.sleep(grace - (LEASE_MS / 1000 * 2) + 1.0)  # past the grace: still open
+    assert _load(observer) == 1
