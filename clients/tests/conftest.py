@@ -171,3 +171,18 @@ def server_factory():
     yield make
     for s in started:
         s.stop()
+
+
+#: A tiny but real trainer config (a few seconds against a live server), for smoke tests.
+TINY_TRAIN = [
+    "num_envs=2",
+    "max_agents=5",
+    "frames_per_batch=16",
+    "init_random_frames=32",
+    "utd_ratio=0.25",
+    "batch_size=16",
+    "buffer_size=500",
+    "hidden_sizes=16,16",
+    "gcn_hidden=8",
+    "progress=false",
+]

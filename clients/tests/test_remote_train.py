@@ -9,24 +9,13 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from conftest import TINY_TRAIN  # noqa: E402
+
 from sharedspace.train.config import load_config  # noqa: E402
 from sharedspace.train.evaluate import main as evaluate_main  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
-TINY = [
-    "num_envs=2",
-    "max_agents=5",
-    "frames_per_batch=16",
-    "init_random_frames=32",
-    "utd_ratio=0.25",
-    "batch_size=16",
-    "buffer_size=500",
-    "hidden_sizes=16,16",
-    "gcn_hidden=8",
-    "eval_interval=0",
-    "checkpoint_interval=64",
-    "progress=false",
-]
+TINY = [*TINY_TRAIN, "eval_interval=0", "checkpoint_interval=64"]
 
 
 def test_remote_train_and_evaluate(sim_server, tmp_path, capsys):

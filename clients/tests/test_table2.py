@@ -12,6 +12,8 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from conftest import TINY_TRAIN  # noqa: E402
+
 from sharedspace.train.config import load_config  # noqa: E402
 from sharedspace.train.drivers import (  # noqa: E402
     PursuitDriver,
@@ -92,18 +94,10 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
         f"server_prefix={sim_server.prefix}",
     ]
     tiny = [
-        "num_envs=2",
-        "frames_per_batch=16",
-        "init_random_frames=32",
-        "utd_ratio=0.25",
-        "batch_size=16",
-        "buffer_size=500",
-        "hidden_sizes=16,16",
-        "gcn_hidden=8",
+        *TINY_TRAIN,
         "eval_interval=64",
         "eval_envs=18",
         "checkpoint_interval=0",
-        "progress=false",
         "total_frames=64",
     ]
     train(load_config(None, [*tiny, *remote, f"log_dir={tmp_path / 'runs' / 'g_sac_cog-s0'}"]))

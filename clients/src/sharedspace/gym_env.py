@@ -26,14 +26,11 @@ when first reset. ``close()`` releases the server env; a closed env can be reset
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
-
-from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
 __all__ = ["SharedSpaceEnv", "ENV_ID", "register"]
 
@@ -46,50 +43,24 @@ NODE_FEATURES = 11
 class SharedSpaceEnv(gymnasium.Env):
     """One server env's controlled vehicle as a Gymnasium env (see the module docstring).
 
-    Args:
-        endpoint, prefix, timeout: where the server is.
-        max_agents: M, nodes per observation.
-        split, pool, scenario, pedestrian_model, pedestrian_params, reward_weights, seed: the
-            server env's ``CreateEnv`` fields (SPEC 5.2); ``scenario`` pins one scenario.
-        render_mode: ``None`` or ``"rgb_array"``.
+    Takes the keyword arguments of :class:`~sharedspace.pettingzoo_env.SharedSpaceParallelEnv`
+    (``endpoint``, ``prefix``, ``max_agents``, ``split``, ``pool``, ``scenario``,
+    ``pedestrian_model``, ``pedestrian_params``, ``reward_weights``, ``seed``, ``timeout``,
+    ...) but ``external_agents`` (always the scenario's car) and ``client`` (a copy must be
+    able to connect on its own).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
-    def __init__(
-        self,
-        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
-        prefix: str = DEFAULT_PREFIX,
-        *,
-        max_agents: int = 8,
-        split: str = "train",
-        pool: str | None = None,
-        scenario: str | None = None,
-        pedestrian_model: str = "cr_sfm",
-        pedestrian_params: Mapping[str, float] | None = None,
-        reward_weights: Mapping[str, float] | None = None,
-        seed: int = 0,
-        render_mode: str | None = None,
-        timeout: float = DEFAULT_TIMEOUT,
-    ):
+    def __init__(self, render_mode: str | None = None, **kwargs: Any):
+        for fixed in ("external_agents", "client"):
+            if fixed in kwargs:
+                raise TypeError(f"SharedSpaceEnv does not take {fixed!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
-        self._kwargs: dict[str, Any] = dict(
-            endpoint=endpoint,
-            prefix=prefix,
-            max_agents=int(max_agents),
-            split=split,
-            pool=pool,
-            scenario=scenario,
-            pedestrian_model=pedestrian_model,
-            pedestrian_params=pedestrian_params,
-            reward_weights=reward_weights,
-            seed=int(seed),
-            render_mode=render_mode,
-            timeout=timeout,
-        )
-        m = int(max_agents)
+        self._kwargs: dict[str, Any] = {**kwargs, "render_mode": render_mode}
+        m = int(kwargs.get("max_agents", 8))
         self.observation_space = spaces.Dict(
             {
                 "features": spaces.Box(-np.inf, np.inf, (m, NODE_FEATURES), np.float32),
