@@ -344,6 +344,23 @@ def render(table: dict[str, Any]) -> str:
                 f"| {who} | " + " | ".join(f"{row.get(t, 0.0):+.2f}" for t in names) + " |"
             )
         lines.append("")
+    learned = {VARIANT_NAMES.get(v, v) for v in table["variants"]} | {"human_replay"}
+    failing = {
+        name: row
+        for name, row in sorted(table["outcomes"].items())
+        if any(ch != "s" for who, chs in row.items() if who in learned for ch in chs)
+    }
+    if failing:
+        whos = list(next(iter(failing.values())))
+        lines.append(
+            "Test scenarios where a learned policy or the replayed human driver failed (s "
+            "success, c collision, t timeout; a learned variant has one letter per seed):"
+        )
+        lines.append("")
+        lines += ["| scenario | " + " | ".join(whos) + " |", "|---|" + "---|" * len(whos)]
+        for name, row in failing.items():
+            lines.append(f"| {name} | " + " | ".join(row.get(w, "") for w in whos) + " |")
+        lines.append("")
     reach = table["reachability"]
     n_reach = sum(r["reachable"] for r in reach)
     lines.append(
@@ -421,10 +438,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         for a, b in itertools.combinations(list(variants), 2)
     }
     drivers, terms = {}, {}
+    outcomes: dict[str, dict[str, str]] = {}  # scenario name -> who -> statuses
     for name in [*DRIVERS, "human_replay"]:
         result = evaluate_policy(cfg, make_driver(name, pool), "test")
         drivers[name] = result["summary"]
         terms[f"scripted: {name}"] = reward_terms(result["episodes"])
+        for e in result["episodes"]:
+            outcomes.setdefault(pool[e["scenario_index"]]["name"], {})[name] = e["status"][0]
+    for v, per in evaluated.items():
+        for seed in sorted(per):
+            for e in per[seed]["episodes"]:
+                row = outcomes.setdefault(pool[e["scenario_index"]]["name"], {})
+                key = VARIANT_NAMES.get(v, v)
+                row[key] = row.get(key, "") + e["status"][0]
     for v, per in evaluated.items():
         terms[VARIANT_NAMES.get(v, v)] = reward_terms(
             [e for r in per.values() for e in r["episodes"]]
@@ -460,6 +486,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "paired": pairs,
         "drivers": drivers,
         "reward_terms": terms,
+        "outcomes": outcomes,
         "human": human,
         "paper": {
             k: dict(zip([c for c, _ in COLUMNS], row, strict=True)) for k, row in PAPER_ROWS.items()
