@@ -14,6 +14,7 @@ pytest.importorskip("torchrl")
 
 from conftest import TINY_TRAIN  # noqa: E402
 
+from sharedspace.stats import paired_bootstrap, sign_test, wilson  # noqa: E402
 from sharedspace.train.config import load_config  # noqa: E402
 from sharedspace.train.drivers import (  # noqa: E402
     PursuitDriver,
@@ -21,7 +22,6 @@ from sharedspace.train.drivers import (  # noqa: E402
     reachability,
 )
 from sharedspace.train.table2 import main as table2_main  # noqa: E402
-from sharedspace.train.table2 import paired_bootstrap, sign_test, wilson  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
 
