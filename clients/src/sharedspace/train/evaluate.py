@@ -59,11 +59,14 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
     traces = [{"speeds": [], "actions": [], "return": 0.0} for _ in range(k)]
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
+        # The policy may live on a GPU (device=cuda) while the env's tensors are on the CPU.
+        param = next(iter(policy.parameters()), None)
+        device = param.device if param is not None and param.device != env.device else None
         scen = td["scenario_index"].reshape(-1).tolist()
         for i in range(k):
             traces[i]["speeds"].append(float(td["features"][i, 0, 4]))
         for _ in range(max_steps):
-            td = policy(td)
+            td = policy(td.to(device)).to(env.device) if device is not None else policy(td)
             td = env.step(td)
             nxt = td["next"]
             done = nxt["done"].reshape(-1)
