@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 
@@ -104,7 +105,7 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     doc = tmp_path / "doc.md"
     doc.write_text("# x\n<!-- table2:begin -->\nSTALE-BLOCK\n<!-- table2:end -->\ntail\n")
     out = tmp_path / "table2.json"
-    ship = tmp_path / "policies"
+    ship = tmp_path / "results" / "policies"
     args = ["--runs", str(tmp_path / "runs"), "--json", str(out), "--doc", str(doc)]
     assert table2_main([*args, "--ship", str(ship), "--set", *remote]) == 0
     table = json.loads(out.read_text())
@@ -121,3 +122,8 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     text = doc.read_text()
     assert "STALE-BLOCK" not in text and "G-SAC-Cog" in text and text.endswith("tail\n")
     assert (ship / "g_sac_cog-s0.pt").is_file() and (ship / "g_sac_cog-s0.json").is_file()
+    record = tmp_path / "results" / "runs" / "g_sac_cog-s0"
+    assert json.loads((record / "config.json").read_text())["variant"] == "g_sac_cog"
+    assert len(json.loads((record / "eval_test.json").read_text())["episodes"]) == 18
+    with gzip.open(record / "metrics.csv.gz", "rt") as f:
+        assert f.readline() == "frames,wall_s,metric,value\n" and ",eval/success," in f.read()

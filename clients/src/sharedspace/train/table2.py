@@ -25,10 +25,12 @@ from __future__ import annotations
 
 import argparse
 import csv
+import gzip
 import itertools
 import json
 import platform
 import re
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -210,8 +212,10 @@ def ship(
 ) -> list[Path]:
     """Writes each run's policy as ``{variant}-s{seed}.pt`` (config, actor weights, counters:
     what ``evaluate --checkpoint`` loads, a few hundred kB) and its test-split record as
-    ``{variant}-s{seed}.json`` (summary and per-scenario status) into ``out``. Runs that have
-    not reached ``budget`` frames are not shipped."""
+    ``{variant}-s{seed}.json`` (summary and per-scenario status) into ``out``, and the run's
+    record (``config.json``, ``metrics.csv.gz``, ``eval_test.json``) into
+    ``out/../runs/{variant}-s{seed}/`` (results/table2/README.md). Runs that have not reached
+    ``budget`` frames are not shipped."""
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for variant, per_seed in runs.items():
@@ -232,6 +236,16 @@ def ship(
                     indent=1,
                 )
             )
+            record = out.parent / "runs" / name
+            record.mkdir(parents=True, exist_ok=True)
+            for file in ("config.json", "eval_test.json"):
+                shutil.copyfile(run / file, record / file)
+            # mtime=0: shipping the same run twice writes the same bytes.
+            with (
+                open(run / "metrics.csv", "rb") as src,
+                gzip.GzipFile(record / "metrics.csv.gz", "wb", mtime=0) as dst,
+            ):
+                shutil.copyfileobj(src, dst)
             written.append(out / f"{name}.pt")
     return written
 
