@@ -107,7 +107,8 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     out = tmp_path / "table2.json"
     ship = tmp_path / "results" / "policies"
     args = ["--runs", str(tmp_path / "runs"), "--json", str(out), "--doc", str(doc)]
-    assert table2_main([*args, "--ship", str(ship), "--set", *remote]) == 0
+    search = ["--search-rounds", "2", "--search-per-round", "10"]
+    assert table2_main([*args, *search, "--ship", str(ship), "--set", *remote]) == 0
     table = json.loads(out.read_text())
     stats = table["variants"]["g_sac_cog"]
     assert stats["seeds"] == [0] and stats["pooled_success"]["n"] == 18
@@ -116,6 +117,15 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     assert set(table["drivers"]) == {"hold", "stop", "pursuit_3", "pursuit_5", "human_replay"}
     assert table["human"]["success"] == 1.0
     assert len(table["reachability"]) == 18
+    planner = table["planner"]
+    assert len(planner) == 18 and all(r["candidates"] == 20 for r in planner.values())
+    assert all(r["success"] + r["collision"] + r["timeout"] == 20 for r in planner.values())
+    # Round 0 plays constant actions; in some scene one of them (or a later sample) arrives.
+    solved = [r for r in planner.values() if r["success"]]
+    assert solved and all(r["replayed"] == "success" for r in solved)
+    assert all(len(r["best_actions"]) == r["best_steps"] for r in solved)
+    train_success = table["generalisation"]["g_sac_cog"]["train"]["success"]["mean"]
+    assert 0.0 <= train_success <= 1.0
     assert "64" in table["learning_curves"]["g_sac_cog"]
     terms = table["reward_terms"]["G-SAC-Cog"]
     assert {"progress", "danger", "success", "collision", "comfort"} <= set(terms)

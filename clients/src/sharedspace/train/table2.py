@@ -15,6 +15,9 @@ the same server, scores the human driver, and writes:
 - the scripted drivers, the human driver, the paper's rows;
 - the scenarios whose goal is kinematically reachable (:func:`drivers.reachability`) and those
   where every extreme action collides on the first step (unavoidable collisions);
+- a planner's bound (:func:`open_loop_search`): the test scenarios in which a cross-entropy
+  search over open-loop action sequences finds a collision-free arrival;
+- generalisation: the final checkpoints' success on the train split beside the test split;
 - the learning curves (test-split evaluations logged while training, mean over seeds).
 
 The JSON goes to ``--json``; with ``--doc`` the block between ``<!-- table2:begin -->`` and
@@ -67,6 +70,7 @@ PAPER_ROWS = {
 }
 VARIANT_NAMES = {"g_sac_cog": "G-SAC-Cog", "g_sac_nocog": "G-SAC-NoCog", "s_sac": "S-SAC"}
 STATUSES = ("success", "collision", "timeout")
+_GOAL_DIST = 10  # ego node feature: distance to the goal (protocol/SPEC.md section 7)
 
 
 def find_runs(runs: Path) -> dict[str, dict[int, Path]]:
@@ -79,18 +83,19 @@ def find_runs(runs: Path) -> dict[str, dict[int, Path]]:
     return out
 
 
-def evaluate_run(run: Path, overrides: Sequence[str]) -> dict[str, Any]:
-    """The test-split evaluation of ``run``'s last checkpoint (cached per frame count)."""
+def evaluate_run(run: Path, overrides: Sequence[str], split: str = "test") -> dict[str, Any]:
+    """The evaluation of ``run``'s last checkpoint on ``split`` (cached in
+    ``eval_{split}.json`` per frame count)."""
     ckpt = run / "checkpoints" / "last.pt"
     frames = int(torch.load(ckpt, weights_only=False)["counters"]["frames"])
-    cache = run / "eval_test.json"
+    cache = run / f"eval_{split}.json"
     if cache.exists():
         cached = json.loads(cache.read_text())
         fresh = all("reward_terms" in e for e in cached.get("episodes", []))
         if cached.get("frames") == frames and fresh:
             return cached
     cfg, actor = load_checkpoint_actor(str(ckpt), overrides)
-    result = evaluate_policy(cfg, actor, "test")
+    result = evaluate_policy(cfg, actor, split)
     out = {"frames": frames, **result}
     cache.write_text(json.dumps(out))
     return out
@@ -125,6 +130,111 @@ def unavoidable_first_step(cfg: TrainConfig) -> list[int]:
         finally:
             env.close()
     return sorted(i for i, c in collided.items() if c == 9)
+
+
+def open_loop_search(
+    cfg: TrainConfig,
+    rounds: int = 8,
+    per_round: int = 48,
+    elites: int = 8,
+    seed: int = 0,
+    max_steps: int = 200,
+) -> dict[str, dict[str, Any]]:
+    """A planner's answer to "can any driver succeed here?": for every test scenario, a
+    cross-entropy search over open-loop action sequences. Round 0 plays the 9 constant actions
+    of ``{-1, 0, 1}^2`` and random piecewise-constant sequences; every later round samples
+    ``per_round`` sequences from a per-step Gaussian fitted to that scenario's ``elites`` best
+    sequences so far (success first and sooner, then a timeout closer to the goal, then a later
+    collision). The world is deterministic given the actions (the pedestrians react to the
+    vehicle the same way every time), so one successful sequence proves that a collision-free
+    arrival exists; a scenario without one is where a failure may be unavoidable (not proven:
+    the search is finite). Keyed by scenario name: counts of ``success`` / ``collision`` /
+    ``timeout`` over the ``candidates`` played and ``best_steps`` (the fewest steps of a
+    successful sequence, or None)."""
+    pool = load_pool(cfg.scenario_pool or None)
+    test = split_indices(pool, "test")
+    n = len(test)
+    rng = np.random.default_rng(seed)
+    levels = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
+    constants = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=2)), dtype=np.float32)
+    played: dict[str, list[tuple[float, np.ndarray]]] = {}  # name -> (score, actions)
+    found: dict[str, dict[str, Any]] = {}
+    names: list[str] = []
+    for round_ in range(rounds):
+        k_envs = n * per_round
+        actions = np.empty((k_envs, max_steps, 2), dtype=np.float32)
+        for k in range(k_envs):
+            c = k // n  # sub-env k plays the split's scenario k % n (sequential order)
+            if round_ == 0 and c < len(constants):
+                actions[k] = constants[c]
+            elif round_ == 0:
+                t = 0
+                while t < max_steps:
+                    length = int(rng.integers(1, 7))
+                    actions[k, t : t + length] = rng.choice(levels, size=2)
+                    t += length
+            else:
+                best = sorted(played[names[k % n]], key=lambda e: -e[0])[:elites]
+                stack = np.stack([a for _, a in best])
+                mean, std = stack.mean(0), np.maximum(stack.std(0), 0.15)
+                actions[k] = np.clip(mean + std * rng.standard_normal(mean.shape), -1.0, 1.0)
+        names, outcome = _play_open_loop(cfg, pool, actions)
+        for k, name in enumerate(names):
+            rec = found.setdefault(
+                name,
+                {"candidates": 0, "success": 0, "collision": 0, "timeout": 0, "best_steps": None},
+            )
+            status, steps, goal_dist = outcome[k] or ("timeout", max_steps, float("inf"))
+            rec["candidates"] += 1
+            rec[status] += 1
+            if status == "success" and (rec["best_steps"] is None or steps < rec["best_steps"]):
+                rec["best_steps"] = steps
+                rec["best_actions"] = actions[k, :steps].tolist()  # float32 values, exact
+            score = {
+                "success": 1e4 - steps,
+                "timeout": -goal_dist,
+                "collision": -1e4 + steps,
+            }[status]
+            played.setdefault(name, []).append((score, actions[k]))
+    # Replayed in fresh envs, every best sequence must arrive again: the bound rests on it.
+    replay = np.zeros((n, max_steps, 2), dtype=np.float32)
+    for j, name in enumerate(names[:n]):
+        best = found.get(name, {}).get("best_actions")
+        if best:
+            replay[j, : len(best)] = best
+    names, outcome = _play_open_loop(cfg, pool, replay)
+    for name, result in zip(names, outcome, strict=True):
+        if found.get(name, {}).get("best_actions"):
+            found[name]["replayed"] = result[0] if result else "timeout"
+    return found
+
+
+def _play_open_loop(
+    cfg: TrainConfig, pool: Sequence[dict[str, Any]], actions: np.ndarray
+) -> tuple[list[str], list[tuple[str, int, float] | None]]:
+    """Plays ``actions[k]`` (``[K, T, 2]``) open loop in sub-env ``k`` of a test-split env in
+    sequential order (sub-env ``k`` on the split's scenario ``k % n``) until every sub-env's
+    first episode has ended; per sub-env its scenario name and ``(status, steps, goal
+    distance)``."""
+    k_envs, max_steps = actions.shape[:2]
+    env = make_env(cfg, split="test", num_envs=k_envs, scenario_order="sequential")
+    try:
+        td = env.reset()
+        names = [pool[int(i)]["name"] for i in td["scenario_index"].reshape(-1).tolist()]
+        outcome: list[tuple[str, int, float] | None] = [None] * k_envs
+        for t in range(max_steps):
+            td["action"] = torch.from_numpy(np.ascontiguousarray(actions[:, t]))
+            stepped, td = env.step_and_maybe_reset(td)
+            nxt = stepped["next"]
+            for k in range(k_envs):
+                if outcome[k] is None and bool(nxt["done"][k]):
+                    status = next((s for s in STATUSES if bool(nxt[f"episode_{s}"][k])), "timeout")
+                    outcome[k] = (status, t + 1, float(nxt["features"][k, 0, _GOAL_DIST]))
+            if all(o is not None for o in outcome):
+                break
+    finally:
+        env.close()
+    return names, outcome
 
 
 def variant_stats(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
@@ -353,6 +463,51 @@ def render(table: dict[str, Any]) -> str:
         f"{table['success_ceiling']:.3f} and collision at least "
         f"{1 - table['success_ceiling']:.3f} for any policy."
     )
+    planner = table.get("planner") or {}
+    if planner:
+        solved = [name for name, r in planner.items() if r.get("replayed") == "success"]
+        unsolved = sorted(set(planner) - set(solved))
+        per = next(iter(planner.values()))["candidates"]
+        lines.append("")
+        lines.append(
+            f"Planner: a cross-entropy search over open-loop action sequences ({per} per "
+            "scenario, `open_loop_search`) finds a collision-free arrival, confirmed by "
+            "replaying it in a fresh env, in "
+            f"{len(solved)} of {len(planner)} test scenarios, so success "
+            f"{len(solved) / len(planner):.3f} is reachable on this extraction in this world"
+            + (f"; none found in {', '.join(unsolved)}." if unsolved else ".")
+        )
+        hard = {n: r for n, r in planner.items() if n in failing}
+        if hard:
+            lines.append("")
+            lines += [
+                "| scenario | sequences | success | collision | timeout | fewest steps |",
+                "|---|---:|---:|---:|---:|---:|",
+            ]
+            for name, r in hard.items():
+                lines.append(
+                    f"| {name} | {r['candidates']} | {r['success']} | {r['collision']} | "
+                    f"{r['timeout']} | {r['best_steps'] if r['best_steps'] else '–'} |"
+                )
+    general = table.get("generalisation") or {}
+    if general:
+        lines.append("")
+        lines.append(
+            "Generalisation: the same final checkpoints on the train split (the scenarios they "
+            "were trained on) and on the test split (mean ± sd over seeds):"
+        )
+        lines.append("")
+        lines += [
+            "| Model | train success | train collision | test success | test collision |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        for v, g in general.items():
+            cells = [
+                f"{g[split][c]['mean']:.3f} ± {g[split][c]['std']:.3f}"
+                for split in ("train", "test")
+                for c in ("success", "collision")
+            ]
+            lines.append(f"| {VARIANT_NAMES.get(v, v)} | " + " | ".join(cells) + " |")
     curves = table["learning_curves"]
     if curves:
         lines.append("")
@@ -391,6 +546,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=0, help="the budget per run (reported)")
     ap.add_argument(
         "--ship", default="", help="write each run's policy (actor + config) into this folder"
+    )
+    ap.add_argument(
+        "--search-rounds",
+        type=int,
+        default=8,
+        help="rounds of the open-loop planner search per test scenario (0 = none)",
+    )
+    ap.add_argument(
+        "--search-per-round",
+        type=int,
+        default=48,
+        help="action sequences per scenario and round of the planner search",
     )
     ap.add_argument(
         "--set",
@@ -439,6 +606,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     human = summarize(human_episodes(pool, test))
     reach = reachability([pool[i] for i in test])
     unavoidable = unavoidable_first_step(cfg)
+    planner = (
+        open_loop_search(cfg, rounds=args.search_rounds, per_round=args.search_per_round)
+        if args.search_rounds > 0
+        else {}
+    )
+    on_train = {
+        v: {s: evaluate_run(p, args.set, "train") for s, p in sorted(r.items())}
+        for v, r in runs.items()
+    }
+    generalisation = {
+        v: {
+            "train": variant_stats(on_train[v]),
+            "test": variants[v],
+        }
+        for v in variants
+    }
     table = {
         "meta": {
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
@@ -476,6 +659,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "unavoidable_first_step": unavoidable,
         "unavoidable_names": [pool[i]["name"] for i in unavoidable],
         "success_ceiling": 1 - len(unavoidable) / len(test),
+        "planner": planner,
+        "generalisation": {
+            v: {split: {c: g[split][c] for c in ("success", "collision")} for split in g}
+            for v, g in generalisation.items()
+        },
         "learning_curves": {v: learning_curves(runs[v]) for v in variants},
     }
     table["meta"]["tabulation_s"] = round(time.time() - t0, 1)
