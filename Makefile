@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf calibrate table1 table2 train eval lint-py venv clean
+.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 train eval lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -64,6 +64,9 @@ bench: bench-rust bench-pysf ## every benchmark (results go in docs/BENCHMARKS.m
 
 bench-rust: ## criterion benchmarks
 	$(CARGO) bench --workspace
+
+soak: $(SERVER) $(VENV)/.installed ## soak: 8 trainers x 64 envs for 10 min with churn and kills (ARGS='--minutes 600' for 10 h; not in make test)
+	$(PY) bench/soak.py $(ARGS)
 
 bench-pysf: $(SERVER) $(VENV)/.installed ## world step vs pysocialforce, side by side, same N
 	$(PY) bench/step_vs_pysocialforce.py --server $(SERVER)

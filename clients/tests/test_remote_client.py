@@ -285,3 +285,40 @@ def test_per_trainer_quota_names_itself_and_spares_other_trainers(server_factory
         other.reset(env)
         out = other.step(env, np.zeros((1, 2), np.float32))
         assert np.isfinite(out["reward"]).all()
+
+
+def test_a_trainer_flooding_the_server_with_batches_does_not_starve_another(server_factory):
+    """Fair share of batch work (SPEC 4, `batch_slots`): with one slot, a trainer that keeps six
+    512-env batches in flight waits behind its own queue; another trainer's batch is served
+    after at most the flooder's batches already granted, not after all of them."""
+    import threading
+
+    srv = server_factory(f"fair{free_port()}", "f0", "batch_slots:1", "batch_threads:1")
+    with (
+        SimClient(srv.endpoint, srv.prefix, timeout=60) as flooder,
+        SimClient(srv.endpoint, srv.prefix, timeout=60) as small,
+    ):
+        groups = [flooder.create(512)["env_ids"] for _ in range(6)]
+        for ids in groups:
+            flooder.reset_many(ids)
+        mine = small.create(8)["env_ids"]
+        small.reset_many(mine)
+        done: list[str] = []
+        lock = threading.Lock()
+
+        def flood(ids: list[str], k: int) -> None:
+            flooder.batch_step(ids, np.zeros((len(ids), 1, 2), np.float32))
+            with lock:
+                done.append(f"flooder-{k}")
+
+        threads = [threading.Thread(target=flood, args=(ids, k)) for k, ids in enumerate(groups)]
+        for t in threads:
+            t.start()
+        out = small.batch_step(mine, np.zeros((8, 1, 2), np.float32))
+        with lock:
+            done.append("small")
+        for t in threads:
+            t.join(timeout=60)
+        assert np.isfinite(out["reward"]).all()
+        assert len(done) == 7
+        assert done.index("small") <= 2, done

@@ -47,6 +47,9 @@ pub struct ServerConfig {
     /// Most threads one `BatchStep` of at least 64 envs is stepped on; 0 (default) = one per
     /// available core.
     pub batch_threads: u32,
+    /// Most `BatchStep`s stepped at once; when more wait, the next turn goes to the trainer
+    /// served the fewest env-steps (fair share). 0 (default) = one per batch thread.
+    pub batch_slots: u32,
     /// Passed to `zenoh::Config::from_json5` after filling defaults: mode `peer`, listening on
     /// `tcp/127.0.0.1:7447` (peer and router), multicast scouting off.
     pub zenoh: Value,
@@ -68,6 +71,7 @@ impl Default for ServerConfig {
             pools: Vec::new(),
             params: None,
             batch_threads: 0,
+            batch_slots: 0,
             zenoh: Value::Object(Map::new()),
         }
     }
@@ -251,6 +255,7 @@ impl ServerConfig {
             max_request_bytes: usize::try_from(self.max_request_bytes).unwrap_or(usize::MAX),
             trainer_grace: Duration::from_secs_f64(self.trainer_grace_s),
             reconnect_grace: Duration::from_secs_f64(self.reconnect_grace_s),
+            batch_slots: self.batch_slots,
         }
     }
 

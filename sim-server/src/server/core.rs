@@ -27,6 +27,7 @@ use sim_core::scenario::Split;
 use sim_core::world::StepScratch;
 
 use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication};
+use super::fair::FairTurns;
 use super::pools::ServedPool;
 use sim_core::helpers::Helpers;
 
@@ -53,6 +54,9 @@ pub struct Limits {
     /// How long envs of a trainer whose liveliness token disappeared survive, waiting for it
     /// to reconnect (its token reappearing keeps them). Zero (default): reaped at once.
     pub reconnect_grace: Duration,
+    /// Most batches stepped at once; more wait for a fair turn ([`FairTurns`]).
+    /// 0 (default): one per batch thread.
+    pub batch_slots: u32,
 }
 
 impl Default for Limits {
@@ -65,6 +69,7 @@ impl Default for Limits {
             max_request_bytes: 1 << 20,
             trainer_grace: Duration::from_secs(10),
             reconnect_grace: Duration::ZERO,
+            batch_slots: 0,
         }
     }
 }
@@ -291,6 +296,8 @@ pub struct ServerCore {
     batch_threads: usize,
     /// `batch_threads - 1` threads that step a large batch's chunks beside the request's own.
     helpers: Helpers,
+    /// Turns of the batches: at most `batch_slots` step at once, the rest wait in fair order.
+    turns: FairTurns,
     /// Step buffers of finished batches, for reuse (a K=256 batch's are ~200 KB).
     scratch: Mutex<Vec<Buffers>>,
     /// The worlds' step scratch of finished batches, one per batch thread: every world a
@@ -332,6 +339,7 @@ impl ServerCore {
             reg: Mutex::new(Registry::default()),
             batch_threads: 1,
             helpers: Helpers::new(0, "batch"),
+            turns: FairTurns::new(1),
             scratch: Mutex::new(Vec::new()),
             steppers: Mutex::new(Vec::new()),
         };
@@ -344,6 +352,10 @@ impl ServerCore {
     pub fn set_batch_threads(&mut self, threads: usize) {
         self.batch_threads = threads.max(1);
         self.helpers = Helpers::new(self.batch_threads - 1, "batch");
+        self.turns = FairTurns::new(match self.limits.batch_slots {
+            0 => self.batch_threads,
+            n => n as usize,
+        });
         if self.helpers.len() < self.batch_threads - 1 {
             tracing::warn!(
                 wanted = self.batch_threads - 1,
@@ -760,6 +772,14 @@ impl ServerCore {
                 );
             }
         }
+        // A fair turn among the trainers' batches (module `fair`), charged to the trainer of the
+        // first env; held until the reply is written.
+        let trainer = lock(&self.reg)
+            .owner
+            .get(&req.env_ids[0])
+            .cloned()
+            .unwrap_or_default();
+        let _turn = self.turns.acquire(&trainer, k as u64);
         let handles = self.lookup_all(&req.env_ids)?;
         // Lock in id order.
         let mut guards: Vec<Option<MutexGuard<'_, Env>>> = (0..k).map(|_| None).collect();
@@ -1004,6 +1024,7 @@ impl ServerCore {
                 None => Vec::new(),
             }
         };
+        self.turns.forget(client_id);
         self.close_envs(&ids)
     }
 

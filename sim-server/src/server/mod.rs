@@ -20,6 +20,7 @@
 //!   tokio task, so steps of different envs run concurrently, serialised per env by the env's
 //!   mutex), the server's liveliness token, the trainers' liveliness subscriber, the realtime
 //!   action subscriber and one clock task per realtime env; [`run`] is the entry point.
+//! * [`fair`]: [`fair::FairTurns`], the fair order of batches waiting to be stepped.
 //! * [`config`]: the JSON5 configuration with `--cfg KEY:VALUE` overrides.
 //! * [`client`]: a small Rust client used by the tests and the benchmark.
 //!
@@ -45,7 +46,11 @@
 //!   zenoh's transport lease (`zenoh/transport/link/tx/lease`, default 10 s).
 //! * **Quotas.** `capacity` open envs in all, `max_envs_per_trainer` per client id (default:
 //!   the capacity); a request payload over `max_request_bytes` (1 MiB) is refused before it is
-//!   copied or decoded.
+//!   copied or decoded. At most `batch_slots` batches (default: one per batch thread) step at
+//!   once; when more wait, the next turn goes to the trainer that has been served the fewest
+//!   env-steps (start-time fair queueing, [`fair`]), so a trainer flooding the server with
+//!   batches waits behind its own queue, not in front of everyone else's. Batches are answered
+//!   on tokio's blocking threads, so waiting ones never hold up the runtime.
 //! * **Realtime.** A realtime env's clock ticks every `dt / realtime_factor` seconds from its
 //!   creation; after a `Reset` every tick steps with the latest action per agent (zero-order
 //!   hold, `[0, 0]` until the first one), publishes the `StepResult` on `{p}/env/{id}/result` and
@@ -64,6 +69,7 @@ pub mod client;
 pub mod config;
 pub mod core;
 pub mod env;
+pub mod fair;
 pub mod net;
 pub mod pools;
 

@@ -238,6 +238,11 @@ fn serve_query(ctx: &Arc<Ctx>, rt: &tokio::runtime::Handle, kind: Kind, query: Q
     }
     if ctx.answers_inline(kind, &query) {
         ctx.handle_inline(kind, query);
+    } else if matches!(kind, Kind::Batch) {
+        // A batch may wait for its fair turn (`fair`) and then steps for milliseconds: on a
+        // blocking thread, neither holds up the runtime's other tasks.
+        let ctx = ctx.clone();
+        rt.spawn_blocking(move || ctx.handle_inline(kind, query));
     } else {
         rt.spawn(ctx.clone().handle(kind, query));
     }

@@ -1,0 +1,366 @@
+"""Soak test: many trainers sharing one server for a long time (`make soak`, not in `make test`).
+
+One release ``sim-server serve`` (started here on a free loopback port, multicast scouting off)
+and ``--trainers`` trainer processes, each with ``--envs`` envs stepped by ``BatchStep`` with
+random actions, for ``--minutes``. Churn, as real trainers make it:
+
+- each trainer, about every ``--churn-s`` seconds, either closes all its envs and creates new ones
+  or resets a random half of them;
+- every ``--kill-every-s`` seconds one trainer is killed with SIGKILL (the injected failure: its
+  envs must be reaped, server load must come back) and a fresh one takes its place.
+
+Every second each trainer writes its env-steps and batch round-trip latencies; the server's RSS
+(``/proc/{pid}/status``) and load (``ServerInfo.load``) are sampled every ``--sample-s`` seconds.
+The report: env-steps/s, p50/p99 step latency and RSS per period, the RSS growth after warm-up
+(the first ``--warmup-min`` minutes), the errors seen by trainers (SIGKILLed trainers excepted),
+and whether the load came back to the live trainers' envs after each kill. It prints a markdown
+table for docs/BENCHMARKS.md and writes everything to ``--out`` (JSON).
+
+Usage: python bench/soak.py [--minutes 10] [--trainers 8] [--envs 64]
+       [--server target/release/sim-server] [--out out/soak/soak.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import random
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "clients" / "src"))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+# --------------------------------------------------------------------------------------------
+# A trainer process
+
+
+def trainer(args: argparse.Namespace) -> None:
+    """Steps ``args.envs`` envs until killed or ``args.until`` (epoch seconds); one JSON line a
+    second on stdout: ``{"t", "steps", "lat_ms": [...], "errors": [...], "load_ops"}``."""
+    from sharedspace.client import SimClient
+
+    rng = random.Random(args.seed)
+    np_rng = np.random.default_rng(args.seed)
+    client = SimClient(args.endpoint, timeout=30.0)
+    vec = client.vector(args.envs, seed=args.seed, autoreset=True)
+    vec.reset()
+    next_churn = time.time() + rng.uniform(0.5, 1.5) * args.churn_s
+    tick = time.time() + 1.0
+    steps, lat, errors, ops = 0, [], [], {"recreate": 0, "reset": 0}
+    while time.time() < args.until:
+        try:
+            actions = np_rng.uniform(-1, 1, (args.envs, 1, 2)).astype(np.float32)
+            t0 = time.perf_counter()
+            vec.step(actions)
+            lat.append(round((time.perf_counter() - t0) * 1e3, 3))
+            steps += args.envs
+            if time.time() >= next_churn:
+                if rng.random() < 0.5:
+                    vec.close()
+                    vec = client.vector(
+                        args.envs, seed=rng.randrange(1 << 30), autoreset=True
+                    )
+                    vec.reset()
+                    ops["recreate"] += 1
+                else:
+                    vec.reset(env_index=rng.sample(range(args.envs), args.envs // 2))
+                    ops["reset"] += 1
+                next_churn = time.time() + rng.uniform(0.5, 1.5) * args.churn_s
+        except Exception as exc:  # noqa: BLE001 - every error is reported, then we go on
+            errors.append(f"{type(exc).__name__}: {exc}")
+            try:
+                vec = client.vector(
+                    args.envs, seed=rng.randrange(1 << 30), autoreset=True
+                )
+                vec.reset()
+            except Exception as exc2:  # noqa: BLE001
+                errors.append(f"recreate: {type(exc2).__name__}: {exc2}")
+                time.sleep(1.0)
+        if time.time() >= tick:
+            line = {
+                "t": time.time(),
+                "steps": steps,
+                "lat_ms": lat,
+                "errors": errors,
+                "ops": ops,
+            }
+            print(json.dumps(line), flush=True)
+            steps, lat, errors, ops = 0, [], [], {"recreate": 0, "reset": 0}
+            tick += 1.0
+    vec.close()
+    client.shutdown()
+
+
+# --------------------------------------------------------------------------------------------
+# The driver
+
+
+class Trainer:
+    def __init__(
+        self, name: str, endpoint: str, envs: int, seed: int, until: float, log: Path
+    ):
+        self.name, self.log_path = name, log
+        self.log = open(log, "w")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                __file__,
+                "--trainer",
+                "--endpoint",
+                endpoint,
+                "--envs",
+                str(envs),
+                "--seed",
+                str(seed),
+                "--until",
+                str(until),
+            ],
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+        )
+        self.killed = False
+
+    def kill(self) -> None:
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+        self.killed = True
+
+    def stop(self, timeout: float) -> None:
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.log.close()
+
+    def records(self) -> list[dict]:
+        out = []
+        for line in self.log_path.read_text().splitlines():
+            if line.startswith("{"):
+                out.append(json.loads(line))
+        return out
+
+    def stray_output(self) -> list[str]:
+        return [
+            line
+            for line in self.log_path.read_text().splitlines()
+            if line.strip() and not line.startswith("{")
+        ]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--minutes", type=float, default=10.0, help="soak duration (hours: 60 * h)"
+    )
+    ap.add_argument(
+        "--trainers", type=int, default=8, help="trainer processes at any time"
+    )
+    ap.add_argument("--envs", type=int, default=64, help="envs per trainer")
+    ap.add_argument(
+        "--churn-s", type=float, default=10.0, help="mean seconds between churn ops"
+    )
+    ap.add_argument(
+        "--kill-every-s", type=float, default=60.0, help="seconds between SIGKILLs"
+    )
+    ap.add_argument(
+        "--sample-s", type=float, default=5.0, help="seconds between RSS samples"
+    )
+    ap.add_argument("--period-s", type=float, default=60.0, help="report period, s")
+    ap.add_argument(
+        "--warmup-min", type=float, default=2.0, help="RSS baseline after this"
+    )
+    ap.add_argument("--server", default=str(ROOT / "target" / "release" / "sim-server"))
+    ap.add_argument("--out", default=str(ROOT / "out" / "soak" / "soak.json"))
+    ap.add_argument("--trainer", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--endpoint", default="", help=argparse.SUPPRESS)
+    ap.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--until", type=float, default=0.0, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.trainer:
+        trainer(args)
+        return 0
+
+    from sharedspace.client import SimClient
+
+    out = Path(args.out)
+    logs = out.parent / "trainers"
+    logs.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    server = subprocess.Popen(
+        [
+            args.server,
+            "serve",
+            "--cfg",
+            f'zenoh/listen/endpoints:["{endpoint}"]',
+            "--cfg",
+            "zenoh/scouting/multicast/enabled:false",
+            "--cfg",
+            "server_id:soak",
+        ],
+        stdout=open(out.parent / "server.log", "w"),  # noqa: SIM115
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")},
+    )
+    observer = SimClient(endpoint, timeout=10.0)
+    observer.pick_server()  # waits for the server
+    start = time.time()
+    until = start + args.minutes * 60
+    trainers: list[Trainer] = []
+    seed = 0
+
+    def spawn() -> Trainer:
+        nonlocal seed
+        seed += 1
+        t = Trainer(
+            f"t{seed}", endpoint, args.envs, seed * 1000, until, logs / f"t{seed}.jsonl"
+        )
+        trainers.append(t)
+        return t
+
+    live = [spawn() for _ in range(args.trainers)]
+    samples, kills = [], []
+    next_kill = start + args.kill_every_s
+    next_sample = start
+    while time.time() < until:
+        now = time.time()
+        if now >= next_sample:
+            info = observer.info("soak")
+            samples.append(
+                {"t": now - start, "rss_mib": rss_mib(server.pid), "load": info["load"]}
+            )
+            next_sample += args.sample_s
+        if now >= next_kill and now + 15 < until:
+            victim = random.Random(int(now)).choice(live)
+            victim.kill()
+            live.remove(victim)
+            live.append(spawn())
+            kills.append({"t": now - start, "trainer": victim.name})
+            next_kill += args.kill_every_s
+        time.sleep(0.2)
+    for t in trainers:
+        t.stop(timeout=60)
+    final_load = observer.info("soak")["load"]
+    rss_end = rss_mib(server.pid)
+    observer.shutdown()
+    server.send_signal(signal.SIGTERM)
+    server.wait(timeout=30)
+
+    # ---- report
+    per: dict[int, dict] = {}
+    errors = []
+    for t in trainers:
+        for r in t.records():
+            p = int((r["t"] - start) // args.period_s)
+            acc = per.setdefault(p, {"steps": 0, "lat": [], "recreate": 0, "reset": 0})
+            acc["steps"] += r["steps"]
+            acc["lat"] += r["lat_ms"]
+            acc["recreate"] += r["ops"]["recreate"]
+            acc["reset"] += r["ops"]["reset"]
+            errors += [f"{t.name}: {e}" for e in r["errors"]]
+        if not t.killed:
+            errors += [f"{t.name} (output): {line}" for line in t.stray_output()]
+    periods = []
+    for p in sorted(per):
+        acc = per[p]
+        span = min(args.period_s, args.minutes * 60 - p * args.period_s)
+        rss = [
+            s["rss_mib"]
+            for s in samples
+            if p * args.period_s <= s["t"] < (p + 1) * args.period_s
+        ]
+        lat = np.array(acc["lat"]) if acc["lat"] else np.array([np.nan])
+        periods.append(
+            {
+                "period": p,
+                "env_steps_per_s": acc["steps"] / span,
+                "p50_ms": float(np.percentile(lat, 50)),
+                "p99_ms": float(np.percentile(lat, 99)),
+                "max_ms": float(lat.max()),
+                "rss_mib_max": max(rss) if rss else float("nan"),
+                "recreates": acc["recreate"],
+                "resets": acc["reset"],
+            }
+        )
+    warm = [s["rss_mib"] for s in samples if s["t"] >= args.warmup_min * 60]
+    baseline = warm[0] if warm else float("nan")
+    growth = (max(warm) - baseline) / baseline if warm else float("nan")
+    full = [q["env_steps_per_s"] for q in periods[:-1]] or [
+        periods[-1]["env_steps_per_s"]
+    ]
+    report = {
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "command": " ".join(sys.argv),
+        "trainers": args.trainers,
+        "envs": args.envs,
+        "minutes": args.minutes,
+        "kills": kills,
+        "errors": errors,
+        "final_load": final_load,
+        "rss_baseline_mib": baseline,
+        "rss_end_mib": rss_end,
+        "rss_growth_after_warmup": growth,
+        "throughput_min_max": [min(full), max(full)],
+        "periods": periods,
+        "samples": samples,
+    }
+    out.write_text(json.dumps(report, indent=1))
+    print(
+        f"soak: {args.trainers} trainers x {args.envs} envs, {args.minutes} min, "
+        f"{len(kills)} trainers SIGKILLed and replaced ({report['date']}, {report['machine']})"
+    )
+    print()
+    print(
+        "| from (min) | env-steps/s | p50 step (ms) | p99 step (ms) | max (ms) | server RSS (MiB) | "
+        "recreates | resets |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for q in periods:
+        print(
+            f"| {q['period'] * args.period_s / 60:.1f} | {q['env_steps_per_s']:,.0f} | "
+            f"{q['p50_ms']:.2f} | {q['p99_ms']:.2f} | {q['max_ms']:.1f} | "
+            f"{q['rss_mib_max']:.1f} | {q['recreates']} | {q['resets']} |"
+        )
+    print()
+    print(
+        f"RSS after warm-up ({args.warmup_min} min): {baseline:.1f} MiB, max afterwards "
+        f"{max(warm) if warm else float('nan'):.1f} MiB, growth {growth * 100:+.1f} %; "
+        f"load at the end {final_load} (every trainer closed); errors: {len(errors)}"
+    )
+    for e in errors[:20]:
+        print("  ", e)
+    ok = not errors and final_load == 0 and growth < 0.10
+    print("PASS" if ok else "FAIL")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
