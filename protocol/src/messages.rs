@@ -430,6 +430,44 @@ pub struct CreateEnv {
     /// Realtime mode: simulated seconds per wall-clock second (default 1.0).
     #[serde(default = "default_realtime_factor")]
     pub realtime_factor: f64,
+    /// Generated scenes instead of a pool (nil: draw from `pool`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub synthetic: Option<SyntheticScenes>,
+}
+
+/// `CreateEnv.synthetic`: the envs play `scenes` generated scenes (seeds `seed`,
+/// `seed + 1`, ...; the scenarios crate's `synthetic` module) in the requested split, instead of
+/// a pool's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SyntheticScenes {
+    /// `"crossing"` (pedestrians cross the vehicles' path), `"counter_flow"` (they walk towards
+    /// the ego) or `"random"` (any direction).
+    pub layout: String,
+    /// Pedestrians per scene.
+    pub pedestrians: u32,
+    /// Vehicles per scene: the ego drives +x through the crowd, the others on parallel lanes
+    /// 4 m apart, alternately oncoming.
+    pub vehicles: u32,
+    /// Pedestrians per square metre of the crowd's square.
+    pub density: f64,
+    /// Seed of the first scene.
+    pub seed: u64,
+    /// Number of scenes.
+    pub scenes: u32,
+}
+
+impl Default for SyntheticScenes {
+    fn default() -> Self {
+        Self {
+            layout: "crossing".into(),
+            pedestrians: 10,
+            vehicles: 1,
+            density: 0.25,
+            seed: 0,
+            scenes: 1,
+        }
+    }
 }
 
 impl CreateEnv {
@@ -451,6 +489,7 @@ impl CreateEnv {
             scenario: None,
             autoreset: false,
             realtime_factor: default_realtime_factor(),
+            synthetic: None,
         }
     }
 

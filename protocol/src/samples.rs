@@ -116,6 +116,7 @@ pub fn create_env() -> CreateEnv {
         scenario: None,
         autoreset: true,
         realtime_factor: 1.0,
+        synthetic: None,
     }
 }
 

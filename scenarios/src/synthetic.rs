@@ -1,7 +1,8 @@
 //! Seeded synthetic scenarios: one ego vehicle crossing a square of pedestrians.
 //!
 //! For `N` pedestrians at `density` (pedestrians per m², default 0.25) the area is the square
-//! `[0, side]²` with `side = sqrt(N / density)`. Pedestrian record ids are `1..=N`; the ego
+//! `[0, side]²` with `side = sqrt(N / density)`. Pedestrian record ids are `V..V+N` (`1..=N`
+//! with one vehicle); the ego
 //! vehicle (record id 0, agent index 0) drives along `+x` on the line `y = side / 2` from
 //! `x = -(length/2 + 1 m)` to `x = side + length/2 + 1 m` at `vehicle_speed` (default 3 m/s), so
 //! it starts 1 m clear of the square. Layouts set each pedestrian's walking direction:
@@ -17,7 +18,8 @@
 //! and a straight recorded track from its start to its goal `start + direction * walk`, with
 //! `walk = min(side, max_walk)` (default `max_walk` 30 m), sampled every 0.5 s at that constant
 //! velocity (the last sample is the goal), so goals and mean speeds are defined. All agents start
-//! at step 0. The vehicle's track is sampled the same way.
+//! at step 0. The vehicle's track is sampled the same way. With `V > 1` vehicles the others
+//! (record ids `1..V`) drive on parallel lanes [`LANE_SPACING`] apart, alternately oncoming.
 //!
 //! Initial positions are uniform in `[0.3 + ε, side - 0.3 - ε]²` and pairwise non-overlapping
 //! (centre distance `> 0.6 m + ε`, ε = 1e-6 m, so clearance `> 0`): rejection sampling with at
@@ -166,7 +168,16 @@ pub struct SyntheticConfig {
     /// Ego vehicle speed (m/s).
     pub vehicle_speed: f64,
     pub split: Split,
+    /// Vehicles `V` (at least 1): the ego, then `V - 1` others on parallel lanes
+    /// [`LANE_SPACING`] apart (alternately below and above the ego's line), odd ones oncoming
+    /// (`-x`), even ones along `+x`, at `vehicle_speed`.
+    pub vehicles: usize,
 }
+
+/// Distance between the vehicles' parallel lanes (m): a car's width plus clearance.
+pub const LANE_SPACING: f64 = 4.0;
+/// Upper bound on the number of vehicles.
+pub const MAX_VEHICLES: usize = 64;
 
 impl Default for SyntheticConfig {
     fn default() -> Self {
@@ -180,6 +191,7 @@ impl Default for SyntheticConfig {
             max_walk: 30.0,
             vehicle_speed: 3.0,
             split: Split::Train,
+            vehicles: 1,
         }
     }
 }
@@ -229,6 +241,9 @@ impl SyntheticConfig {
         if !(self.vehicle_speed.is_finite() && self.vehicle_speed >= 0.1) {
             return invalid("vehicle_speed", self.vehicle_speed, min_speed);
         }
+        if self.vehicles == 0 || self.vehicles > MAX_VEHICLES {
+            return invalid("vehicles", self.vehicles as f64, "must be between 1 and 64");
+        }
         if self.pedestrians > MAX_PEDESTRIANS {
             return Err(SyntheticError::TooMany(self.pedestrians));
         }
@@ -242,10 +257,16 @@ impl SyntheticConfig {
         Ok(())
     }
 
-    /// The scenario name: `synthetic-<layout>-n<N>-seed<seed>`.
+    /// The scenario name: `synthetic-<layout>-n<N>-seed<seed>`, with `-v<V>` after `n<N>`
+    /// when there is more than one vehicle.
     pub fn name(&self) -> String {
+        let vehicles = if self.vehicles > 1 {
+            format!("-v{}", self.vehicles)
+        } else {
+            String::new()
+        };
         format!(
-            "synthetic-{}-n{}-seed{}",
+            "synthetic-{}-n{}{vehicles}-seed{}",
             self.layout, self.pedestrians, self.seed
         )
     }
@@ -408,7 +429,7 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
     let mut rng = SplitMix64::new(cfg.seed);
     let starts = place(cfg, side, &mut rng)?;
     let walk = side.min(cfg.max_walk);
-    let mut agents = Vec::with_capacity(cfg.pedestrians + 1);
+    let mut agents = Vec::with_capacity(cfg.pedestrians + cfg.vehicles);
     let margin = 0.5 * VEHICLE_LENGTH + 1.0;
     let (pos, vel) = straight_track(
         [-margin, 0.5 * side],
@@ -423,6 +444,26 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
         velocities: vel,
         non_reactive: false,
     });
+    // The other vehicles, drawn without randomness so that V = 1 scenes stay as they were.
+    for k in 1..cfg.vehicles {
+        let lane = (k as f64 / 2.0).ceil() * LANE_SPACING * if k % 2 == 1 { -1.0 } else { 1.0 };
+        let y = 0.5 * side + lane;
+        let (from, to) = if k % 2 == 1 {
+            ([side + margin, y], [-margin, y])
+        } else {
+            ([-margin, y], [side + margin, y])
+        };
+        let (pos, vel) = straight_track(from, to, cfg.vehicle_speed);
+        agents.push(AgentRecord {
+            record_id: k as u64,
+            kind: AgentKind::Vehicle,
+            start_step: 0,
+            positions: pos,
+            velocities: vel,
+            non_reactive: false,
+        });
+    }
+    let first_ped_id = cfg.vehicles as u64;
     for (i, start) in starts.into_iter().enumerate() {
         let angle = match cfg.layout {
             Layout::Crossing => {
@@ -441,7 +482,7 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
         let goal = [start[0] + c * walk, start[1] + s * walk];
         let (pos, vel) = straight_track(start, goal, speed);
         agents.push(AgentRecord {
-            record_id: i as u64 + 1,
+            record_id: i as u64 + first_ped_id,
             kind: AgentKind::Pedestrian,
             start_step: 0,
             positions: pos,

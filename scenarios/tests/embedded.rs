@@ -50,3 +50,56 @@ fn embedded_pool_is_the_paper_setup() {
         assert!(pool.provenance.contains(cite), "provenance lacks {cite}");
     }
 }
+
+#[test]
+fn the_embedded_recording_is_the_published_file() {
+    use sha2::{Digest, Sha256};
+    let csv = scenarios::embedded::hbs_csv().unwrap();
+    assert_eq!(csv.len(), 4_180_343);
+    let digest: String = Sha256::digest(&csv)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    assert_eq!(digest, scenarios::embedded::HBS_CSV_SHA256);
+    // And the committed paper pool is exactly what the extractor makes of it.
+    let data = scenarios::hbs::parse_hbs(&csv).unwrap();
+    let paper = scenarios::hbs::extract_paper(&data, &Default::default());
+    assert_eq!(save_pool(&paper), HBS_PAPER_JSON);
+}
+
+#[test]
+fn the_general_pool_has_crowds_entering_and_leaving_and_other_vehicles() {
+    let pool = scenarios::embedded::general_pool();
+    assert_eq!(pool.name, "hbs-general");
+    validate_pool(&pool, "embedded hbs-general", OverlapCheck::Spawn).unwrap();
+    assert!(
+        pool.scenarios.len() > 300,
+        "{} scenarios",
+        pool.scenarios.len()
+    );
+    let peds = |s: &sim_core::scenario::Scenario| {
+        s.agents
+            .iter()
+            .filter(|a| a.kind == AgentKind::Pedestrian)
+            .count()
+    };
+    let crowd = pool
+        .scenarios
+        .iter()
+        .find(|s| peds(s) >= 50)
+        .expect("a scene with at least 50 pedestrians");
+    let last = crowd.recorded_steps() - 1;
+    let entering = crowd.agents.iter().filter(|a| a.start_step > 0).count();
+    let leaving = crowd.agents.iter().filter(|a| a.end_step() < last).count();
+    assert!(
+        entering > 10 && leaving > 10,
+        "{entering} enter, {leaving} leave"
+    );
+    assert!(pool.scenarios.iter().any(|s| s
+        .agents
+        .iter()
+        .filter(|a| a.kind == AgentKind::Vehicle)
+        .count()
+        >= 2));
+    assert!(pool.provenance.contains("Pascucci"));
+}

@@ -35,6 +35,75 @@ enum Command {
     /// Run a zenoh router (deploy/router.json5: auth, TLS, access control) until SIGINT or
     /// SIGTERM, so a deployment needs no separately installed zenohd (deploy/README.md).
     Router(RouterArgs),
+    /// Write a pool of synthetic scenes (crowd layouts, N pedestrians, V vehicles, seeds) as a
+    /// scenario file (scenarios/FORMAT.md) to serve (`serve --cfg 'pools:["FILE"]'`) or roll out.
+    /// Envs can also ask for such scenes directly (`CreateEnv.synthetic`, protocol/SPEC.md).
+    Synth(SynthArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct SynthArgs {
+    /// Layout: `crossing` (pedestrians cross the vehicle's path), `counter_flow` (they walk
+    /// towards it) or `random`.
+    #[arg(long, default_value = "crossing")]
+    layout: String,
+    /// Pedestrians per scene.
+    #[arg(long, default_value_t = 50)]
+    pedestrians: usize,
+    /// Vehicles per scene: the ego and `V - 1` others on parallel lanes 4 m apart.
+    #[arg(long, default_value_t = 1)]
+    vehicles: usize,
+    /// Pedestrians per square metre of the crowd's square.
+    #[arg(long, default_value_t = 0.25)]
+    density: f64,
+    /// Seed of the first scene; scene i has seed + i.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Number of scenes; split like the HBS pools (scene i is a test scene when i mod 13 is 2, 6
+    /// or 10).
+    #[arg(long, default_value_t = 13)]
+    scenes: u64,
+    /// Pool name (what `CreateEnv.pool` names).
+    #[arg(long, default_value = "synthetic")]
+    name: String,
+    /// Output file; `-` writes to standard output.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn run_synth(a: SynthArgs) -> Result<(), String> {
+    use scenarios::synthetic::{generate_pool, SyntheticConfig};
+    let layout = a.layout.parse().map_err(|e| format!("--layout: {e}"))?;
+    let configs: Vec<SyntheticConfig> = (0..a.scenes)
+        .map(|i| SyntheticConfig {
+            layout,
+            pedestrians: a.pedestrians,
+            vehicles: a.vehicles,
+            density: a.density,
+            seed: a.seed.wrapping_add(i),
+            split: scenarios::hbs::split_for(i as usize),
+            ..SyntheticConfig::default()
+        })
+        .collect();
+    let pool = generate_pool(&a.name, &configs).map_err(|e| e.to_string())?;
+    let text = scenarios::save_pool(&pool);
+    if a.out.as_os_str() == "-" {
+        print!("{text}");
+    } else {
+        std::fs::write(&a.out, &text).map_err(|e| format!("{}: {e}", a.out.display()))?;
+        eprintln!(
+            "{}: {} scenes ({} test) of {} pedestrians and {} vehicle(s)",
+            a.out.display(),
+            pool.scenarios.len(),
+            pool.scenarios
+                .iter()
+                .filter(|s| s.split == sim_core::scenario::Split::Test)
+                .count(),
+            a.pedestrians,
+            a.vehicles
+        );
+    }
+    Ok(())
 }
 
 #[derive(clap::Args, Debug)]
@@ -105,7 +174,8 @@ struct BenchStepArgs {
 
 #[derive(clap::Args, Debug)]
 struct PoolArgs {
-    /// Scenario pool file (JSON, scenarios/FORMAT.md); the embedded HBS pool when absent.
+    /// Scenario pool file (JSON, scenarios/FORMAT.md) or an embedded pool,
+    /// `embedded:hbs-paper` or `embedded:hbs-general`; `hbs-paper` when absent.
     #[arg(long)]
     pool: Option<PathBuf>,
     /// World-parameter file (JSON5, any subset of the fields of docs/PARAMETERS.md); the shipped
@@ -138,7 +208,15 @@ struct RolloutArgs {
 
 fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
     match &args.pool {
-        Some(path) => scenarios::pool::load_pool_file(path).map_err(|e| e.to_string()),
+        Some(path) => match path.to_string_lossy().strip_prefix("embedded:") {
+            Some(name) => scenarios::embedded::pool(name).ok_or_else(|| {
+                format!(
+                    "no embedded pool {name:?} (embedded: {})",
+                    scenarios::embedded::EMBEDDED_POOLS.join(", ")
+                )
+            }),
+            None => scenarios::pool::load_pool_file(path).map_err(|e| e.to_string()),
+        },
         None => Ok(scenarios::embedded::default_pool()),
     }
 }
@@ -216,6 +294,7 @@ fn main() -> ExitCode {
         Command::EvalPeds(a) => sim_server::pedeval_cmd::run(&a),
         Command::Serve(a) => run_serve(a),
         Command::Router(a) => run_router(a),
+        Command::Synth(a) => run_synth(a),
         Command::BenchStep(a) => {
             let (ns, edges, steps) =
                 sim_server::step_timing::time_steps(a.n, a.seed, a.seconds, 10);

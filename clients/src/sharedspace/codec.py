@@ -267,7 +267,11 @@ def create_env(
     autoreset: bool = False,
     realtime_factor: float = 1.0,
     protocol_version: int = PROTOCOL_VERSION,
+    synthetic: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
+    """``CreateEnv`` (SPEC 5.2). ``synthetic``: generated scenes instead of a pool, a map of
+    ``layout`` (``crossing``, ``counter_flow``, ``random``), ``pedestrians``, ``vehicles``,
+    ``density``, ``seed``, ``scenes`` (defaults in SPEC 5.2)."""
     if split not in ("train", "test"):
         raise ValueError(f"split must be 'train' or 'test', got {split!r}")
     if mode not in ("lockstep", "realtime"):
@@ -288,7 +292,7 @@ def create_env(
         "scenario": scenario,
         "autoreset": bool(autoreset),
         "realtime_factor": float(realtime_factor),
-    }
+    } | ({"synthetic": dict(synthetic)} if synthetic is not None else {})
 
 
 def reset(seed: int | None = None, scenario: str | None = None) -> dict[str, Any]:

@@ -78,6 +78,11 @@ class SharedSpaceEnv(gymnasium.Env):
             self._parallel = SharedSpaceParallelEnv(external_agents=(_AGENT,), **self._kwargs)
         return self._parallel
 
+    @property
+    def scenario(self) -> str | None:
+        """The current episode's scenario name (``None`` before the first reset)."""
+        return None if self._parallel is None else self._parallel.scenario
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         obs, infos = self._env().reset(seed=seed, options=options)

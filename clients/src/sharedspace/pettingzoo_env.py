@@ -109,8 +109,13 @@ class SharedSpaceParallelEnv(ParallelEnv):
         endpoint, prefix, timeout: where the server is.
         external_agents: the learner's vehicles (``vehicle_0`` = the scenario's ego).
         max_agents: M, nodes per observation.
-        split, pool, scenario, pedestrian_model, pedestrian_params, reward_weights: the
-            ``CreateEnv`` fields (SPEC 5.2).
+        split, pool, pedestrian_model, pedestrian_params, reward_weights: the ``CreateEnv``
+            fields (SPEC 5.2); ``pool`` by name (``SimClient.pools()``: ``hbs-paper``, the
+            default, and ``hbs-general``, every pedestrian and car in each car's window).
+        scenario: a scenario name (every episode plays it) or a list of names (each reset
+            plays the next, cycling); ``reset(options={"scenario": name})`` overrides once.
+        synthetic: generated scenes instead of a pool (SPEC 5.2 ``CreateEnv.synthetic``), e.g.
+            ``{"layout": "crossing", "pedestrians": 60, "vehicles": 2, "seed": 0, "scenes": 4}``.
         seed: seed of the env at creation (``reset(seed=...)`` re-seeds).
         render_mode: ``None`` or ``"rgb_array"``.
         failover: re-create the env on a surviving server when its server dies (the step
@@ -140,7 +145,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         max_agents: int = 8,
         split: str = "train",
         pool: str | None = None,
-        scenario: str | None = None,
+        scenario: str | Sequence[str] | None = None,
         pedestrian_model: str = "cr_sfm",
         pedestrian_params: Mapping[str, float] | None = None,
         reward_weights: Mapping[str, float] | None = None,
@@ -151,22 +156,31 @@ class SharedSpaceParallelEnv(ParallelEnv):
         failover: bool = False,
         client: SimClient | None = None,
         max_cycles: int | None = None,
+        synthetic: Mapping[str, Any] | None = None,
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         self.render_size = tuple(render_size)
+        # A list of scenarios: each reset plays the next one (cycling); one name: pinned.
+        self._scenario_list = (
+            None if scenario is None or isinstance(scenario, str) else list(scenario)
+        )
+        if self._scenario_list == []:
+            raise ValueError("scenario: an empty list")
+        self._resets = 0
         create = dict(
             seed=int(seed),
             split=split,
             pool=pool,
-            scenario=scenario,
+            scenario=scenario if isinstance(scenario, str) else None,
             pedestrian_model=pedestrian_model,
             pedestrian_params=pedestrian_params,
             external_agents=list(external_agents),
             reward_weights=reward_weights,
             max_agents=int(max_agents),
             autoreset=False,
+            synthetic=synthetic,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
@@ -350,6 +364,9 @@ class SharedSpaceParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         self._check_open()
         scenario = (options or {}).get("scenario")
+        if scenario is None and self._scenario_list:
+            scenario = self._scenario_list[self._resets % len(self._scenario_list)]
+        self._resets += 1
         if scenario is not None:
             r = self._connected.client.reset(self.env_id, seed=seed, scenario=scenario)
         else:

@@ -50,13 +50,15 @@ from .local_env import (
 )
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
-__all__ = ["RemoteBatchedEnv"]
+__all__ = ["RemoteBatchedEnv", "RemoteMultiAgentEnv"]
 
 _DEFAULT_POOL = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
 
 
 def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
     """(pool name, [(scenario name, split)]) of a pool file / list of scenario dicts."""
+    if isinstance(pool, str) and not pool.endswith(".json") and not Path(pool).is_file():
+        return pool, []  # a pool name: the server lists its scenarios
     if pool is None:
         path = _DEFAULT_POOL
         if not path.is_file():
@@ -71,20 +73,35 @@ def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
     return data.get("name"), [(s["name"], s.get("split", "train")) for s in data["scenarios"]]
 
 
+def synthetic_names(synthetic: Mapping[str, Any], split: str) -> list[tuple[str, str]]:
+    """The scenes a ``CreateEnv.synthetic`` request makes, as ``(name, split)`` in order (the
+    server names them ``synthetic-{layout}-n{N}[-v{V}]-seed{seed}``, SPEC 5.2)."""
+    layout = synthetic.get("layout", "crossing")
+    n, v = int(synthetic.get("pedestrians", 10)), int(synthetic.get("vehicles", 1))
+    seed, scenes = int(synthetic.get("seed", 0)), int(synthetic.get("scenes", 1))
+    vehicles = f"-v{v}" if v > 1 else ""
+    return [(f"synthetic-{layout}-n{n}{vehicles}-seed{seed + i}", split) for i in range(scenes)]
+
+
 class RemoteBatchedEnv(EnvBase):
     """K server envs as one TorchRL env of batch size ``[K]`` (ENV_CONTRACT.md).
 
     Args:
         num_envs, max_agents, split, seed, scenario_order, pedestrian_model: as
             :class:`~sharedspace.local_env.LocalBatchedEnv`.
-        pool: path of the scenario file (or its scenario dicts) the server serves; its
-            ``name`` selects the server pool and its order gives ``scenario_index``
-            (default: ``scenarios/data/hbs-paper.json``, the server's embedded pool).
+        pool: the server pool: its name (``"hbs-paper"``, ``"hbs-general"``, see
+            ``SimClient.pools()``), or the path of the scenario file the server serves (or its
+            scenario dicts), whose ``name`` selects the pool; the pool's order gives
+            ``scenario_index`` (default: the server's default pool, ``hbs-paper``).
+        scenarios: scenario names (or pool indices) to play instead of drawing from the
+            split: sub-env ``k`` plays ``scenarios[k], [k + K], ...`` cycling (each must be
+            in ``split``).
         endpoint, prefix: where the server is (zenoh connect endpoint, key prefix).
         timeout: query timeout, s.
         failover: re-create the envs on a surviving server when theirs dies.
         client: an existing :class:`~sharedspace.client.SimClient` to share.
-        external_agents, reward_weights, pedestrian_params: ``CreateEnv`` fields.
+        external_agents, reward_weights, pedestrian_params, synthetic: ``CreateEnv`` fields
+            (``synthetic``: generated scenes instead of a pool, SPEC 5.2).
     """
 
     batch_locked = True
@@ -96,7 +113,7 @@ class RemoteBatchedEnv(EnvBase):
         split: str | None = "train",
         seed: int = 0,
         scenario_order: str = "random",
-        scenarios: Sequence[int] | None = None,
+        scenarios: str | Sequence[str | int] | None = None,
         pool: str | Path | Sequence[Mapping[str, Any]] | None = None,
         params: Mapping[str, Any] | None = None,
         pedestrian_model: str = "cr_sfm",
@@ -110,6 +127,7 @@ class RemoteBatchedEnv(EnvBase):
         external_agents: Sequence[str] = ("vehicle_0",),
         reward_weights: Mapping[str, float] | None = None,
         pedestrian_params: Mapping[str, float] | None = None,
+        synthetic: Mapping[str, Any] | None = None,
     ):
         if num_envs < 1 or max_agents < 1:
             raise ValueError("num_envs and max_agents must be at least 1")
@@ -120,6 +138,7 @@ class RemoteBatchedEnv(EnvBase):
             split=split,
             seed=seed,
             scenario_order=scenario_order,
+            scenarios=scenarios,
             pool=pool,
             pedestrian_model=pedestrian_model,
             device=str(device),
@@ -130,6 +149,7 @@ class RemoteBatchedEnv(EnvBase):
             external_agents=tuple(external_agents),
             reward_weights=reward_weights,
             pedestrian_params=pedestrian_params,
+            synthetic=synthetic,
         )
         if scenario_order not in ("random", "sequential"):
             raise ValueError(f"unknown scenario_order {scenario_order!r}")
@@ -139,7 +159,11 @@ class RemoteBatchedEnv(EnvBase):
                 "(a server env draws its episodes from one split)"
             )
         if scenarios is not None:
-            raise ValueError("RemoteBatchedEnv: explicit `scenarios` are not supported")
+            if isinstance(scenarios, str):
+                scenarios = [scenarios]
+            if not scenarios:
+                raise ValueError("scenarios: an empty list")
+            scenario_order = "sequential"  # sub-env k plays scenarios[k], [k + K], ...
         if params:
             raise ValueError(
                 "RemoteBatchedEnv: world `params` are a server setting (sim-server --cfg params:)"
@@ -152,7 +176,12 @@ class RemoteBatchedEnv(EnvBase):
         self.split = split
         self.scenario_order = scenario_order
         self.pedestrian_model = pedestrian_model
-        pool_name, pool_list = _pool_scenarios(pool)
+        if synthetic is not None:
+            if pool is not None:
+                raise ValueError("synthetic scenes and a pool exclude each other")
+            pool_name, pool_list = "synthetic", synthetic_names(synthetic, split)
+        else:
+            pool_name, pool_list = _pool_scenarios(pool)
         self.pool_name = pool_name
         self.env_time_s = 0.0
         #: Each reward term of the last step, ``{term: [K]}`` (weighted, model.md 7; ``reward``
@@ -164,13 +193,14 @@ class RemoteBatchedEnv(EnvBase):
         create = dict(
             seed=self._seed,
             split=split,
-            pool=pool_name if pool is not None else None,
+            pool=pool_name if pool is not None and synthetic is None else None,
             pedestrian_model=pedestrian_model,
             pedestrian_params=pedestrian_params,
             external_agents=list(external_agents),
             reward_weights=reward_weights,
             max_agents=m,
             autoreset=scenario_order == "random",
+            synthetic=synthetic,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
@@ -181,6 +211,15 @@ class RemoteBatchedEnv(EnvBase):
             )
         self._scenario_index = {name: i for i, (name, _) in enumerate(pool_list)}
         self._split_names = [name for name, s in pool_list if s == split]
+        if scenarios is not None:
+            names = [pool_list[i][0] if isinstance(i, int) else str(i) for i in scenarios]
+            wrong = [n for n in names if n not in self._split_names]
+            if wrong:
+                self.vec.close()
+                raise ValueError(
+                    f"scenarios {wrong} are not {split} scenarios of pool {self.pool_name!r}"
+                )
+            self._split_names = names
         if scenario_order == "sequential" and not self._split_names:
             self.vec.close()
             raise ValueError(f"scenario_order='sequential': no {split} scenarios in the pool")
@@ -206,6 +245,11 @@ class RemoteBatchedEnv(EnvBase):
     @property
     def env_ids(self) -> list[str]:
         return list(self.vec.env_ids)
+
+    @property
+    def scenario_names(self) -> list[str]:
+        """The pool's scenario names in pool order: ``scenario_index`` indexes this list."""
+        return sorted(self._scenario_index, key=self._scenario_index.__getitem__)
 
     @property
     def server_id(self) -> str:
@@ -364,3 +408,259 @@ class RemoteBatchedEnv(EnvBase):
 
 def _rebuild(cls, kwargs: dict[str, Any]) -> RemoteBatchedEnv:
     return cls(**kwargs)
+
+
+class RemoteMultiAgentEnv(EnvBase):
+    """K server envs with several controlled vehicles each, in TorchRL's multi-agent layout.
+
+    The A vehicles of ``external_agents`` form one agent group, ``"vehicle"`` (as TorchRL's
+    PettingZoo and VMAS wrappers group agents): under it ``features [K, A, M, F]``,
+    ``adjacency [K, A, M, M]``, ``mask [K, A, M]`` (bool: which nodes are real), ``action
+    [K, A, 2]``, ``reward [K, A, 1]`` and the per-agent ``done`` / ``terminated`` /
+    ``truncated [K, A, 1]``. An agent's flags stay set once its own episode has ended (the
+    server then ignores its actions and gives it reward 0, SPEC 8.3); the root ``done`` /
+    ``terminated`` / ``truncated [K, 1]`` are set when every agent's episode has ended (the
+    sub-env's episode is over; ``truncated`` when some agent ran into the horizon). Sub-envs are
+    created with the server's autoreset, so the partial ``_reset`` after an episode needs no
+    round trip. With one agent it is the single-vehicle env in group form.
+
+    Args:
+        num_envs: K.
+        external_agents: the controlled vehicles (``vehicle_0`` is the scenario's ego, then
+            the scenario's other vehicles); episodes come only from scenarios that have all
+            of them (SPEC 5.2).
+        max_agents: M, nodes per observation.
+        split, seed, pool, scenario, pedestrian_model, pedestrian_params, reward_weights,
+            synthetic: the ``CreateEnv`` fields (``pool`` by name, e.g. ``"hbs-general"``, whose
+            scenes have other cars; ``scenario`` pins every episode; ``synthetic`` generated
+            scenes with ``vehicles`` cars).
+        endpoint, prefix, timeout, client: where the server is (as :class:`RemoteBatchedEnv`).
+    """
+
+    batch_locked = True
+    group = "vehicle"
+
+    def __init__(
+        self,
+        num_envs: int = 4,
+        external_agents: Sequence[str] = ("vehicle_0", "vehicle_1"),
+        max_agents: int = 8,
+        split: str = "train",
+        seed: int = 0,
+        pool: str | None = None,
+        scenario: str | None = None,
+        pedestrian_model: str = "cr_sfm",
+        device: str | torch.device = "cpu",
+        *,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        timeout: float = DEFAULT_TIMEOUT,
+        client: SimClient | None = None,
+        reward_weights: Mapping[str, float] | None = None,
+        pedestrian_params: Mapping[str, float] | None = None,
+        synthetic: Mapping[str, Any] | None = None,
+    ):
+        if num_envs < 1 or max_agents < 1 or not external_agents:
+            raise ValueError("num_envs, max_agents and external_agents must not be empty")
+        self._init_kwargs = dict(
+            num_envs=num_envs,
+            external_agents=tuple(external_agents),
+            max_agents=max_agents,
+            split=split,
+            seed=seed,
+            pool=pool,
+            scenario=scenario,
+            pedestrian_model=pedestrian_model,
+            device=str(device),
+            endpoint=list(client.transport.endpoints) if client is not None else endpoint,
+            prefix=client.transport.prefix if client is not None else prefix,
+            timeout=client.transport.timeout if client is not None else timeout,
+            reward_weights=reward_weights,
+            pedestrian_params=pedestrian_params,
+            synthetic=synthetic,
+        )
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.num_envs = k = int(num_envs)
+        self.n_agents = a = len(external_agents)
+        self.max_agents = m = int(max_agents)
+        self.agent_names = list(external_agents)
+        create = dict(
+            seed=int(seed),
+            split=split,
+            pool=pool,
+            scenario=scenario,
+            pedestrian_model=pedestrian_model,
+            pedestrian_params=pedestrian_params,
+            external_agents=list(external_agents),
+            reward_weights=reward_weights,
+            max_agents=m,
+            autoreset=True,
+            synthetic=synthetic,
+        )
+        if client is None:
+            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
+        self.vec = VectorClient(k, client=client, **create)
+        #: Scenario name of each sub-env's current episode.
+        self.scenarios: list[str | None] = [None] * k
+        self._obs = {
+            "features": np.zeros((k, a, m, NODE_FEATURES), dtype=np.float32),
+            "adjacency": np.zeros((k, a, m, m), dtype=np.float32),
+            "mask": np.zeros((k, a, m), dtype=bool),
+        }
+        self._agent_done = np.zeros((k, a), dtype=bool)
+        self._agent_term = np.zeros((k, a), dtype=bool)
+        self._agent_trunc = np.zeros((k, a), dtype=bool)
+        self._pending: list[dict[str, Any] | None] = [None] * k
+        self._needs_reset = np.ones(k, dtype=bool)
+        self._reseed: int | None = None
+        self._set_specs()
+
+    def _set_specs(self) -> None:
+        from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
+
+        k, a, m, dev = self.num_envs, self.n_agents, self.max_agents, self.device
+
+        def flags(shape):
+            return {
+                key: Categorical(2, shape=shape, dtype=torch.bool, device=dev)
+                for key in ("done", "terminated", "truncated")
+            }
+
+        self.observation_spec = Composite(
+            {
+                self.group: Composite(
+                    features=Unbounded((k, a, m, NODE_FEATURES), dtype=torch.float32, device=dev),
+                    adjacency=Unbounded((k, a, m, m), dtype=torch.float32, device=dev),
+                    mask=Binary(n=m, shape=(k, a, m), dtype=torch.bool, device=dev),
+                    shape=(k, a),
+                    device=dev,
+                )
+            },
+            shape=(k,),
+            device=dev,
+        )
+        self.action_spec = Composite(
+            {
+                self.group: Composite(
+                    action=Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev),
+                    shape=(k, a),
+                    device=dev,
+                )
+            },
+            shape=(k,),
+            device=dev,
+        )
+        self.reward_spec = Composite(
+            {
+                self.group: Composite(
+                    reward=Unbounded((k, a, 1), dtype=torch.float32, device=dev),
+                    shape=(k, a),
+                    device=dev,
+                )
+            },
+            shape=(k,),
+            device=dev,
+        )
+        self.done_spec = Composite(
+            {**flags((k, 1)), self.group: Composite(flags((k, a, 1)), shape=(k, a), device=dev)},
+            shape=(k,),
+            device=dev,
+        )
+
+    def _take_reset(self, k: int, result: Mapping[str, Any]) -> None:
+        for key in ("features", "adjacency", "mask"):
+            self._obs[key][k] = result["obs"][key]
+        self.scenarios[k] = result["scenario"]
+        self._agent_done[k] = self._agent_term[k] = self._agent_trunc[k] = False
+        self._needs_reset[k] = False
+
+    def _td(self, reward: np.ndarray | None = None) -> TensorDictBase:
+        k, a = self.num_envs, self.n_agents
+        over = self._agent_done.all(1, keepdims=True)
+        trunc = over & self._agent_trunc.any(1, keepdims=True)
+        group = {
+            "features": torch.from_numpy(self._obs["features"].copy()),
+            "adjacency": torch.from_numpy(self._obs["adjacency"].copy()),
+            "mask": torch.from_numpy(self._obs["mask"].copy()),
+            "done": torch.from_numpy(self._agent_done.reshape(k, a, 1).copy()),
+            "terminated": torch.from_numpy(self._agent_term.reshape(k, a, 1).copy()),
+            "truncated": torch.from_numpy(self._agent_trunc.reshape(k, a, 1).copy()),
+        }
+        if reward is not None:
+            group["reward"] = torch.from_numpy(reward.reshape(k, a, 1).astype(np.float32))
+        return TensorDict(
+            {
+                self.group: TensorDict(group, batch_size=(k, a)),
+                "done": torch.from_numpy(over),
+                "terminated": torch.from_numpy(over & ~trunc),
+                "truncated": torch.from_numpy(trunc),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+        todo = [k for k in range(self.num_envs) if mask is None or mask[k] or self._needs_reset[k]]
+        queries = []
+        for k in todo:
+            pending, self._pending[k] = self._pending[k], None
+            if pending is not None and mask is not None:
+                self._take_reset(k, pending)
+            else:
+                queries.append(k)
+        if queries:
+            ids = self.vec.env_ids
+            for k, r in zip(
+                queries, self.vec.client.reset_many([ids[k] for k in queries]), strict=True
+            ):
+                self._take_reset(k, r)
+        return self._td()
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if self._needs_reset.any():
+            k = int(np.flatnonzero(self._needs_reset)[0])
+            raise RuntimeError(f"sub-env {k} is done: reset it (with `_reset`) before stepping")
+        action = tensordict.get((self.group, "action")).detach().cpu().numpy()
+        action = np.clip(action.astype(np.float32, copy=False), -1.0, 1.0)
+        res = self.vec.step(action.reshape(self.num_envs, self.n_agents, 2))
+        for key in ("features", "adjacency", "mask"):
+            self._obs[key][:] = res["obs"][key]
+        term = res["terminated"].astype(bool)
+        trunc = res["truncated"].astype(bool)
+        self._agent_term |= term
+        self._agent_trunc |= trunc
+        self._agent_done |= term | trunc
+        td = self._td(np.asarray(res["reward"], dtype=np.float32))
+        resets = res["resets"]
+        for j, k in enumerate(resets["index"]):
+            k = int(k)
+            self._pending[k] = {
+                "obs": {key: resets["obs"][key][j] for key in ("features", "adjacency", "mask")},
+                "scenario": resets["scenario"][j],
+            }
+        over = self._agent_done.all(1)
+        self._needs_reset |= over
+        return td
+
+    def _set_seed(self, seed: int | None) -> None:
+        # Sub-env k is re-seeded with seed + k at its next reset (SPEC 5.3).
+        self._reseed = 0 if seed is None else int(seed)
+        self._needs_reset[:] = True
+        self._pending = [None] * self.num_envs
+
+    def __reduce__(self):
+        """A copy makes its own connection and server envs from the constructor's arguments."""
+        return (_rebuild, (self.__class__, self._init_kwargs))
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        try:
+            self.vec.close()
+        except SharedspaceError:
+            pass
+        try:
+            super().close(raise_if_closed=raise_if_closed)
+        except TypeError:  # older signature
+            super().close()

@@ -39,8 +39,8 @@ pub struct ServerConfig {
     /// (0 = reaped at once). A silent link is noticed after zenoh's lease
     /// (`zenoh/transport/link/tx/lease`, ms, default 10 000).
     pub reconnect_grace_s: f64,
-    /// Scenario pool files (scenarios/FORMAT.md); empty = the embedded `hbs-paper` pool.
-    /// The first pool is the default.
+    /// Scenario pools: files (scenarios/FORMAT.md) or `embedded:hbs-paper` /
+    /// `embedded:hbs-general`; empty = both embedded pools. The first pool is the default.
     pub pools: Vec<PathBuf>,
     /// World-parameter file (JSON5, docs/PARAMETERS.md); absent = defaults.
     pub params: Option<PathBuf>,

@@ -17,7 +17,7 @@ use protocol::{
     decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
     Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
     PedestrianModel as WireModel, Reply, Reset, ServerInfo, Split as WireSplit, Step,
-    PROTOCOL_VERSION,
+    SyntheticScenes, PROTOCOL_VERSION,
 };
 use serde::Serialize;
 use sim_core::params::{PedestrianModel, WorldParams};
@@ -305,6 +305,51 @@ pub struct ServerCore {
     steppers: Mutex<Vec<StepScratch>>,
 }
 
+/// Most pedestrians of a requested synthetic scene (a world of this size steps in milliseconds).
+pub const MAX_SYNTHETIC_PEDESTRIANS: u32 = 2_000;
+/// Most scenes of one synthetic request.
+pub const MAX_SYNTHETIC_SCENES: u32 = 256;
+
+/// The pool `synthetic` of a `CreateEnv.synthetic` request: its scenes, seeds `seed`,
+/// `seed + 1`, ..., all in `split`.
+fn synthetic_pool(req: &SyntheticScenes, split: Split) -> Result<ServedPool, ErrorReply> {
+    use scenarios::synthetic::{generate_pool, Layout, SyntheticConfig};
+    let layout: Layout = req.layout.parse().map_err(|_| {
+        bad(format!(
+            "synthetic.layout {:?}: expected one of crossing, counter_flow, random",
+            req.layout
+        ))
+    })?;
+    if req.pedestrians > MAX_SYNTHETIC_PEDESTRIANS {
+        return Err(ErrorReply::new(
+            ErrorCode::LimitExceeded,
+            format!(
+                "synthetic.pedestrians {} exceeds {MAX_SYNTHETIC_PEDESTRIANS}",
+                req.pedestrians
+            ),
+        ));
+    }
+    if req.scenes == 0 || req.scenes > MAX_SYNTHETIC_SCENES {
+        return Err(bad(format!(
+            "synthetic.scenes {} must be between 1 and {MAX_SYNTHETIC_SCENES}",
+            req.scenes
+        )));
+    }
+    let configs: Vec<SyntheticConfig> = (0..u64::from(req.scenes))
+        .map(|i| SyntheticConfig {
+            layout,
+            pedestrians: req.pedestrians as usize,
+            vehicles: req.vehicles as usize,
+            density: req.density,
+            seed: req.seed.wrapping_add(i),
+            split,
+            ..SyntheticConfig::default()
+        })
+        .collect();
+    let pool = generate_pool("synthetic", &configs).map_err(|e| bad(format!("synthetic: {e}")))?;
+    Ok(ServedPool::new(pool))
+}
+
 /// One thread per available core. A lockstep trainer's request has fully arrived before its
 /// batch is stepped and its reply is not sent until the batch is done, so the network threads
 /// are idle meanwhile: on two cores, two batch threads took a K = 256 batch from 1.10–1.35 ms
@@ -367,6 +412,14 @@ impl ServerCore {
 
     pub fn server_id(&self) -> &str {
         &self.server_id
+    }
+
+    /// The served pool `name`, or the default pool (the first) for None.
+    fn pool_named(&self, name: Option<&str>) -> Option<Arc<ServedPool>> {
+        match name {
+            None => self.pools.first().cloned(),
+            Some(name) => self.pools.iter().find(|p| p.name == name).cloned(),
+        }
     }
 
     /// The most agents any scenario of the served pools has (an upper bound on a world's size).
@@ -517,9 +570,14 @@ impl ServerCore {
                 ),
             ));
         }
-        let pool = match &req.pool {
-            None => self.pools.first().cloned(),
-            Some(name) => self.pools.iter().find(|p| &p.name == name).cloned(),
+        let pool = match (&req.synthetic, &req.pool) {
+            (Some(_), Some(name)) => {
+                return Err(bad(format!(
+                    "synthetic scenes and pool {name:?} exclude each other: send one"
+                )))
+            }
+            (Some(syn), None) => Some(Arc::new(synthetic_pool(syn, split_of(req.split))?)),
+            (None, _) => self.pool_named(req.pool.as_deref()),
         }
         .ok_or_else(|| {
             let names: Vec<&str> = self.pools.iter().map(|p| p.name.as_str()).collect();
@@ -1245,6 +1303,69 @@ mod tests {
             .into_result()
             .unwrap();
         assert_eq!(c.load(), 4);
+    }
+
+    #[test]
+    fn synthetic_scenes_with_two_controlled_vehicles_are_created_and_stepped() {
+        let c = core(Limits::default());
+        let mut req = CreateEnv::new("syn");
+        req.external_agents = vec!["vehicle_0".into(), "vehicle_1".into()];
+        req.max_agents = 16;
+        req.synthetic = Some(SyntheticScenes {
+            layout: "counter_flow".into(),
+            pedestrians: 60,
+            vehicles: 2,
+            seed: 7,
+            scenes: 3,
+            ..SyntheticScenes::default()
+        });
+        let created = create(&c, &req);
+        let id = &created.env_ids[0];
+        let reset: ResetResult =
+            decode::<Reply<ResetResult>>(&c.handle_reset(id, &[], Gates::NONE).reply)
+                .unwrap()
+                .into_result()
+                .unwrap();
+        assert!(reset
+            .scenario
+            .starts_with("synthetic-counter_flow-n60-v2-seed"));
+        assert_eq!(reset.agents.len(), 62);
+        let step = encode(&Step::from_rows(&[[0.5, 0.0], [0.0, 0.1]]));
+        let r: StepResult =
+            decode::<Reply<StepResult>>(&c.handle_step(id, &step, Gates::NONE).reply)
+                .unwrap()
+                .into_result()
+                .unwrap();
+        assert_eq!(r.reward.len(), 2);
+        // Refused with a message that names the problem, and nothing is created.
+        let load = c.load();
+        for (change, needle) in [
+            (
+                Box::new(|r: &mut CreateEnv| r.pool = Some("hbs-paper".into()))
+                    as Box<dyn Fn(&mut CreateEnv)>,
+                "exclude each other",
+            ),
+            (
+                Box::new(|r: &mut CreateEnv| {
+                    r.synthetic.as_mut().unwrap().layout = "spiral".into()
+                }),
+                "synthetic.layout",
+            ),
+            (
+                Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().pedestrians = 5_000),
+                "synthetic.pedestrians",
+            ),
+            (
+                Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().vehicles = 1),
+                "2 vehicle",
+            ),
+        ] {
+            let mut bad_req = req.clone();
+            change(&mut bad_req);
+            let e = err_of(&c.handle_create(&encode(&bad_req), Instant::now()).reply);
+            assert!(e.message.contains(needle), "{needle}: {e}");
+        }
+        assert_eq!(c.load(), load);
     }
 
     #[test]

@@ -262,12 +262,25 @@ pub struct Server {
 
 fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool>, ServerError> {
     let pools = if cfg.pools.is_empty() {
-        vec![scenarios::embedded::default_pool()]
+        scenarios::embedded::EMBEDDED_POOLS
+            .iter()
+            .filter_map(|name| scenarios::embedded::pool(name))
+            .collect()
     } else {
         cfg.pools
             .iter()
             .map(|p| {
-                scenarios::pool::load_pool_file(p).map_err(|e| ServerError::Pool(e.to_string()))
+                let text = p.to_string_lossy();
+                match text.strip_prefix("embedded:") {
+                    Some(name) => scenarios::embedded::pool(name).ok_or_else(|| {
+                        ServerError::Pool(format!(
+                            "no embedded pool {name:?} (embedded: {})",
+                            scenarios::embedded::EMBEDDED_POOLS.join(", ")
+                        ))
+                    }),
+                    None => scenarios::pool::load_pool_file(p)
+                        .map_err(|e| ServerError::Pool(e.to_string())),
+                }
             })
             .collect::<Result<Vec<_>, _>>()?
     };
