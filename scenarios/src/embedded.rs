@@ -41,6 +41,20 @@ pub fn pool(name: &str) -> Option<ScenarioPool> {
     }
 }
 
+/// The pool a command line or configuration names: `embedded:hbs-paper` /
+/// `embedded:hbs-general` ([`EMBEDDED_POOLS`]), else a pool file (scenarios/FORMAT.md).
+pub fn pool_from_arg(arg: &std::path::Path) -> Result<ScenarioPool, String> {
+    match arg.to_str().and_then(|s| s.strip_prefix("embedded:")) {
+        Some(name) => pool(name).ok_or_else(|| {
+            format!(
+                "no embedded pool {name:?} (embedded: {})",
+                EMBEDDED_POOLS.join(", ")
+            )
+        }),
+        None => crate::pool::load_pool_file(arg).map_err(|e| e.to_string()),
+    }
+}
+
 /// The general pool (`hbs-general`), extracted once from the embedded recording with the
 /// default [`GeneralParams`] (the same as `extract-hbs --pool general`). Should that ever fail,
 /// an empty pool whose provenance carries the error.

@@ -208,15 +208,7 @@ struct RolloutArgs {
 
 fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
     match &args.pool {
-        Some(path) => match path.to_string_lossy().strip_prefix("embedded:") {
-            Some(name) => scenarios::embedded::pool(name).ok_or_else(|| {
-                format!(
-                    "no embedded pool {name:?} (embedded: {})",
-                    scenarios::embedded::EMBEDDED_POOLS.join(", ")
-                )
-            }),
-            None => scenarios::pool::load_pool_file(path).map_err(|e| e.to_string()),
-        },
+        Some(path) => scenarios::embedded::pool_from_arg(path),
         None => Ok(scenarios::embedded::default_pool()),
     }
 }

@@ -29,7 +29,8 @@ use crate::params_file::ParamsDoc;
 /// Command-line arguments of `eval-peds`.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct EvalPedsArgs {
-    /// Scenario pool file (JSON, scenarios/FORMAT.md); the embedded HBS pool when absent.
+    /// Scenario pool file (JSON, scenarios/FORMAT.md) or an embedded pool,
+    /// `embedded:hbs-paper` or `embedded:hbs-general`; `hbs-paper` when absent.
     #[arg(long)]
     pub pool: Option<PathBuf>,
     /// World-parameter file (JSON5; may hold per-model overlays under `models`).
@@ -296,7 +297,7 @@ pub fn params_for_models(
 
 fn load_pool(path: Option<&Path>) -> Result<ScenarioPool, String> {
     match path {
-        Some(p) => scenarios::pool::load_pool_file(p).map_err(|e| e.to_string()),
+        Some(p) => scenarios::embedded::pool_from_arg(p),
         None => Ok(scenarios::embedded::default_pool()),
     }
 }

@@ -269,19 +269,7 @@ fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool
     } else {
         cfg.pools
             .iter()
-            .map(|p| {
-                let text = p.to_string_lossy();
-                match text.strip_prefix("embedded:") {
-                    Some(name) => scenarios::embedded::pool(name).ok_or_else(|| {
-                        ServerError::Pool(format!(
-                            "no embedded pool {name:?} (embedded: {})",
-                            scenarios::embedded::EMBEDDED_POOLS.join(", ")
-                        ))
-                    }),
-                    None => scenarios::pool::load_pool_file(p)
-                        .map_err(|e| ServerError::Pool(e.to_string())),
-                }
-            })
+            .map(|p| scenarios::embedded::pool_from_arg(p).map_err(ServerError::Pool))
             .collect::<Result<Vec<_>, _>>()?
     };
     for pool in &pools {
