@@ -47,6 +47,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (``/proc/{pid}/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def rss_mib(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -254,7 +260,12 @@ def main() -> int:
         if now >= next_sample:
             info = observer.info("soak")
             samples.append(
-                {"t": now - start, "rss_mib": rss_mib(server.pid), "load": info["load"]}
+                {
+                    "t": now - start,
+                    "rss_mib": rss_mib(server.pid),
+                    "cpu_s": cpu_s(server.pid),
+                    "load": info["load"],
+                }
             )
             next_sample += args.sample_s
         if now >= next_kill and now + 15 < until:
@@ -291,11 +302,16 @@ def main() -> int:
     for p in sorted(per):
         acc = per[p]
         span = min(args.period_s, args.minutes * 60 - p * args.period_s)
-        rss = [
-            s["rss_mib"]
-            for s in samples
-            if p * args.period_s <= s["t"] < (p + 1) * args.period_s
+        inside = [
+            x for x in samples if p * args.period_s <= x["t"] < (p + 1) * args.period_s
         ]
+        rss = [x["rss_mib"] for x in inside]
+        cpu = (
+            inside[-1]["cpu_s"] - inside[0]["cpu_s"]
+            if len(inside) > 1
+            else float("nan")
+        )
+        cpu_span = inside[-1]["t"] - inside[0]["t"] if len(inside) > 1 else float("nan")
         lat = np.array(acc["lat"]) if acc["lat"] else np.array([np.nan])
         periods.append(
             {
@@ -305,6 +321,11 @@ def main() -> int:
                 "p99_ms": float(np.percentile(lat, 99)),
                 "max_ms": float(lat.max()),
                 "rss_mib_max": max(rss) if rss else float("nan"),
+                # Server CPU per 1 000 env-steps: flat if the server does not slow down, whatever
+                # share of the machine it gets.
+                "server_cpu_ms_per_1k": 1e6 * cpu / (acc["steps"] / span * cpu_span)
+                if acc["steps"]
+                else float("nan"),
                 "recreates": acc["recreate"],
                 "resets": acc["reset"],
             }
@@ -340,14 +361,15 @@ def main() -> int:
     print()
     print(
         "| from (min) | env-steps/s | p50 step (ms) | p99 step (ms) | max (ms) | server RSS (MiB) | "
-        "recreates | resets |"
+        "server CPU ms / 1k env-steps | recreates | resets |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for q in periods:
         print(
             f"| {q['period'] * args.period_s / 60:.1f} | {q['env_steps_per_s']:,.0f} | "
             f"{q['p50_ms']:.2f} | {q['p99_ms']:.2f} | {q['max_ms']:.1f} | "
-            f"{q['rss_mib_max']:.1f} | {q['recreates']} | {q['resets']} |"
+            f"{q['rss_mib_max']:.1f} | {q['server_cpu_ms_per_1k']:.1f} | {q['recreates']} | "
+            f"{q['resets']} |"
         )
     print()
     print(

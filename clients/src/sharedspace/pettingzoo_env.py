@@ -47,7 +47,7 @@ from pettingzoo import ParallelEnv
 
 from .client import SimClient, VectorClient
 from .errors import EnvClosed, WrongShape
-from .render import render_observation, render_scene
+from .render import render_observation
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
 __all__ = ["SharedSpaceParallelEnv", "parallel_env", "ENV_NAME", "INFO_KEYS"]
@@ -210,6 +210,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._sub_env = None
         #: What the last ``render()`` drew from: ``"publications"`` or ``"observation"``.
         self.render_source: str | None = None
+        self._trails: dict[int, list[tuple[float, float]]] = {}
 
     @property
     def _connected(self) -> VectorClient:
@@ -363,6 +364,11 @@ class SharedSpaceParallelEnv(ParallelEnv):
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         self._check_open()
+        if self.render_mode == "rgb_array" and self._sub_env != self.env_id:
+            # Subscribe before the reset, so that its publication (step 0) is seen; the server
+            # publishes only while it knows of a subscriber, which takes a moment to propagate.
+            self._subscribe()
+            time.sleep(0.3)
         scenario = (options or {}).get("scenario")
         if scenario is None and self._scenario_list:
             scenario = self._scenario_list[self._resets % len(self._scenario_list)]
@@ -371,8 +377,6 @@ class SharedSpaceParallelEnv(ParallelEnv):
             r = self._connected.client.reset(self.env_id, seed=seed, scenario=scenario)
         else:
             r = self._connected.reset(seed=seed)[0]
-        if self._sub_env != self.env_id and self.render_mode == "rgb_array":
-            self._subscribe()
         return self._take_reset(r)
 
     def step(self, actions: Mapping[str, Any]):
@@ -494,22 +498,63 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._check_open()
         if self._obs is None:
             raise RuntimeError("call reset() before render()")
-        deadline = time.monotonic() + 0.5
-        states = graph = None
-        while time.monotonic() < deadline:
-            states, graph = self._current("states"), self._current("risk_graph")
-            if states is not None and graph is not None:
-                break
-            time.sleep(0.005)
-        if states is not None:
+        frame = self.scene_frame()
+        if frame is not None:
+            from .scene_plot import scene_rgb
+
             self.render_source = "publications"
-            return render_scene(states, graph, self._agents_desc, size=self.render_size)
+            return scene_rgb(frame, size=self.render_size)
         self.render_source = "observation"
         return render_observation(
             self._obs["features"][0],
             self._obs["adjacency"][0],
             self._obs["mask"][0],
             size=self.render_size,
+        )
+
+    def scene_frame(self, wait_s: float = 0.5):
+        """The current step's scene as a :class:`~sharedspace.scene_plot.Frame` (every agent,
+        the controlled vehicles' goals and trails, the risk graph, time and step) from the
+        server's ``states`` / ``risk_graph`` publications, or None when they have not arrived
+        within ``wait_s`` (``render_mode="rgb_array"`` subscribes to them)."""
+        from .scene_plot import frame_from_publications
+
+        deadline = time.monotonic() + wait_s
+        states = graph = None
+        while time.monotonic() < deadline:
+            states, graph = self._current("states"), self._current("risk_graph")
+            if states is not None and graph is not None:
+                break
+            time.sleep(0.005)
+        if states is None:
+            return None
+        ids = [int(i) for i in np.asarray(states["ids"]).tolist()]
+        pos = np.asarray(states["positions"], dtype=np.float64).reshape(-1, 2)
+        heads = np.asarray(states["headings"], dtype=np.float64).reshape(-1)
+        row = {aid: k for k, aid in enumerate(ids)}
+        goals = []
+        for aid, desc in self._agents_desc.items():
+            e = self._index.get(desc.get("name", ""))
+            if e is None or aid not in row or self._obs is None:
+                continue
+            k = row[aid]
+            gdx, gdy = (float(v) for v in self._obs["features"][e][0, 8:10])
+            c, s_ = np.cos(heads[k]), np.sin(heads[k])
+            goals.append((pos[k, 0] + c * gdx - s_ * gdy, pos[k, 1] + s_ * gdx + c * gdy))
+        if int(states.get("step", 0)) == 0:
+            self._trails = {}
+        for aid, k in row.items():
+            trail = self._trails.setdefault(aid, [])
+            if not trail or trail[-1] != (float(pos[k, 0]), float(pos[k, 1])):
+                trail.append((float(pos[k, 0]), float(pos[k, 1])))
+            del trail[:-12]
+        return frame_from_publications(
+            {**states, "t": states.get("t", self._step * 0.5)},
+            graph,
+            self._agents_desc,
+            goals=goals,
+            trails={aid: list(t) for aid, t in self._trails.items() if aid in row},
+            note=self.scenario or "",
         )
 
     def close(self) -> None:

@@ -1,19 +1,13 @@
-"""Top-down RGB pictures of a scene with its risk graph, drawn with numpy only (no GUI).
-
-:func:`render_scene` draws world-frame agents (``StatesMsg``) and risk-graph edges
-(``RiskGraphMsg``); :func:`render_observation` draws one agent's observation graph in its ego
-frame (from a step reply: ``features``, ``adjacency``, ``mask``), the fallback when no
-publication is at hand. Both return ``uint8`` arrays ``[H, W, 3]``.
+"""The fallback picture of ``render()``: one agent's observation graph in its ego frame (from a
+step reply: ``features``, ``adjacency``, ``mask``), drawn with numpy only, for when the server's
+publications have not arrived. The scene itself is drawn by :mod:`sharedspace.scene_plot`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import numpy as np
 
-__all__ = ["render_scene", "render_observation", "Canvas"]
+__all__ = ["render_observation", "Canvas"]
 
 BACKGROUND = (245, 245, 240)
 VEHICLE = (200, 40, 40)
@@ -96,59 +90,6 @@ class Canvas:
 
     def heading(self, x: float, y: float, theta: float, length_m: float, color) -> None:
         self.line(x, y, x + length_m * np.cos(theta), y + length_m * np.sin(theta), color, 1.0)
-
-
-def render_scene(
-    states: Mapping[str, Any],
-    risk_graph: Mapping[str, Any] | None = None,
-    agents: Mapping[int, Mapping[str, Any]] | None = None,
-    *,
-    size: tuple[int, int] = (480, 480),
-    view_m: float = 40.0,
-    center: tuple[float, float] | None = None,
-) -> np.ndarray:
-    """An RGB picture ``[H, W, 3]`` of a ``StatesMsg`` with the ``RiskGraphMsg`` edges (line
-    width and opacity growing with ``a``). ``agents`` maps agent id → ``AgentDesc`` (radius,
-    external); ``center`` defaults to the first external agent (else the first vehicle)."""
-    h, w = size
-    ids = np.asarray(states["ids"], dtype=np.int64)
-    kinds = np.asarray(states["kinds"])
-    pos = np.asarray(states["positions"], dtype=np.float64).reshape(-1, 2)
-    heads = np.asarray(states["headings"], dtype=np.float64).reshape(-1)
-    agents = agents or {}
-    if center is None:
-        ext = [i for i, a in enumerate(ids) if agents.get(int(a), {}).get("external")]
-        veh = [i for i in range(len(ids)) if kinds[i] == 0]
-        pick = (ext or veh or [0])[0] if len(ids) else None
-        center = (float(pos[pick, 0]), float(pos[pick, 1])) if pick is not None else (0.0, 0.0)
-    canvas = Canvas(w, h, center, min(w, h) / float(view_m))
-    canvas.grid()
-    where = {int(a): i for i, a in enumerate(ids)}
-    if risk_graph is not None and len(risk_graph.get("src", ())):
-        a = np.asarray(risk_graph["a"], dtype=np.float64)
-        amax = float(a.max()) if a.size and a.max() > 0 else 1.0
-        for s, d, av in zip(risk_graph["src"], risk_graph["dst"], a, strict=False):
-            i, j = where.get(int(s)), where.get(int(d))
-            if i is None or j is None:
-                continue
-            strength = float(av) / amax
-            canvas.line(
-                pos[i, 0],
-                pos[i, 1],
-                pos[j, 0],
-                pos[j, 1],
-                EDGE,
-                1.0 + 2.0 * strength,
-                0.25 + 0.75 * strength,
-            )
-    for i, aid in enumerate(ids):
-        desc = agents.get(int(aid), {})
-        vehicle = kinds[i] == 0
-        radius = float(desc.get("radius") or (1.0 if vehicle else 0.3))
-        color = EXTERNAL if desc.get("external") else (VEHICLE if vehicle else PEDESTRIAN)
-        canvas.disc(pos[i, 0], pos[i, 1], radius, color)
-        canvas.heading(pos[i, 0], pos[i, 1], heads[i], radius + 0.8, (20, 20, 20))
-    return canvas.img
 
 
 def render_observation(
