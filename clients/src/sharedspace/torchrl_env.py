@@ -83,7 +83,35 @@ def synthetic_names(synthetic: Mapping[str, Any], split: str) -> list[tuple[str,
     return [(f"synthetic-{layout}-n{n}{vehicles}-seed{seed + i}", split) for i in range(scenes)]
 
 
-class RemoteBatchedEnv(EnvBase):
+class _ServerEnvs(EnvBase):
+    """What both remote envs share: K server envs behind one ``VectorClient`` (``self.vec``),
+    and copies (pickle, deepcopy) that make their own connection and server envs."""
+
+    def _remember(self, client: SimClient | None, **kwargs: Any) -> None:
+        """Keeps the constructor's arguments for copies (see ``__reduce__``); a shared
+        ``client`` is replaced by its endpoints, prefix and timeout."""
+        if client is not None:
+            t = client.transport
+            kwargs.update(endpoint=list(t.endpoints), prefix=t.prefix, timeout=t.timeout)
+        self._init_kwargs = kwargs
+
+    def __reduce__(self):
+        """Pickling and copying make a new env from the constructor's arguments: its own
+        connection and its own K server envs, seeded like this one at creation."""
+        return (_rebuild, (self.__class__, self._init_kwargs))
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        try:
+            self.vec.close()
+        except SharedspaceError:
+            pass
+        try:
+            super().close(raise_if_closed=raise_if_closed)
+        except TypeError:  # older signature
+            super().close()
+
+
+class RemoteBatchedEnv(_ServerEnvs):
     """K server envs as one TorchRL env of batch size ``[K]`` (ENV_CONTRACT.md).
 
     Args:
@@ -131,8 +159,8 @@ class RemoteBatchedEnv(EnvBase):
     ):
         if num_envs < 1 or max_agents < 1:
             raise ValueError("num_envs and max_agents must be at least 1")
-        # What a copy needs to make its own server envs (see __reduce__).
-        self._init_kwargs = dict(
+        self._remember(
+            client,
             num_envs=num_envs,
             max_agents=max_agents,
             split=split,
@@ -142,9 +170,9 @@ class RemoteBatchedEnv(EnvBase):
             pool=pool,
             pedestrian_model=pedestrian_model,
             device=str(device),
-            endpoint=list(client.transport.endpoints) if client is not None else endpoint,
-            prefix=client.transport.prefix if client is not None else prefix,
-            timeout=client.transport.timeout if client is not None else timeout,
+            endpoint=endpoint,
+            prefix=prefix,
+            timeout=timeout,
             failover=failover,
             external_agents=tuple(external_agents),
             reward_weights=reward_weights,
@@ -389,28 +417,12 @@ class RemoteBatchedEnv(EnvBase):
         self.env_time_s += time.perf_counter() - t0
         return td
 
-    def __reduce__(self):
-        """Pickling and copying make a new env from the constructor's arguments: its own
-        connection and its own K server envs, seeded like this one at creation (a shared
-        ``client`` is replaced by its endpoints and prefix)."""
-        return (_rebuild, (self.__class__, self._init_kwargs))
-
-    def close(self, *, raise_if_closed: bool = True) -> None:
-        try:
-            self.vec.close()
-        except SharedspaceError:
-            pass
-        try:
-            super().close(raise_if_closed=raise_if_closed)
-        except TypeError:  # older signature
-            super().close()
-
 
 def _rebuild(cls, kwargs: dict[str, Any]) -> RemoteBatchedEnv:
     return cls(**kwargs)
 
 
-class RemoteMultiAgentEnv(EnvBase):
+class RemoteMultiAgentEnv(_ServerEnvs):
     """K server envs with several controlled vehicles each, in TorchRL's multi-agent layout.
 
     The A vehicles of ``external_agents`` form one agent group, ``"vehicle"`` (as TorchRL's
@@ -462,7 +474,8 @@ class RemoteMultiAgentEnv(EnvBase):
     ):
         if num_envs < 1 or max_agents < 1 or not external_agents:
             raise ValueError("num_envs, max_agents and external_agents must not be empty")
-        self._init_kwargs = dict(
+        self._remember(
+            client,
             num_envs=num_envs,
             external_agents=tuple(external_agents),
             max_agents=max_agents,
@@ -472,9 +485,9 @@ class RemoteMultiAgentEnv(EnvBase):
             scenario=scenario,
             pedestrian_model=pedestrian_model,
             device=str(device),
-            endpoint=list(client.transport.endpoints) if client is not None else endpoint,
-            prefix=client.transport.prefix if client is not None else prefix,
-            timeout=client.transport.timeout if client is not None else timeout,
+            endpoint=endpoint,
+            prefix=prefix,
+            timeout=timeout,
             reward_weights=reward_weights,
             pedestrian_params=pedestrian_params,
             synthetic=synthetic,
@@ -650,17 +663,3 @@ class RemoteMultiAgentEnv(EnvBase):
         self._reseed = 0 if seed is None else int(seed)
         self._needs_reset[:] = True
         self._pending = [None] * self.num_envs
-
-    def __reduce__(self):
-        """A copy makes its own connection and server envs from the constructor's arguments."""
-        return (_rebuild, (self.__class__, self._init_kwargs))
-
-    def close(self, *, raise_if_closed: bool = True) -> None:
-        try:
-            self.vec.close()
-        except SharedspaceError:
-            pass
-        try:
-            super().close(raise_if_closed=raise_if_closed)
-        except TypeError:  # older signature
-            super().close()

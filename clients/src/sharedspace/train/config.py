@@ -109,6 +109,14 @@ def apply_overrides(cfg: TrainConfig, overrides: list[str] | dict[str, Any]) -> 
     return TrainConfig(**data)
 
 
+def add_overrides_argument(
+    ap, help: str = "TrainConfig overrides, e.g. server_endpoint=..."
+) -> None:
+    """The ``--set KEY=VALUE ...`` option every ``sharedspace.train`` command takes (repeatable;
+    values parsed like the field they override)."""
+    ap.add_argument("--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE", help=help)
+
+
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> TrainConfig:
     """Defaults, then the TOML/JSON file at ``path`` (flat table of fields), then overrides."""
     cfg = TrainConfig()

@@ -30,6 +30,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sharedspace.scene_plot import Frame, draw_scene, scene_rgb
+from sharedspace.train.config import add_overrides_argument
 
 __all__ = ["Episode", "record_episode", "write_gif", "write_mp4", "episode_figure", "main"]
 
@@ -224,14 +225,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--gif", default="", help="write the animation here (GIF)")
     ap.add_argument("--mp4", default="", help="write the animation here (MP4)")
     ap.add_argument("--figure", default="", help="write the four-snapshot figure here (PNG)")
-    ap.add_argument(
-        "--set",
-        nargs="*",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="config overrides (server_endpoint=..., server_prefix=...)",
-    )
+    add_overrides_argument(ap, "config overrides (server_endpoint=..., server_prefix=...)")
     args = ap.parse_args(argv)
     from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
     from sharedspace.train.config import TrainConfig, apply_overrides

@@ -25,7 +25,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sharedspace.local_env import load_pool, split_indices
 from sharedspace.reference import _recorded_headings, episode_metrics
-from sharedspace.train.config import TrainConfig, apply_overrides
+from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.sac import make_actor, make_env
 
@@ -193,14 +193,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--split", default="test", help="train | test | all")
     ap.add_argument("--json", default="", help="write the table and episodes to this JSON file")
-    ap.add_argument(
-        "--set",
-        nargs="*",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="config overrides (e.g. env_backend=remote)",
-    )
+    add_overrides_argument(ap, "config overrides (e.g. env_backend=remote)")
     ap.add_argument("--device", default="cpu")
     args = ap.parse_args(argv)
 

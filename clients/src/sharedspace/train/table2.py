@@ -47,7 +47,7 @@ from torch import nn
 
 from sharedspace.local_env import load_pool, split_indices
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
-from sharedspace.train.config import VARIANTS, TrainConfig, apply_overrides
+from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver, reachability
 from sharedspace.train.evaluate import (
     COLUMNS,
@@ -559,14 +559,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=48,
         help="action sequences per scenario and round of the planner search",
     )
-    ap.add_argument(
-        "--set",
-        nargs="*",
-        action="extend",
-        default=[],
-        metavar="KEY=VALUE",
-        help="env overrides (env_backend=remote server_endpoint=...)",
-    )
+    add_overrides_argument(ap, "env overrides (env_backend=remote server_endpoint=...)")
     args = ap.parse_args(argv)
     t0 = time.time()
     runs = find_runs(Path(args.runs))

@@ -24,7 +24,13 @@ import tqdm
 from tensordict import TensorDictBase
 
 from sharedspace.local_env import EPISODE_FLAG_KEYS, EPISODE_FLOAT_KEYS
-from sharedspace.train.config import TrainConfig, _read_table, apply_overrides, load_config
+from sharedspace.train.config import (
+    TrainConfig,
+    _read_table,
+    add_overrides_argument,
+    apply_overrides,
+    load_config,
+)
 from sharedspace.train.evaluate import evaluate_policy
 from sharedspace.train.sac import (
     make_actor,
@@ -281,9 +287,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--config", default=None, help="TOML or JSON file of TrainConfig fields")
-    ap.add_argument(
-        "--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE", help="overrides"
-    )
+    add_overrides_argument(ap, "overrides")
     ap.add_argument("--resume", default=None, help="checkpoint to continue from")
     args = ap.parse_args(argv)
     if args.resume:  # the checkpoint's config, then the file and the overrides over it
