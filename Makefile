@@ -86,6 +86,8 @@ table1: $(SERVER) $(VENV)/.installed ## paper Table I on the test split (calibra
 	$(SERVER) eval-peds --split test --params $(CALIBRATED) --out docs/table1.json --trajectories out/table1-trajectories
 	$(PY) -m calibration.plot_trajectories --trajectories out/table1-trajectories --out docs/figures
 	$(PY) -m calibration.paired --table docs/table1.json
+	$(SERVER) eval-peds --pool embedded:hbs-general --split test --params $(CALIBRATED) --out docs/table1_general.json
+	$(PY) -m calibration.paired --table docs/table1_general.json
 
 TRAIN_ARGS ?= --set variant=g_sac_cog total_frames=200000 log_dir=runs/g_sac_cog
 CKPT ?= runs/g_sac_cog/checkpoints/last.pt
