@@ -71,8 +71,8 @@ pub fn risk(
 
 /// `psi(i, j)` straight from the centre offset `to_i = x_i - x_j` (length `dist`): the
 /// composition of [`virtual_distance_with`] and [`physical_risk`] folded into one exponential and
-/// one division, `psi = (1 + e) / (1 + e + 2 gamma2 d)` with `e = exp(-2z)`. The world step
-/// computes this for every edge.
+/// one division, `psi = (1 + e) / (1 + e + 2 gamma2 d)` with `e = exp(-2z)`, as [`edge_psi`]
+/// computes it for every edge of the world step.
 #[inline]
 pub fn risk_with(
     clearance: f64,
@@ -83,13 +83,44 @@ pub fn risk_with(
     params: &RiskParams,
 ) -> f64 {
     let along = v_j.dot(&to_i);
-    let radial_speed = if dist > 0.0 { along.abs() / dist } else { 0.0 };
+    edge_psi(
+        params.gamma1,
+        2.0 * params.gamma2,
+        along,
+        dist,
+        acc_j,
+        clearance,
+    )
+    .0
+}
+
+/// The world step's `psi` of one edge, and `1 / dist` (1 for coincident centres): the one
+/// implementation of model.md section 4 that runs. Inputs: `along = v_j . (x_i - x_j)`, the
+/// centre distance, the target's acceleration norm and the clearance; `two_gamma2 = 2 gamma2`.
+/// Branch-free (selects only) and with the crate's vectorisable `exp`, so it is inlined into
+/// and compiled for each instruction-set variant of the observe pass.
+#[inline(always)]
+pub fn edge_psi(
+    gamma1: f64,
+    two_gamma2: f64,
+    along: f64,
+    dist: f64,
+    acc_norm: f64,
+    clearance: f64,
+) -> (f64, f64) {
+    // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
+    // division keeps the loop vectorisable.
+    let inv_dist = 1.0 / if dist > 0.0 { dist } else { 1.0 };
+    let radial_speed = along.abs() * inv_dist;
     let k = if along > 0.0 { -1.0 } else { 1.0 };
-    let z = params.gamma1 * k * (radial_speed + acc_j);
-    let one_plus_e = 1.0 + (-2.0 * z).exp();
-    if one_plus_e.is_infinite() {
-        // d_virtual = 0 (the agent rushes at the observer): psi = 1, exactly as the unfolded form.
-        return 1.0;
-    }
-    one_plus_e / (one_plus_e + 2.0 * params.gamma2 * clearance)
+    let z = gamma1 * k * (radial_speed + acc_norm);
+    let one_plus_e = 1.0 + crate::fastmath::exp(-2.0 * z);
+    let psi = one_plus_e / (one_plus_e + two_gamma2 * clearance);
+    // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
+    let psi = if one_plus_e == f64::INFINITY {
+        1.0
+    } else {
+        psi
+    };
+    (psi, inv_dist)
 }

@@ -2046,7 +2046,7 @@ impl ObserveWorker {
             }
         }
 
-        // 4. Physical risk (risk::risk_with, branch-free) and 5. the social forces on a
+        // 4. Physical risk (risk::edge_psi) and 5. the social forces on a
         // simulated pedestrian (pedestrian::total_force without the goal term, summed in four
         // interleaved lanes), in one loop over the edges.
         // SAFETY: the loop above wrote every entry of these two (each `c` in `0..m` once), and
@@ -2067,8 +2067,9 @@ impl ObserveWorker {
         let (force, max_w) = match fc {
             None => {
                 for c in 0..m {
-                    let (psi, _) =
-                        edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
+                    let (psi, _) = risk::edge_psi(
+                        gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c],
+                    );
                     e_psi[c] = MaybeUninit::new(psi);
                 }
                 (Vec2::zeros(), 0.0)
@@ -2080,8 +2081,9 @@ impl ObserveWorker {
                 let fys = &mut self.fy[..m];
                 let ws = &mut self.w[..m];
                 for c in 0..m {
-                    let (psi, inv_dist) =
-                        edge_risk(gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c]);
+                    let (psi, inv_dist) = risk::edge_psi(
+                        gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c],
+                    );
                     e_psi[c] = MaybeUninit::new(psi);
                     let (fx, fy, w) = edge_force(
                         &fc,
@@ -2109,7 +2111,7 @@ impl ObserveWorker {
     /// [`SMALL_OBSERVER_EDGES`] targets: one loop over the edges instead of three passes over
     /// structure-of-arrays scratch whose set-up costs more than a few edges' work (most
     /// observers of a small scene). Both paths compute each edge with [`edge_state`],
-    /// [`edge_risk`] and [`edge_force`] and sum with the same lane functions, so the result is
+    /// [`risk::edge_psi`] and [`edge_force`] and sum with the same lane functions, so the result is
     /// bit-identical to the three passes.
     #[inline(always)]
     fn small_observer_edges(
@@ -2139,7 +2141,7 @@ impl ObserveWorker {
             let t = &inp.targets[j];
             let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
-            let (psi, inv_dist) = edge_risk(
+            let (psi, inv_dist) = risk::edge_psi(
                 gamma1,
                 two_gamma2,
                 st.along,
@@ -2467,36 +2469,6 @@ fn edge_force(
     let ny = nny * scale;
     let rep = strength * fastmath::exp(clearance * neg_inv_range);
     (nx * rep * w, ny * rep * w, w)
-}
-
-/// Physical risk `psi` of one edge (risk::risk_with, branch-free) and `1 / dist` (1 for
-/// coincident centres), from `along = v_j . (x_i - x_j)`, the centre distance, the target's
-/// acceleration norm and the clearance. A function rather than a closure, so that it is inlined
-/// into (and compiled for) each instruction-set variant of the observe pass.
-#[inline(always)]
-fn edge_risk(
-    gamma1: f64,
-    two_gamma2: f64,
-    along: f64,
-    dist: f64,
-    acc_norm: f64,
-    clearance: f64,
-) -> (f64, f64) {
-    // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
-    // division keeps the loop vectorisable.
-    let inv_dist = 1.0 / if dist > 0.0 { dist } else { 1.0 };
-    let radial_speed = along.abs() * inv_dist;
-    let k = if along > 0.0 { -1.0 } else { 1.0 };
-    let z = gamma1 * k * (radial_speed + acc_norm);
-    let one_plus_e = 1.0 + fastmath::exp(-2.0 * z);
-    let psi = one_plus_e / (one_plus_e + two_gamma2 * clearance);
-    // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
-    let psi = if one_plus_e == f64::INFINITY {
-        1.0
-    } else {
-        psi
-    };
-    (psi, inv_dist)
 }
 
 /// Sum in four interleaved lanes, then the lanes and the tail in a fixed order (vectorisable,
