@@ -6,7 +6,7 @@
 //! 2-vCPU VM (and far more system time on some hosts), and each new thread starts on a cold
 //! stack, against ~12 µs to hand work to a thread waiting on a channel. A general pool (rayon)
 //! was tried and dropped: its idle workers spin before sleeping, and on two cores they took the
-//! CPU the zenoh threads need to move the reply (docs/BENCHMARKS.md section 2). These helpers
+//! CPU the zenoh threads need to move the reply (measured in docs/BENCHMARKS.md section 2, in its git history). These helpers
 //! block on a channel between jobs. Threads are not I/O: the core stays pure.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};

@@ -101,7 +101,7 @@ def _obs_in(r: Any) -> None:
 
 #: Untyped MessagePack decoder of replies: the same dicts, lists, str and bytes as
 #: ``msgpack.unpackb(raw=False)``, built faster (a K = 256 batch reply: 1.31 -> 0.93 ms; a
-#: single step's: 35 -> 19 us; docs/BENCHMARKS.md section 3).
+#: single step's: 35 -> 19 us; docs/BENCHMARKS.md section 3, in its git history).
 _REPLY_DECODER = msgspec.msgpack.Decoder()
 
 

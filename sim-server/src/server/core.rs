@@ -353,7 +353,7 @@ fn synthetic_pool(req: &SyntheticScenes, split: Split) -> Result<ServedPool, Err
 /// One thread per available core. A lockstep trainer's request has fully arrived before its
 /// batch is stepped and its reply is not sent until the batch is done, so the network threads
 /// are idle meanwhile: on two cores, two batch threads took a K = 256 batch from 1.10–1.35 ms
-/// to 0.72–0.81 ms in `core_batch` (docs/BENCHMARKS.md section 2).
+/// to 0.72–0.81 ms in `core_batch` (measured in docs/BENCHMARKS.md section 2, in its git history).
 pub fn default_batch_threads() -> usize {
     std::thread::available_parallelism()
         .map_or(1, |n| n.get())
