@@ -255,3 +255,15 @@ def test_the_synth_command_writes_a_pool_a_server_serves(tmp_path, server_factor
         with client.vector(1, pool="crowds", split="test", max_agents=M) as vec:
             first = vec.reset()[0]
             assert len(first["agents"]) == 57
+
+
+def test_wrong_scenario_lists_and_a_pool_beside_synthetic_scenes_are_refused(sim_server):
+    kw = dict(endpoint=sim_server.endpoint, prefix=sim_server.prefix)
+    with pytest.raises(ValueError, match="not test scenarios"):
+        RemoteBatchedEnv(num_envs=1, split="test", scenarios=["hbs-car1346"], pool=GENERAL, **kw)
+    with pytest.raises(ValueError, match="empty list"):
+        RemoteBatchedEnv(num_envs=1, scenarios=[], **kw)
+    with pytest.raises(ValueError, match="exclude each other"):
+        RemoteBatchedEnv(num_envs=1, pool=GENERAL, synthetic=SYNTHETIC, **kw)
+    with pytest.raises(ValueError, match="empty list"):
+        SharedSpaceParallelEnv(scenario=[], **kw)

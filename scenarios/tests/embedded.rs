@@ -103,3 +103,16 @@ fn the_general_pool_has_crowds_entering_and_leaving_and_other_vehicles() {
         >= 2));
     assert!(pool.provenance.contains("Pascucci"));
 }
+
+#[test]
+fn an_unknown_embedded_pool_is_refused_with_the_names_there_are() {
+    let e = scenarios::embedded::pool_from_arg(std::path::Path::new("embedded:hbs-everything"))
+        .unwrap_err();
+    assert!(
+        e.contains("hbs-everything") && e.contains("hbs-general"),
+        "{e}"
+    );
+    let pool =
+        scenarios::embedded::pool_from_arg(std::path::Path::new("embedded:hbs-paper")).unwrap();
+    assert_eq!(pool.name, "hbs-paper");
+}

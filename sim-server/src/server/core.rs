@@ -1359,6 +1359,18 @@ mod tests {
                 Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().vehicles = 1),
                 "2 vehicle",
             ),
+            (
+                Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().scenes = 0),
+                "synthetic.scenes",
+            ),
+            (
+                Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().density = -1.0),
+                "density",
+            ),
+            (
+                Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().vehicles = 0),
+                "vehicles",
+            ),
         ] {
             let mut bad_req = req.clone();
             change(&mut bad_req);
