@@ -830,15 +830,12 @@ impl ServerCore {
                 );
             }
         }
-        // A fair turn among the trainers' batches (module `fair`), charged to the trainer of the
-        // first env; held until the reply is written.
-        let trainer = lock(&self.reg)
-            .owner
-            .get(&req.env_ids[0])
-            .cloned()
-            .unwrap_or_default();
-        let _turn = self.turns.acquire(&trainer, k as u64);
         let handles = self.lookup_all(&req.env_ids)?;
+        // A fair turn among the trainers' batches (module `fair`), charged to the trainer that
+        // created the first env; held until the reply is written. Taken before any env is
+        // locked, so that waiting never holds an env.
+        let trainer = lock(&handles[0]).spec.client_id.clone();
+        let _turn = self.turns.acquire(&trainer, k as u64);
         // Lock in id order.
         let mut guards: Vec<Option<MutexGuard<'_, Env>>> = (0..k).map(|_| None).collect();
         for &i in &order {
