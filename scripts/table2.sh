@@ -21,6 +21,10 @@
 #   TABLE2_EVAL      frames between test-split evaluations logged as learning curves (default 50000)
 #   TABLE2_DOC       markdown file whose table2 block is rewritten (default docs/RESULTS.md; "" = none)
 #   TABLE2_TRAIN     0 = skip training, only evaluate and tabulate what is there (default 1)
+#   TABLE2_POOL      training pool: "" = the paper pool (default); "paper+general" = the paper's train
+#                    scenes plus every general-pool scene sharing no agent with a test scene
+#                    (sharedspace.train.pools), tested on the paper's test split
+#   TABLE2_JSON      where the table's JSON goes (default docs/table2.json)
 #   TABLE2_SHIP      folder for the trained policies (actor + config; default results/table2/policies;
 #                    "" = none): `make run` evaluates results/table2/policies/g_sac_cog-s0.pt
 set -euo pipefail
@@ -37,12 +41,33 @@ ckpt_every=${TABLE2_CKPT:-20000}
 eval_every=${TABLE2_EVAL:-50000}
 doc=${TABLE2_DOC-docs/RESULTS.md}
 ship=${TABLE2_SHIP-results/table2/policies}
+json=${TABLE2_JSON:-docs/table2.json}
 mkdir -p "$out"
+
+pools=()
+train_pool=()
+case "${TABLE2_POOL:-}" in
+    "") ;;
+    paper+general)
+        pool_file="$out/pool-paper-plus-general.json"
+        if [ ! -f "$pool_file" ]; then
+            csv=$(mktemp)
+            gunzip -c scenarios/data/hbs.csv.gz > "$csv"
+            cargo run --quiet --release -p scenarios --bin extract-hbs -- \
+                --csv "$csv" --pool general --out "$out/pool-general.json"
+            rm -f "$csv"
+            "$py" -m sharedspace.train.pools --general "$out/pool-general.json" --out "$pool_file"
+        fi
+        pools=(--cfg "pools:[\"embedded:hbs-paper\",\"$pool_file\"]")
+        train_pool=("scenario_pool=$pool_file")
+        ;;
+    *) echo "TABLE2_POOL must be empty or paper+general, not ${TABLE2_POOL}" >&2; exit 2 ;;
+esac
 
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 endpoint="tcp/127.0.0.1:$port"
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
-    --cfg server_id:table2 --cfg "params:\"$params\"" >> "$out/server.log" 2>&1 &
+    --cfg server_id:table2 --cfg "params:\"$params\"" "${pools[@]}" >> "$out/server.log" 2>&1 &
 server_pid=$!
 pids=()
 cleanup() {
@@ -70,7 +95,7 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
                 args=(--resume "$last" "${args[@]}")
             else
                 echo "== $variant seed $seed: training"
-                args+=("variant=$variant" "seed=$seed" init_random_frames=2000 num_envs=8
+                args+=("variant=$variant" "seed=$seed" init_random_frames=2000 num_envs=8 "${train_pool[@]}"
                     "eval_interval=$eval_every" "checkpoint_interval=$ckpt_every" save_buffer=true
                     progress=false "log_dir=$run")
             fi
@@ -86,4 +111,4 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
 fi
 
 "$py" -m sharedspace.train.table2 --runs "$out" --frames "$frames" --params "$params" \
-    --json docs/table2.json ${doc:+--doc "$doc"} ${ship:+--ship "$ship"} --set "${remote[@]}"
+    --json "$json" ${doc:+--doc "$doc"} ${ship:+--ship "$ship"} --set "${remote[@]}"

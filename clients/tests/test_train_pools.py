@@ -1,0 +1,56 @@
+"""The paper+general training pool keeps every test scene's recorded agents out of training."""
+
+import json
+
+from sharedspace.local_env import DEFAULT_POOL_PATH
+from sharedspace.train.pools import main, paper_plus_general, record_ids
+
+
+def _paper():
+    return json.loads(DEFAULT_POOL_PATH.read_text())
+
+
+def _general_from(paper):
+    """A stand-in general pool: each paper scene with one more pedestrian track, plus a scene
+    made only of fresh tracks."""
+    scenes = []
+    for s in paper["scenarios"]:
+        extra = dict(s["agents"][-1], record_id=900_000 + len(scenes))
+        scenes.append({**s, "agents": [*s["agents"], extra]})
+    fresh = dict(paper["scenarios"][0])
+    fresh["name"] = "hbs-fresh"
+    fresh["agents"] = [dict(a, record_id=800_000 + i) for i, a in enumerate(fresh["agents"])]
+    scenes.append(fresh)
+    return {"version": paper["version"], "name": "hbs-general", "scenarios": scenes}
+
+
+def test_no_training_scene_shares_a_recorded_agent_with_a_test_scene():
+    paper = _paper()
+    pool = paper_plus_general(paper, _general_from(paper))
+    test = [s for s in pool["scenarios"] if s["split"] == "test"]
+    train = [s for s in pool["scenarios"] if s["split"] == "train"]
+    held_out = set().union(*(record_ids(s) for s in test))
+    added = [s for s in train if s["name"].startswith("general-")]
+    assert added, "the general scenes that share nothing with the test split are added"
+    assert all(not (record_ids(s) & held_out) for s in added)
+    assert "general-hbs-fresh" in {s["name"] for s in added}
+
+
+def test_the_test_split_is_exactly_the_papers():
+    paper = _paper()
+    pool = paper_plus_general(paper, _general_from(paper))
+    assert [s for s in pool["scenarios"] if s["split"] == "test"] == [
+        s for s in paper["scenarios"] if s["split"] == "test"
+    ]
+    assert pool["scenarios"][: len(paper["scenarios"])] == paper["scenarios"]
+    assert len({s["name"] for s in pool["scenarios"]}) == len(pool["scenarios"])
+
+
+def test_the_command_writes_a_pool_file(tmp_path):
+    general = tmp_path / "general.json"
+    general.write_text(json.dumps(_general_from(_paper())))
+    out = tmp_path / "pool.json"
+    main(["--general", str(general), "--out", str(out)])
+    pool = json.loads(out.read_text())
+    assert pool["name"] == "hbs-paper-plus-general"
+    assert "share no recorded agent" in pool["provenance"]
