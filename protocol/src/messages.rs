@@ -1286,6 +1286,35 @@ pub struct StatesMsg {
     pub velocities: F64Array,
     /// `[n]` `<f8` headings (rad, world frame, counter-clockwise from +x).
     pub headings: F64Array,
+    /// Scenario of the episode ("" from senders older than this field).
+    #[serde(default)]
+    pub scenario: String,
+    /// `[n, 2]` `<f8` footprints (length, width) in m, length along the heading; a disc's is
+    /// (2 r, 2 r).
+    #[serde(default)]
+    pub sizes: Option<F64Array>,
+    /// `[n, 2]` `<f8` goals (world frame, m).
+    #[serde(default)]
+    pub goals: Option<F64Array>,
+    /// `[n]` `|u1`: 1 for an agent a learner controls (external), else 0.
+    #[serde(default)]
+    pub external: Option<U8Array>,
+    /// The reward of the step that led to this state, per external agent (nil after a reset).
+    #[serde(default)]
+    pub rewards: Option<StateRewards>,
+}
+
+/// [`StatesMsg::rewards`]: the last step's reward of each external agent, for watching.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StateRewards {
+    /// `[n_ext]` `<u4` agent ids of the external agents.
+    pub agents: U32Array,
+    /// `[n_ext]` `<f4` reward of the step.
+    pub reward: F32Array,
+    /// Its terms (`[n_ext]` each).
+    pub terms: RewardTerms,
+    /// `[n_ext]` `<f8` return of the episode so far (sum of the rewards, undiscounted).
+    pub returns: F64Array,
 }
 
 /// `{p}/env/{env_id}/uncertainty`: cognitive uncertainty `u(i, j)` as a COO edge list.

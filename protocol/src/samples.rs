@@ -363,6 +363,22 @@ pub fn states() -> StatesMsg {
         positions: f64a(&[3, 2], &[10.0, 5.0, 24.5, -1.5, 16.5, 6.25]),
         velocities: f64a(&[3, 2], &[4.0, 0.0, -1.0, 0.5, -0.6, -0.8]),
         headings: f64a(&[3], &[0.0, 2.677_945_044_588_987, -2.214_297_435_588_181]),
+        scenario: "hbs-car1138".to_string(),
+        sizes: Some(f64a(&[3, 2], &[4.5, 1.8, 0.6, 0.6, 0.6, 0.6])),
+        goals: Some(f64a(&[3, 2], &[40.0, 5.0, 0.0, 10.0, 2.0, -20.0])),
+        external: Some(U8Array::from_slice(&[1, 0, 0])),
+        rewards: Some(StateRewards {
+            agents: U32Array::from_slice(&[0]),
+            reward: F32Array::from_slice(&[0.375]),
+            terms: RewardTerms {
+                progress: F32Array::from_slice(&[0.5]),
+                success: F32Array::from_slice(&[0.0]),
+                collision: F32Array::from_slice(&[0.0]),
+                danger: F32Array::from_slice(&[-0.125]),
+                comfort: F32Array::from_slice(&[0.0]),
+            },
+            returns: f64a(&[1], &[2.25]),
+        }),
     }
 }
 

@@ -6,8 +6,8 @@ use std::sync::{Arc, OnceLock};
 use protocol::{
     encode, AgentDesc, AgentKind as WireKind, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply,
     Event, EventKind, EventsMsg, F32Array, F64Array, KeySpace, Mode, ObsBatch, Outcome,
-    ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StatesMsg, StepInfo, StepResult, U32Array,
-    U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
+    ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StateRewards, StatesMsg, StepInfo,
+    StepResult, U32Array, U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
 };
 use sim_core::geometry::Shape;
 use sim_core::metrics::EpisodeStatus;
@@ -505,7 +505,7 @@ impl Env {
         let mut ids: Vec<u32> = world.agents().map(|a| a.id).collect();
         ids.sort_unstable();
         let events = vec![event(EventKind::EpisodeStart, 0, 0.0, ids)];
-        self.publish_state(gates, &events, pubs);
+        self.publish_state(gates, &events, None, pubs);
     }
 
     /// The state change of [`Env::reset`].
@@ -789,7 +789,7 @@ impl Env {
         write_obs(world, &self.ext_ids, self.spec.max_agents as usize, slots);
         let over = world.is_over();
         if gates.any() {
-            self.publish_state(gates, &events, pubs);
+            self.publish_state(gates, &events, Some(slots), pubs);
         }
         let meta_episode = self.episode;
         let scenario = self.scenario;
@@ -890,8 +890,15 @@ impl Env {
         Some(r)
     }
 
-    /// Encodes the wanted publications of the current state.
-    fn publish_state(&self, gates: Gates, events: &[Event], pubs: &mut Vec<Publication>) {
+    /// Encodes the wanted publications of the current state; `slots` hold the rewards of the
+    /// step that led to it (none after a reset).
+    fn publish_state(
+        &self,
+        gates: Gates,
+        events: &[Event],
+        slots: Option<&Slots<'_>>,
+        pubs: &mut Vec<Publication>,
+    ) {
         let Some(world) = &self.world else { return };
         let keys = &self.spec.keys;
         let (episode, step, t) = (self.episode, world.step_index(), world.time());
@@ -920,6 +927,30 @@ impl Env {
                 .flat_map(|a| [a.velocity.x, a.velocity.y])
                 .collect();
             let hd: Vec<f64> = agents.iter().map(|a| a.heading).collect();
+            let sizes: Vec<f64> = agents
+                .iter()
+                .flat_map(|a| match a.shape {
+                    Shape::Rect { length, width } => [length, width],
+                    Shape::Disc { radius } => [2.0 * radius, 2.0 * radius],
+                })
+                .collect();
+            let goals: Vec<f64> = agents.iter().flat_map(|a| [a.goal.x, a.goal.y]).collect();
+            let external: Vec<u8> = agents
+                .iter()
+                .map(|a| u8::from(self.ext_ids.contains(&a.id)))
+                .collect();
+            let rewards = slots.map(|slots| StateRewards {
+                agents: U32Array::from_slice(&self.ext_ids),
+                reward: F32Array::from_slice(slots.reward),
+                terms: WireTerms {
+                    progress: F32Array::from_slice(slots.terms[0]),
+                    success: F32Array::from_slice(slots.terms[1]),
+                    collision: F32Array::from_slice(slots.terms[2]),
+                    danger: F32Array::from_slice(slots.terms[3]),
+                    comfort: F32Array::from_slice(slots.terms[4]),
+                },
+                returns: F64Array::from_slice(&self.returns),
+            });
             let msg = StatesMsg {
                 env_id: env_id.clone(),
                 episode,
@@ -930,6 +961,11 @@ impl Env {
                 positions: F64Array::new(vec![n, 2], &pos).expect("shape"),
                 velocities: F64Array::new(vec![n, 2], &vel).expect("shape"),
                 headings: F64Array::from_slice(&hd),
+                scenario: self.scenario_name(self.scenario).to_string(),
+                sizes: Some(F64Array::new(vec![n, 2], &sizes).expect("shape")),
+                goals: Some(F64Array::new(vec![n, 2], &goals).expect("shape")),
+                external: Some(U8Array::from_slice(&external)),
+                rewards,
             };
             push(EnvTopic::States, encode(&msg));
         }
