@@ -1259,6 +1259,18 @@ pub struct ServerInfo {
     pub pedestrian_models: Vec<PedestrianModel>,
     /// Scenario pools.
     pub pools: Vec<PoolSummary>,
+    /// Every open env, in creation order (absent from servers before it was added).
+    #[serde(default)]
+    pub envs: Vec<OpenEnv>,
+}
+
+/// [`ServerInfo::envs`]: an open env and the trainer that created it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OpenEnv {
+    /// The env (its publications are under `{p}/env/{env_id}/...`).
+    pub env_id: String,
+    /// `CreateEnv.client_id` of its creator.
+    pub client_id: String,
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -348,6 +348,16 @@ pub fn server_info() -> ServerInfo {
                 scenarios: vec![],
             },
         ],
+        envs: vec![
+            OpenEnv {
+                env_id: format!("{SERVER_ID}-0"),
+                client_id: "trainer-a".to_string(),
+            },
+            OpenEnv {
+                env_id: format!("{SERVER_ID}-1"),
+                client_id: "trainer-a".to_string(),
+            },
+        ],
     }
 }
 

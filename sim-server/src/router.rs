@@ -7,6 +7,12 @@
 //! `mode: "router"` and multicast scouting off; zenoh's own defaults apply otherwise (a router
 //! listens on `tcp/[::]:7447`). A mode other than `"router"` is refused. Authentication
 //! (`transport/auth/usrpwd`), TLS listeners and `access_control` are zenoh's and configured there.
+//!
+//! With `plugins/remote_api` in the configuration (e.g. `--cfg
+//! 'plugins/remote_api/websocket_port:"127.0.0.1:10000"'`) the router also runs zenoh's
+//! remote-api plugin, linked into this binary (cargo feature `remote-api`, on by default): a
+//! WebSocket endpoint through which `@eclipse-zenoh/zenoh-ts` in a browser joins the zenoh
+//! network. The browser viewer (viewer/, docs/VIEWER.md) uses it.
 
 use std::future::Future;
 use std::path::Path;
@@ -22,6 +28,11 @@ pub enum RouterError {
     Config(#[from] ConfigError),
     #[error("zenoh: {0}")]
     Zenoh(String),
+    #[error(
+        "plugins/remote_api is configured but this sim-server was built without the \
+         `remote-api` feature"
+    )]
+    NoRemoteApi,
 }
 
 /// Loads the router's zenoh configuration: a JSON5 file (or `{}`) plus overrides, with
@@ -58,25 +69,71 @@ pub fn fill_defaults(root: &mut Value) -> Result<(), RouterError> {
     Ok(())
 }
 
-/// Opens a zenoh session in router mode from `config`, routes until `shutdown` completes, then
-/// closes the session.
+/// Opens a zenoh session in router mode from `config` (with the remote-api plugin when
+/// `plugins/remote_api` is configured), routes until `shutdown` completes, then closes it.
 pub async fn run(config: &Value, shutdown: impl Future<Output = ()>) -> Result<(), RouterError> {
     let zcfg = zenoh::Config::from_json5(&config.to_string())
         .map_err(|e| RouterError::Zenoh(format!("configuration: {e}")))?;
-    let session = zenoh::open(zcfg)
-        .await
-        .map_err(|e| RouterError::Zenoh(e.to_string()))?;
+    let zerr = |e: zenoh::Error| RouterError::Zenoh(e.to_string());
     let listen = config
         .pointer("/listen/endpoints")
         .map_or_else(|| "zenoh default".to_string(), ToString::to_string);
+    if let Some(ws) = config.pointer("/plugins/remote_api/websocket_port") {
+        tracing::info!(websocket = %ws, "starting zenoh's remote-api plugin");
+        return run_with_remote_api(zcfg, &listen, shutdown).await;
+    }
+    if config.pointer("/plugins/remote_api").is_some() {
+        return Err(ConfigError::Invalid(
+            "plugins/remote_api needs a websocket_port (e.g. \"127.0.0.1:10000\")".into(),
+        )
+        .into());
+    }
+    let session = zenoh::open(zcfg).await.map_err(zerr)?;
     tracing::info!(zid = %session.zid(), %listen, "sharedspace zenoh router running");
     shutdown.await;
     tracing::info!("router shutting down");
-    session
-        .close()
-        .await
-        .map_err(|e| RouterError::Zenoh(e.to_string()))?;
+    session.close().await.map_err(zerr)?;
     Ok(())
+}
+
+/// A zenoh runtime with the statically linked remote-api plugin: what `zenohd` does with the
+/// plugin as a shared library, without loading one.
+#[cfg(feature = "remote-api")]
+async fn run_with_remote_api(
+    zcfg: zenoh::Config,
+    listen: &str,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), RouterError> {
+    use zenoh::internal::plugins::PluginsManager;
+    use zenoh::internal::runtime::RuntimeBuilder;
+    use zenoh_plugin_remote_api::RemoteApiPlugin;
+
+    let zerr = |e: zenoh::Error| RouterError::Zenoh(e.to_string());
+    let mut plugins = PluginsManager::static_plugins_only();
+    plugins.declare_static_plugin::<RemoteApiPlugin, &str>("remote_api", true);
+    let mut runtime = RuntimeBuilder::new(zcfg)
+        .plugins_manager(plugins)
+        .build()
+        .await
+        .map_err(zerr)?;
+    runtime.start().await.map_err(zerr)?;
+    tracing::info!(zid = %runtime.zid(), %listen, "sharedspace zenoh router running (remote-api)");
+    shutdown.await;
+    tracing::info!("router shutting down");
+    // Not `runtime.close()`: with the plugin's queryables still declared, zenoh 1.10.2 panics
+    // in its routing tables ("Undefined face context") while closing. The process exits next,
+    // which is how zenohd ends too.
+    drop(runtime);
+    Ok(())
+}
+
+#[cfg(not(feature = "remote-api"))]
+async fn run_with_remote_api(
+    _zcfg: zenoh::Config,
+    _listen: &str,
+    _shutdown: impl Future<Output = ()>,
+) -> Result<(), RouterError> {
+    Err(RouterError::NoRemoteApi)
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@ use protocol::wire::{decode_batch_step, write_batch_step_ok, BatchColumns, Batch
 use protocol::{
     decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
     Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
-    PedestrianModel as WireModel, Reply, Reset, ServerInfo, Split as WireSplit, Step,
+    OpenEnv, PedestrianModel as WireModel, Reply, Reset, ServerInfo, Split as WireSplit, Step,
     SyntheticScenes, PROTOCOL_VERSION,
 };
 use serde::Serialize;
@@ -470,7 +470,29 @@ impl ServerCore {
                 WireModel::Replay,
             ],
             pools: self.pools.iter().map(|p| p.summary()).collect(),
+            envs: self.open_env_owners(),
         }
+    }
+
+    /// `ServerInfo::envs`: the open envs in creation order (ids end in the server's counter).
+    fn open_env_owners(&self) -> Vec<OpenEnv> {
+        let reg = lock(&self.reg);
+        let mut envs: Vec<OpenEnv> = reg
+            .owner
+            .iter()
+            .map(|(env_id, client_id)| OpenEnv {
+                env_id: env_id.clone(),
+                client_id: client_id.clone(),
+            })
+            .collect();
+        let counter = |id: &str| {
+            id.rsplit('-')
+                .next()
+                .and_then(|n| n.parse::<u64>().ok())
+                .unwrap_or(u64::MAX)
+        };
+        envs.sort_by(|a, b| (counter(&a.env_id), &a.env_id).cmp(&(counter(&b.env_id), &b.env_id)));
+        envs
     }
 
     /// `InfoRequest` → `Reply<ServerInfo>`.
