@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 train eval lint-py venv clean
+.PHONY: help run build serve router view browser test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 train eval lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -30,6 +30,17 @@ $(VENV)/.installed: clients/requirements-dev.txt clients/requirements-train.txt 
 
 venv: $(VENV)/.installed ## create the Python virtualenv in .venv
 
+# The live viewer's page (viewer/, npm with its committed lock file).
+VIEWER_PAGE := viewer/dist/index.html
+$(VIEWER_PAGE): viewer/package-lock.json viewer/build.mjs $(wildcard viewer/src/*)
+	cd viewer && npm ci --no-audit --no-fund && npm run build
+
+browser: ## Debian's chromium + chromium-driver (the viewer's browser test)
+	./scripts/install-browser.sh
+
+view: $(SERVER) $(VENV)/.installed $(VIEWER_PAGE) ## live viewer in the browser of the servers on VIEW_CONNECT (default tcp/127.0.0.1:7447; docs/VIEWER.md)
+	$(PY) -m sharedspace.viewer --connect $(or $(VIEW_CONNECT),tcp/127.0.0.1:7447) $(ARGS)
+
 run: $(SERVER) $(VENV)/.installed ## the main job: serve, train G-SAC-Cog remotely, evaluate, plot (embedded pool)
 	./scripts/run_main.sh
 
@@ -40,13 +51,13 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
 	$(SERVER) router --config deploy/router.json5 $(ARGS)
 
-test: $(VENV)/.installed ## every test: Rust (fmt, clippy, unit, integration, property), Python (pytest against a live server), ruff
+test: $(VENV)/.installed $(VIEWER_PAGE) browser ## every test: Rust (fmt, clippy, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	$(CARGO) test --workspace
 	$(CARGO) build -p sim-server
 	@# a hung interpreter exit must fail CI in minutes, not eat its whole budget
-	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 1800 $(PY) -m pytest clients/tests -q -p no:cacheprovider \
+	SHAREDSPACE_SIM_SERVER=target/debug/sim-server SHAREDSPACE_REQUIRE_BROWSER=1 timeout --kill-after=30 1800 $(PY) -m pytest clients/tests -q -p no:cacheprovider \
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
 	$(PY) -m ruff check clients calibration bench
 

@@ -1,0 +1,181 @@
+"""The live browser viewer (viewer/, docs/VIEWER.md): a zenoh router with the remote-api plugin
+beside the servers, and the page on a local HTTP port.
+
+    python -m sharedspace.viewer --connect tcp/127.0.0.1:7447      # or: make view
+
+The page (built by ``npm run build`` in viewer/) joins the zenoh network through the router's
+WebSocket with ``@eclipse-zenoh/zenoh-ts``, lists every server's open envs
+(``ServerInfo.envs``) and follows one. The router is ``sim-server router`` with
+``plugins/remote_api`` configured: zenoh's remote-api plugin linked into the project's binary,
+so nothing else is installed. It connects to the given endpoints (a server's listener or a
+router of a deployment, deploy/README.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import http.server
+import os
+import signal
+import socket
+import subprocess
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from urllib.parse import urlencode
+
+__all__ = ["VIEWER_DIST", "Viewer", "sim_server_binary"]
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+#: The built page (``npm ci && npm run build`` in viewer/).
+VIEWER_DIST = REPO_ROOT / "viewer" / "dist"
+
+
+def sim_server_binary() -> Path:
+    """``$SHAREDSPACE_SIM_SERVER``, else the release build, else the debug build."""
+    env = os.environ.get("SHAREDSPACE_SIM_SERVER")
+    candidates = [Path(env)] if env else []
+    candidates += [REPO_ROOT / "target" / b / "sim-server" for b in ("release", "debug")]
+    for path in candidates:
+        if path.is_file() and os.access(path, os.X_OK):
+            return path
+    raise FileNotFoundError(
+        "sim-server not found: build it (`make build`) or set SHAREDSPACE_SIM_SERVER"
+    )
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_port(port: int, proc: subprocess.Popen, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"the viewer's router exited with {proc.returncode} at start-up")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise RuntimeError(f"the viewer's router did not open its WebSocket port {port} in {timeout} s")
+
+
+class _Quiet(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, format, *args):  # noqa: A002 - the base class's name
+        pass
+
+
+class Viewer:
+    """A router with the remote-api plugin connected to ``connect`` and an HTTP server of the
+    page; a context manager (both stop on exit).
+
+    Args:
+        connect: zenoh endpoints of the servers or routers to watch.
+        prefix: the servers' key prefix.
+        http_port, ws_port: local ports of the page and of the WebSocket (0 = a free one).
+        host: interface both listen on (loopback by default: the plugin has no authentication).
+        dist: the built page.
+    """
+
+    def __init__(
+        self,
+        connect: str | Sequence[str],
+        prefix: str = "sharedspace",
+        http_port: int = 0,
+        ws_port: int = 0,
+        host: str = "127.0.0.1",
+        dist: Path = VIEWER_DIST,
+    ):
+        if not (Path(dist) / "index.html").is_file():
+            raise FileNotFoundError(
+                f"{dist}/index.html is missing: build the page with `npm ci && npm run build` "
+                "in viewer/ (or `make view`)"
+            )
+        endpoints = [connect] if isinstance(connect, str) else list(connect)
+        self.prefix = prefix
+        self.host = host
+        self.ws_port = ws_port or _free_port()
+        router_port = _free_port()
+        quoted = ",".join(f'"{e}"' for e in endpoints)
+        cmd = [
+            str(sim_server_binary()),
+            "router",
+            "--cfg",
+            f'listen/endpoints:["tcp/127.0.0.1:{router_port}"]',
+            "--cfg",
+            f"connect/endpoints:[{quoted}]",
+            "--cfg",
+            f'plugins/remote_api/websocket_port:"{host}:{self.ws_port}"',
+        ]
+        self._router = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+        )
+        try:
+            _wait_port(self.ws_port, self._router, 20.0)
+            handler = functools.partial(_Quiet, directory=str(dist))
+            self._http = http.server.ThreadingHTTPServer((host, http_port), handler)
+        except BaseException:
+            self._stop_router()
+            raise
+        self.http_port = self._http.server_address[1]
+        self._thread = threading.Thread(target=self._http.serve_forever, daemon=True)
+        self._thread.start()
+
+    def url(self, env_id: str | None = None, edges_per_agent: int | None = None) -> str:
+        """The page's address (following ``env_id`` at once when given)."""
+        query = {"ws": f"ws://{self.host}:{self.ws_port}", "prefix": self.prefix}
+        if env_id:
+            query["env"] = env_id
+        if edges_per_agent is not None:
+            query["k"] = str(edges_per_agent)
+        return f"http://{self.host}:{self.http_port}/index.html?{urlencode(query)}"
+
+    def _stop_router(self) -> None:
+        if self._router.poll() is None:
+            self._router.send_signal(signal.SIGTERM)
+            try:
+                self._router.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self._router.kill()
+                self._router.wait(timeout=10)
+
+    def close(self) -> None:
+        self._http.shutdown()
+        self._http.server_close()
+        self._stop_router()
+
+    def __enter__(self) -> Viewer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--connect",
+        nargs="+",
+        default=["tcp/127.0.0.1:7447"],
+        help="zenoh endpoints of the servers (or a router) to watch",
+    )
+    ap.add_argument("--prefix", default="sharedspace", help="the servers' key prefix")
+    ap.add_argument("--http", type=int, default=8090, help="port of the page")
+    ap.add_argument("--ws", type=int, default=10000, help="port of the zenoh WebSocket")
+    ap.add_argument("--host", default="127.0.0.1", help="interface of both ports")
+    args = ap.parse_args(argv)
+    with Viewer(args.connect, args.prefix, args.http, args.ws, args.host) as viewer:
+        print(f"viewer: open {viewer.url()}  (Ctrl-C stops)", flush=True)
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            pass
+
+
+if __name__ == "__main__":
+    main()

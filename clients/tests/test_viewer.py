@@ -1,0 +1,262 @@
+"""The live browser viewer, in Debian's Chromium (headless, through chromium-driver), against a
+real server: the page joins zenoh through the router's remote-api WebSocket, lists the open env,
+follows it step by step and across a reset, draws the right number of agents and risk edges,
+pauses, and shows a clicked agent's u and psi.
+
+``make test`` installs Chromium and builds the page and sets SHAREDSPACE_REQUIRE_BROWSER=1, so
+there a missing browser fails the test instead of skipping it. The screenshot is written to the
+test's temporary folder, and also to ``$SHAREDSPACE_VIEWER_SCREENSHOT`` when set (that is how
+docs/figures/viewer.png was made).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import unique_prefix
+
+from sharedspace.client import SimClient
+from sharedspace.observer import Observer
+from sharedspace.viewer import VIEWER_DIST, Viewer
+
+CHROMIUM = shutil.which("chromium")
+CHROMEDRIVER = shutil.which("chromedriver")
+ATTRS = ("env", "episode", "step", "agents", "edges", "edges-drawn", "frames", "outcome")
+
+
+def _require_browser():
+    missing = [
+        what
+        for what, ok in (
+            ("chromium", CHROMIUM),
+            ("chromedriver", CHROMEDRIVER),
+            ("viewer/dist (npm run build)", (VIEWER_DIST / "index.html").is_file()),
+        )
+        if not ok
+    ]
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        missing.append("selenium")
+    if missing:
+        if os.environ.get("SHAREDSPACE_REQUIRE_BROWSER") == "1":
+            pytest.fail(f"the browser test needs {', '.join(missing)} (make test installs them)")
+        pytest.skip(f"missing {', '.join(missing)}")
+
+
+@pytest.fixture
+def browser():
+    _require_browser()
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,760"):
+        opts.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    driver.set_page_load_timeout(30)
+    driver.set_script_timeout(10)
+    yield driver
+    driver.quit()
+
+
+def _shown(driver) -> dict[str, str]:
+    """The page's episode table's data attributes, read in one script (one consistent frame)."""
+    data = driver.execute_script("return {...document.getElementById('episode').dataset};")
+    names = {k: k.replace("-d", "D") for k in ATTRS}  # data-edges-drawn -> dataset.edgesDrawn
+    return {k: str(data.get(names[k], "")) for k in ATTRS}
+
+
+def _wait(driver, pred, timeout: float, what: str) -> dict[str, str]:
+    deadline = time.monotonic() + timeout
+    shown = _shown(driver)
+    while time.monotonic() < deadline:
+        shown = _shown(driver)
+        if pred(shown):
+            return shown
+        time.sleep(0.1)
+    raise AssertionError(f"viewer did not show {what} within {timeout} s; it shows {shown}")
+
+
+class Stepper:
+    """Steps one lockstep env with zero actions every ``period`` seconds on a thread."""
+
+    def __init__(self, client: SimClient, env_id: str, period: float = 0.2):
+        self.client, self.env_id, self.period = client, env_id, period
+        self.running = threading.Event()
+        self.stop = threading.Event()
+        self.last: dict | None = None
+        self.lock = threading.Lock()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self.stop.is_set():
+            if self.running.is_set():
+                with self.lock:
+                    self.last = self.client.step(self.env_id, np.zeros((1, 2), np.float32))
+            time.sleep(self.period)
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(timeout=10)
+
+
+def _strongest_per_observer(src, dst, a, present, k=2):
+    chosen = 0
+    for s in set(int(x) for x in src):
+        if s not in present:
+            continue
+        n = sum(1 for i in range(len(src)) if src[i] == s and int(dst[i]) in present)
+        chosen += min(k, n)
+    return chosen
+
+
+def test_the_viewer_follows_a_live_env_with_its_agents_and_risk_edges(
+    server_factory, browser, tmp_path
+):
+    server = server_factory(unique_prefix(), "view0")
+    client = SimClient(server.endpoint, server.prefix, timeout=5.0)
+    env_id = client.create(1, max_agents=8, autoreset=True)["env_ids"][0]
+    client.reset(env_id, seed=3)
+    stepper = Stepper(client, env_id)
+    watched: dict[tuple[str, int, int], dict] = {}
+
+    def keep(msg):
+        watched[(msg["topic"], int(msg["episode"]), int(msg["step"]))] = msg
+
+    try:
+        with (
+            Viewer(server.endpoint, server.prefix) as viewer,
+            Observer(
+                server.endpoint,
+                server.prefix,
+                env_id=env_id,
+                topics=("states", "risk_graph"),
+                callback=keep,
+            ),
+        ):
+            browser.get(viewer.url())  # no env given: the page picks the open one
+            _wait(browser, lambda s: s["env"] == env_id, 30, f"env {env_id}")
+            assert env_id in browser.find_element("id", "envs").text
+            assert "ws://" in browser.find_element("id", "connection").text
+
+            # It follows the env step by step.
+            stepper.running.set()
+            first = _wait(browser, lambda s: s["step"] not in ("", "0"), 20, "a step")
+            later = _wait(
+                browser, lambda s: int(s["frames"]) >= int(first["frames"]) + 5, 20, "5 frames"
+            )
+            assert (int(later["episode"]), int(later["step"])) > (
+                int(first["episode"]),
+                int(first["step"]),
+            )
+
+            # Stopped, it shows the last state with every agent and edge of that state.
+            stepper.running.clear()
+            time.sleep(stepper.period * 2)
+            with stepper.lock:
+                last = stepper.last
+            ep, st = int(last["episode"]), int(last["step"])
+            # an autoreset may already have started the next episode's step 0
+            shown = _wait(
+                browser,
+                lambda s: (s["episode"], s["step"]) in ((str(ep), str(st)), (str(ep + 1), "0")),
+                10,
+                f"episode {ep} step {st}",
+            )
+            key_ep, key_st = int(shown["episode"]), int(shown["step"])
+            states = watched[("states", key_ep, key_st)]
+            graph = watched[("risk_graph", key_ep, key_st)]
+            present = {int(i) for i in states["ids"]}
+            assert int(shown["agents"]) == len(present) > 1
+            live_edges = sum(
+                1
+                for s, d in zip(graph["src"], graph["dst"], strict=True)
+                if int(s) in present and int(d) in present
+            )
+            assert int(shown["edges"]) == live_edges
+            assert int(shown["edges-drawn"]) == _strongest_per_observer(
+                graph["src"], graph["dst"], graph["a"], present
+            )
+
+            # A click on the controlled vehicle selects it: its u and psi are shown.
+            x, y = browser.execute_script(
+                """
+                const v = window.viewer, a = v.frame.agents.find((a) => a.external);
+                const c = document.getElementById('scene'), r = c.getBoundingClientRect();
+                const px = c.width / 2 + (a.x - v.view.cx) * v.view.scale;
+                const py = c.height / 2 - (a.y - v.view.cy) * v.view.scale;
+                return [px / devicePixelRatio - r.width / 2, py / devicePixelRatio - r.height / 2];
+                """
+            )
+            from selenium.webdriver.common.action_chains import ActionChains
+
+            canvas = browser.find_element("id", "scene")
+            ActionChains(browser).move_to_element_with_offset(
+                canvas, int(x), int(y)
+            ).click().perform()
+            deadline = time.monotonic() + 5
+            selected = ""
+            while time.monotonic() < deadline and "vehicle" not in selected:
+                selected = browser.find_element("id", "selected").text
+                time.sleep(0.05)
+            assert "vehicle" in selected and "(learner)" in selected, selected
+            assert "max u" in selected and "max psi" in selected
+
+            # Pause holds the picture while the env goes on; resume follows it again.
+            browser.find_element("id", "pause").click()
+            held = _shown(browser)
+            stepper.running.set()
+            time.sleep(1.5)
+            assert _shown(browser)["frames"] == held["frames"]
+            browser.find_element("id", "pause").click()
+            _wait(browser, lambda s: int(s["frames"]) > int(held["frames"]), 10, "new frames")
+
+            # It follows the env into its next episode.
+            stepper.running.clear()
+            time.sleep(stepper.period * 2)
+            before = int(_shown(browser)["episode"])
+            client.reset(env_id, seed=5)
+            stepper.running.set()
+            _wait(
+                browser,
+                lambda s: int(s["episode"]) > before and int(s["step"]) >= 2,
+                20,
+                "the next episode",
+            )
+            rewards = browser.find_element("id", "rewards").text
+            assert "progress" in rewards and "return so far" in rewards, rewards
+
+            shot = tmp_path / "viewer.png"
+            assert browser.save_screenshot(str(shot))
+            assert shot.stat().st_size > 10_000
+            if os.environ.get("SHAREDSPACE_VIEWER_SCREENSHOT"):
+                shutil.copy(shot, Path(os.environ["SHAREDSPACE_VIEWER_SCREENSHOT"]))
+            severe = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+            assert not [e for e in severe if "favicon" not in e["message"]], severe
+    finally:
+        stepper.close()
+        client.shutdown()
+
+
+def test_the_viewer_names_an_unreachable_websocket(browser):
+    dist = VIEWER_DIST
+    with Viewer("tcp/127.0.0.1:9", "nobody", dist=dist) as viewer:
+        # the page, pointed at a port where no WebSocket listens
+        browser.get(f"http://127.0.0.1:{viewer.http_port}/index.html?ws=ws://127.0.0.1:9")
+        deadline = time.monotonic() + 20
+        text = ""
+        while time.monotonic() < deadline:
+            text = browser.find_element("id", "connection").text
+            if "cannot reach" in text:
+                break
+            time.sleep(0.1)
+        assert "cannot reach ws://127.0.0.1:9" in text

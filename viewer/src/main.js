@@ -1,0 +1,306 @@
+// The live viewer: joins the zenoh network through the remote-api plugin's WebSocket
+// (@eclipse-zenoh/zenoh-ts), lists the open envs of every server (ServerInfo.envs), follows one
+// env's publications (states, risk_graph, events; protocol/SPEC.md section 11) across its
+// resets, and draws them. It subscribes to the one env it shows, so a server steps every other
+// env without encoding anything for it (the server publishes only what somebody listens to).
+//
+// URL parameters: ws (the plugin's WebSocket, default ws://<this host>:10000), prefix (default
+// sharedspace), env (an env id to follow at once), k (strongest edges drawn per agent, default 2).
+import { Config, Session } from "@eclipse-zenoh/zenoh-ts";
+import { decodePayload, readRiskGraph, readStates, strongestEdges } from "./wire.js";
+import { drawFrame, fitView, toWorld } from "./draw.js";
+
+const params = new URLSearchParams(location.search);
+const WS = params.get("ws") || `ws://${location.hostname || "127.0.0.1"}:10000`;
+const PREFIX = params.get("prefix") || "sharedspace";
+const TRAIL = 40; // points of a vehicle's trail kept (20 s at 2 Hz)
+
+const $ = (id) => document.getElementById(id);
+const canvas = $("scene");
+const ctx = canvas.getContext("2d");
+const state = {
+  session: null,
+  envId: params.get("env") || "",
+  subscribers: [],
+  frame: null, // latest readStates
+  graph: null, // latest readRiskGraph
+  outcome: "",
+  trails: new Map(),
+  episode: null,
+  view: null,
+  userMoved: false,
+  paused: false,
+  selected: null,
+  frames: 0,
+  dirty: true,
+};
+if (params.get("k") !== null) $("topk").value = params.get("k");
+
+function setConnection(text, ok) {
+  const el = $("connection");
+  el.textContent = text;
+  el.className = ok ? "ok" : "bad";
+}
+
+async function follow(envId) {
+  for (const s of state.subscribers) await s.undeclare().catch(() => {});
+  state.subscribers = [];
+  state.envId = envId;
+  state.frame = state.graph = null;
+  state.trails = new Map();
+  state.episode = null;
+  state.outcome = "";
+  state.userMoved = false;
+  state.dirty = true;
+  $("episode").dataset.env = envId;
+  $("outcome").textContent = envId ? "waiting for its next step" : "";
+  if (!envId) return;
+  const topic = (t) => `${PREFIX}/env/${envId}/${t}`;
+  const sub = async (t, handle) =>
+    state.subscribers.push(
+      await state.session.declareSubscriber(topic(t), {
+        handler: (sample) => {
+          try {
+            handle(decodePayload(sample.payload().toBytes()));
+          } catch (e) {
+            console.error(`bad ${t} message`, e);
+          }
+        },
+      }),
+    );
+  await sub("states", onStates);
+  await sub("risk_graph", (m) => {
+    if (state.paused) return;
+    state.graph = readRiskGraph(m);
+    state.dirty = true;
+  });
+  await sub("events", (m) => {
+    for (const e of m.events || []) {
+      if (e.kind === "episode_end" && e.outcome) state.outcome = e.outcome;
+    }
+  });
+}
+
+function onStates(msg) {
+  if (state.paused) return;
+  const frame = readStates(msg);
+  if (state.episode !== frame.episode) {
+    state.episode = frame.episode;
+    state.trails = new Map();
+    state.outcome = "";
+    if (!state.userMoved) state.view = null; // refit to the new episode's scene
+  }
+  for (const a of frame.agents) {
+    if (a.kind !== "vehicle") continue;
+    const pts = state.trails.get(a.id) || [];
+    pts.push([a.x, a.y]);
+    if (pts.length > TRAIL) pts.shift();
+    state.trails.set(a.id, pts);
+  }
+  state.frame = frame;
+  state.frames++;
+  state.dirty = true;
+}
+
+async function refreshEnvs() {
+  const receiver = await state.session.get(`${PREFIX}/server/*/info`, { payload: new Uint8Array() });
+  const envs = [];
+  if (receiver) {
+    for await (const reply of receiver) {
+      const r = reply.result();
+      if (typeof r.payload !== "function") continue; // a ReplyError
+      const info = decodePayload(r.payload().toBytes());
+      if (!info.ok) continue;
+      for (const e of info.ok.envs || []) envs.push({ ...e, server: info.ok.server_id });
+    }
+  }
+  const select = $("envs");
+  const current = state.envId;
+  select.replaceChildren(
+    ...(envs.length ? [] : [new Option("(no open env)", "")]),
+    ...envs.map((e) => new Option(`${e.env_id}  (${e.client_id})`, e.env_id)),
+  );
+  if (envs.some((e) => e.env_id === current)) select.value = current;
+  else if (current) select.add(new Option(`${current} (closed)`, current), 0), (select.value = current);
+  if (!current && envs.length) await follow(envs[0].env_id), (select.value = envs[0].env_id);
+}
+
+function resize() {
+  const r = canvas.getBoundingClientRect();
+  canvas.width = Math.max(1, Math.round(r.width * devicePixelRatio));
+  canvas.height = Math.max(1, Math.round(r.height * devicePixelRatio));
+  state.dirty = true;
+}
+
+function render() {
+  requestAnimationFrame(render);
+  if (!state.dirty || !state.frame) return;
+  state.dirty = false;
+  const { width, height } = canvas;
+  const frame = state.frame;
+  if (!state.view) state.view = fitView(frame, state.trails, width, height);
+  const all = state.graph && state.graph.episode === frame.episode ? state.graph.edges : [];
+  const present = new Set(frame.agents.map((a) => a.id));
+  const live = all.filter((e) => present.has(e.src) && present.has(e.dst));
+  const edges = strongestEdges(live, Number($("topk").value));
+  const amax = Math.max(1e-9, ...live.map((e) => e.a));
+  const drawn = drawFrame(ctx, width, height, state.view, frame, edges, amax, state.trails, state.selected);
+  $("amax").textContent = amax.toFixed(2);
+  $("scenario").textContent = frame.scenario;
+  $("ep").textContent = frame.episode;
+  $("step").textContent = frame.step;
+  $("time").textContent = `${frame.t.toFixed(1)} s`;
+  $("nagents").textContent = frame.agents.length;
+  $("nedges").textContent = `${live.length} (${drawn})`;
+  $("outcome").textContent = state.outcome || "running";
+  const ep = $("episode").dataset;
+  Object.assign(ep, {
+    env: frame.envId, episode: frame.episode, step: frame.step, agents: frame.agents.length,
+    edges: live.length, edgesDrawn: drawn, frames: state.frames, outcome: state.outcome,
+  });
+  renderRewards(frame);
+  renderSelected(frame, live);
+}
+
+function renderRewards(frame) {
+  const rows = [];
+  const r = frame.rewards;
+  if (r) {
+    r.agents.forEach((id, k) => {
+      rows.push(`<tr><td><b>agent ${id}</b></td><td class="num">${r.reward[k].toFixed(3)}</td></tr>`);
+      for (const [name, arr] of Object.entries(r.terms)) {
+        rows.push(`<tr><td>&nbsp;&nbsp;${name}</td><td class="num">${arr[k].toFixed(3)}</td></tr>`);
+      }
+      rows.push(`<tr><td>&nbsp;&nbsp;return so far</td><td class="num">${r.returns[k].toFixed(2)}</td></tr>`);
+    });
+  }
+  $("rewards").innerHTML = rows.join("") || "<tr><td>(episode start)</td></tr>";
+}
+
+function agentSummary(a, edges) {
+  const out = edges.filter((e) => e.src === a.id), inc = edges.filter((e) => e.dst === a.id);
+  const max = (list, f) => (list.length ? Math.max(...list.map(f)) : 0);
+  const speed = Math.hypot(a.vx, a.vy);
+  return (
+    `${a.kind} ${a.id}${a.external ? " (learner)" : ""}\n` +
+    `speed ${speed.toFixed(2)} m/s\n` +
+    `its beliefs: ${out.length} agents, max u ${max(out, (e) => e.u).toFixed(3)}, ` +
+    `max psi ${max(out, (e) => e.psi).toFixed(3)}\n` +
+    `about it: max u ${max(inc, (e) => e.u).toFixed(3)}, max psi ${max(inc, (e) => e.psi).toFixed(3)}`
+  );
+}
+
+function renderSelected(frame, edges) {
+  const a = frame.agents.find((x) => x.id === state.selected);
+  $("selected").textContent = a ? agentSummary(a, edges) : "click an agent";
+  $("selected").style.whiteSpace = "pre";
+}
+
+function agentAt(px, py) {
+  if (!state.frame || !state.view) return null;
+  const [x, y] = toWorld(state.view, canvas.width, canvas.height, px, py);
+  let best = null, bestD = Infinity;
+  for (const a of state.frame.agents) {
+    const d = Math.hypot(a.x - x, a.y - y);
+    if (d < Math.max(a.length / 2 + 0.5, 8 / state.view.scale) && d < bestD) (best = a), (bestD = d);
+  }
+  return best;
+}
+
+function setupInteraction() {
+  let drag = null;
+  const px = (ev) => [ev.offsetX * devicePixelRatio, ev.offsetY * devicePixelRatio];
+  canvas.addEventListener("wheel", (ev) => {
+    ev.preventDefault();
+    if (!state.view) return;
+    const [x, y] = toWorld(state.view, canvas.width, canvas.height, ...px(ev));
+    const f = Math.exp(-ev.deltaY * 0.0015);
+    state.view.scale *= f;
+    state.view.cx = x - (x - state.view.cx) / f;
+    state.view.cy = y - (y - state.view.cy) / f;
+    state.userMoved = state.dirty = true;
+  });
+  canvas.addEventListener("mousedown", (ev) => {
+    drag = { start: px(ev), moved: false };
+    canvas.classList.add("dragging");
+  });
+  window.addEventListener("mouseup", (ev) => {
+    canvas.classList.remove("dragging");
+    if (drag && !drag.moved && ev.target === canvas) {
+      const a = agentAt(...px(ev));
+      state.selected = a ? a.id : null;
+      state.dirty = true;
+    }
+    drag = null;
+  });
+  canvas.addEventListener("mousemove", (ev) => {
+    const [x, y] = px(ev);
+    if (drag && state.view) {
+      const dx = x - drag.start[0], dy = y - drag.start[1];
+      if (Math.abs(dx) + Math.abs(dy) > 2) drag.moved = true;
+      state.view.cx -= dx / state.view.scale;
+      state.view.cy += dy / state.view.scale;
+      drag.start = [x, y];
+      state.userMoved = state.dirty = true;
+    }
+    const tip = $("tooltip");
+    const a = drag ? null : agentAt(x, y);
+    if (a && state.frame) {
+      const edges = state.graph ? state.graph.edges : [];
+      tip.textContent = agentSummary(a, edges);
+      tip.style.left = `${ev.offsetX + 12}px`;
+      tip.style.top = `${ev.offsetY + 12}px`;
+      tip.style.display = "block";
+    } else tip.style.display = "none";
+  });
+  $("pause").addEventListener("click", () => {
+    state.paused = !state.paused;
+    $("pause").textContent = state.paused ? "Resume" : "Pause";
+  });
+  $("fit").addEventListener("click", () => {
+    state.view = null;
+    state.userMoved = false;
+    state.dirty = true;
+  });
+  $("topk").addEventListener("change", () => (state.dirty = true));
+  $("envs").addEventListener("change", (ev) => follow(ev.target.value));
+  window.addEventListener("resize", () => {
+    resize();
+    if (!state.userMoved) state.view = null;
+  });
+}
+
+async function main() {
+  resize();
+  setupInteraction();
+  requestAnimationFrame(render);
+  window.viewer = state; // for tests and the console
+  // zenoh-ts keeps retrying an unreachable WebSocket; say so after a few seconds and go on
+  // waiting, so a viewer opened before its router still connects.
+  const opening = Session.open(new Config(WS));
+  const slow = setTimeout(
+    () => setConnection(`cannot reach ${WS} (is \`make view\` running?); retrying`, false),
+    4000,
+  );
+  try {
+    state.session = await opening;
+  } catch (e) {
+    setConnection(`cannot reach ${WS}: ${e}`, false);
+    return;
+  } finally {
+    clearTimeout(slow);
+  }
+  setConnection(`${WS}`, true);
+  if (state.envId) await follow(state.envId);
+  const poll = async () => {
+    try {
+      await refreshEnvs();
+    } catch (e) {
+      console.error("env list", e);
+    }
+    setTimeout(poll, 2000);
+  };
+  poll();
+}
+
+main();
