@@ -86,9 +86,10 @@ def _wait(driver, pred, timeout: float, what: str) -> dict[str, str]:
 
 
 class Stepper:
-    """Steps one lockstep env with zero actions every ``period`` seconds on a thread."""
+    """Steps one lockstep env with zero actions every ``period`` seconds on a thread (slower
+    than the viewer's default 4 frames per second, so that the page gets every state)."""
 
-    def __init__(self, client: SimClient, env_id: str, period: float = 0.2):
+    def __init__(self, client: SimClient, env_id: str, period: float = 0.3):
         self.client, self.env_id, self.period = client, env_id, period
         self.running = threading.Event()
         self.stop = threading.Event()

@@ -290,7 +290,7 @@ async fn bench(secs: f64) {
             let core = core.clone();
             let p = b.clone();
             async move {
-                let r = core.handle_batch(&p, sim_server::server::env::Gates::NONE);
+                let r = core.handle_batch(&p, &sim_server::server::env::Gates::NONE);
                 assert!(r.reply.len() > 16);
             }
         })

@@ -52,7 +52,7 @@ fn main() {
         // The replies of `iters` batches, concatenated (for comparing builds).
         let mut all = Vec::new();
         for _ in 0..iters {
-            all.extend(core.handle_batch(&b, Gates::NONE).reply);
+            all.extend(core.handle_batch(&b, &Gates::NONE).reply);
         }
         std::fs::write(path, all).unwrap();
         return;
@@ -68,7 +68,7 @@ fn main() {
         let (core, b) = (core.clone(), b.clone());
         std::thread::spawn(move || {
             for _ in 0..warm {
-                core.handle_batch(&b, Gates::NONE);
+                core.handle_batch(&b, &Gates::NONE);
             }
         })
         .join()
@@ -90,14 +90,14 @@ fn main() {
             }
         };
         for r in 0..20 {
-            core.handle_batch(&b, Gates::NONE);
+            core.handle_batch(&b, &Gates::NONE);
             spoil(r);
         }
         let mut timed = std::time::Duration::ZERO;
         let mut len = 0;
         for r in 0..iters {
             let t0 = Instant::now();
-            len += core.handle_batch(&b, Gates::NONE).reply.len();
+            len += core.handle_batch(&b, &Gates::NONE).reply.len();
             timed += t0.elapsed();
             spoil(r);
         }

@@ -3,7 +3,7 @@
 /** Colour of a risk weight `a` in [0, amax]: yellow to dark red (the legend's gradient). */
 export function edgeColour(a, amax) {
   const t = Math.max(0, Math.min(1, amax > 0 ? a / amax : 0));
-  const stops = [[254, 217, 118], [240, 59, 32], [128, 0, 38]];
+  const stops = [[253, 174, 97], [240, 59, 32], [128, 0, 38]];
   const s = t * (stops.length - 1);
   const i = Math.min(stops.length - 2, Math.floor(s));
   const f = s - i;

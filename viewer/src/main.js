@@ -32,7 +32,6 @@ const state = {
   paused: false,
   selected: null,
   frames: 0,
-  dirty: true,
 };
 if (params.get("k") !== null) $("topk").value = params.get("k");
 
@@ -51,7 +50,7 @@ async function follow(envId) {
   state.episode = null;
   state.outcome = "";
   state.userMoved = false;
-  state.dirty = true;
+  requestRender();
   $("episode").dataset.env = envId;
   $("outcome").textContent = envId ? "waiting for its next step" : "";
   if (!envId) return;
@@ -72,7 +71,7 @@ async function follow(envId) {
   await sub("risk_graph", (m) => {
     if (state.paused) return;
     state.graph = readRiskGraph(m);
-    state.dirty = true;
+    requestRender();
   });
   await sub("events", (m) => {
     for (const e of m.events || []) {
@@ -90,6 +89,13 @@ function onStates(msg) {
     state.outcome = "";
     if (!state.userMoved) state.view = null; // refit to the new episode's scene
   }
+  // The outcome from the learner's reward terms too: at more steps per second than the viewer's
+  // rate the router samples the events, and the episode_end event may be among those dropped.
+  const r = frame.rewards;
+  if (r && r.agents.length) {
+    if (r.terms.success && r.terms.success[0] > 0) state.outcome = "success";
+    else if (r.terms.collision && r.terms.collision[0] < 0) state.outcome = "collision";
+  }
   for (const a of frame.agents) {
     if (a.kind !== "vehicle") continue;
     const pts = state.trails.get(a.id) || [];
@@ -99,7 +105,7 @@ function onStates(msg) {
   }
   state.frame = frame;
   state.frames++;
-  state.dirty = true;
+  requestRender();
 }
 
 async function refreshEnvs() {
@@ -129,13 +135,33 @@ function resize() {
   const r = canvas.getBoundingClientRect();
   canvas.width = Math.max(1, Math.round(r.width * devicePixelRatio));
   canvas.height = Math.max(1, Math.round(r.height * devicePixelRatio));
-  state.dirty = true;
+  requestRender();
+}
+
+// Frames are drawn on demand (a message, a zoom, a click), at most once per display frame; an
+// idle page schedules nothing, so watching costs the machine little beside the training.
+let renderPending = false;
+function requestRender() {
+  if (renderPending) return;
+  renderPending = true;
+  requestAnimationFrame(() => {
+    renderPending = false;
+    render();
+  });
 }
 
 function render() {
-  requestAnimationFrame(render);
-  if (!state.dirty || !state.frame) return;
-  state.dirty = false;
+  if (!state.frame) return;
+  const started = performance.now();
+  try {
+    draw();
+  } finally {
+    state.renders = (state.renders || 0) + 1;
+    state.renderMs = (state.renderMs || 0) + performance.now() - started;
+  }
+}
+
+function draw() {
   const { width, height } = canvas;
   const frame = state.frame;
   if (!state.view) state.view = fitView(frame, state.trails, width, height);
@@ -193,7 +219,7 @@ function agentSummary(a, edges) {
 function renderSelected(frame, edges) {
   const a = frame.agents.find((x) => x.id === state.selected);
   $("selected").textContent = a ? agentSummary(a, edges) : "click an agent";
-  $("selected").style.whiteSpace = "pre";
+  $("selected").style.whiteSpace = "pre-wrap";
 }
 
 function agentAt(px, py) {
@@ -218,7 +244,8 @@ function setupInteraction() {
     state.view.scale *= f;
     state.view.cx = x - (x - state.view.cx) / f;
     state.view.cy = y - (y - state.view.cy) / f;
-    state.userMoved = state.dirty = true;
+    state.userMoved = true;
+    requestRender();
   });
   canvas.addEventListener("mousedown", (ev) => {
     drag = { start: px(ev), moved: false };
@@ -229,7 +256,7 @@ function setupInteraction() {
     if (drag && !drag.moved && ev.target === canvas) {
       const a = agentAt(...px(ev));
       state.selected = a ? a.id : null;
-      state.dirty = true;
+      requestRender();
     }
     drag = null;
   });
@@ -241,7 +268,8 @@ function setupInteraction() {
       state.view.cx -= dx / state.view.scale;
       state.view.cy += dy / state.view.scale;
       drag.start = [x, y];
-      state.userMoved = state.dirty = true;
+      state.userMoved = true;
+      requestRender();
     }
     const tip = $("tooltip");
     const a = drag ? null : agentAt(x, y);
@@ -260,9 +288,9 @@ function setupInteraction() {
   $("fit").addEventListener("click", () => {
     state.view = null;
     state.userMoved = false;
-    state.dirty = true;
+    requestRender();
   });
-  $("topk").addEventListener("change", () => (state.dirty = true));
+  $("topk").addEventListener("change", () => requestRender());
   $("envs").addEventListener("change", (ev) => follow(ev.target.value));
   window.addEventListener("resize", () => {
     resize();
@@ -273,7 +301,6 @@ function setupInteraction() {
 async function main() {
   resize();
   setupInteraction();
-  requestAnimationFrame(render);
   window.viewer = state; // for tests and the console
   // zenoh-ts keeps retrying an unreachable WebSocket; say so after a few seconds and go on
   // waiting, so a viewer opened before its router still connects.

@@ -80,6 +80,11 @@ class Viewer:
         http_port, ws_port: local ports of the page and of the WebSocket (0 = a free one).
         host: interface both listen on (loopback by default: the plugin has no authentication).
         dist: the built page.
+        max_hz: most states / risk-graph messages per second and env that reach the page; the
+            router drops the rest as they arrive from the servers (zenoh's ``downsampling``),
+            so a viewer following a lockstep env that steps thousands of times a second costs
+            the machine little (each message costs the browser a fraction of a millisecond).
+            Events are sampled too (the page also reads outcomes from the reward terms). 0 = all.
     """
 
     def __init__(
@@ -90,6 +95,7 @@ class Viewer:
         ws_port: int = 0,
         host: str = "127.0.0.1",
         dist: Path = VIEWER_DIST,
+        max_hz: float = 4.0,
     ):
         if not (Path(dist) / "index.html").is_file():
             raise FileNotFoundError(
@@ -112,6 +118,15 @@ class Viewer:
             "--cfg",
             f'plugins/remote_api/websocket_port:"{host}:{self.ws_port}"',
         ]
+        if max_hz > 0:
+            rules = ",".join(
+                f'{{key_expr:"{prefix}/env/*/{topic}",freq:{float(max_hz)}}}'
+                for topic in ("states", "risk_graph", "uncertainty", "events")
+            )
+            cmd += [
+                "--cfg",
+                f'downsampling:[{{id:"viewer",messages:["put"],flows:["ingress"],rules:[{rules}]}}]',
+            ]
         self._router = subprocess.Popen(
             cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
         )
@@ -168,8 +183,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--http", type=int, default=8090, help="port of the page")
     ap.add_argument("--ws", type=int, default=10000, help="port of the zenoh WebSocket")
     ap.add_argument("--host", default="127.0.0.1", help="interface of both ports")
+    ap.add_argument(
+        "--max-hz", type=float, default=4.0, help="most frames per second and env (0 = all)"
+    )
     args = ap.parse_args(argv)
-    with Viewer(args.connect, args.prefix, args.http, args.ws, args.host) as viewer:
+    with Viewer(
+        args.connect, args.prefix, args.http, args.ws, args.host, max_hz=args.max_hz
+    ) as viewer:
         print(f"viewer: open {viewer.url()}  (Ctrl-C stops)", flush=True)
         try:
             threading.Event().wait()

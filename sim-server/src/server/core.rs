@@ -26,7 +26,7 @@ use crate::params_file::ModelParams;
 use sim_core::scenario::Split;
 use sim_core::world::StepScratch;
 
-use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication};
+use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication, Watch};
 use super::fair::FairTurns;
 use super::pools::ServedPool;
 use sim_core::helpers::Helpers;
@@ -806,10 +806,10 @@ impl ServerCore {
     }
 
     /// `BatchStep`.
-    pub fn handle_batch(&self, payload: &[u8], gates: Gates) -> Response {
+    pub fn handle_batch(&self, payload: &[u8], watch: &dyn Watch) -> Response {
         let mut pubs = Vec::new();
         let reply = self
-            .batch(payload, gates, &mut pubs)
+            .batch(payload, watch, &mut pubs)
             .unwrap_or_else(|e| reply_bytes::<BatchStepResult>(Err(e)));
         Response {
             reply,
@@ -824,7 +824,7 @@ impl ServerCore {
     fn batch(
         &self,
         payload: &[u8],
-        gates: Gates,
+        watch: &dyn Watch,
         pubs: &mut Vec<Publication>,
     ) -> Result<Vec<u8>, ErrorReply> {
         let req: BatchStep = decode_batch_step(payload).map_err(bad)?;
@@ -923,6 +923,7 @@ impl ServerCore {
             for (i, env) in envs.iter_mut().enumerate() {
                 let rows = &actions[i * n_ext..(i + 1) * n_ext];
                 let slots = &mut out.slots(i);
+                let gates = watch.gates(&env.id);
                 let meta = match env.step_into(rows, slots, gates, &mut pubs, Some(scratch)) {
                     Ok(meta) => meta,
                     Err(e) => return (cols, pubs, Err(e)),
@@ -1443,7 +1444,7 @@ mod tests {
                     .into(),
             });
             let r: BatchStepResult =
-                decode::<Reply<BatchStepResult>>(&c.handle_batch(&batch, Gates::NONE).reply)
+                decode::<Reply<BatchStepResult>>(&c.handle_batch(&batch, &Gates::NONE).reply)
                     .unwrap()
                     .into_result()
                     .unwrap();

@@ -30,6 +30,20 @@ pub struct Gates {
     pub result: bool,
 }
 
+/// Which envs' publications somebody listens to: the network layer narrows the topic gates
+/// per env (a viewer following one env of a batch of 256 must not make the other 255 publish).
+pub trait Watch: Sync {
+    /// The gates of `env_id`.
+    fn gates(&self, env_id: &str) -> Gates;
+}
+
+/// The same gates for every env.
+impl Watch for Gates {
+    fn gates(&self, _env_id: &str) -> Gates {
+        *self
+    }
+}
+
 impl Gates {
     /// Nothing is published.
     pub const NONE: Gates = Gates {

@@ -1,9 +1,10 @@
 //! The thin zenoh/tokio layer: declares the queryables, liveliness token and subscribers, moves
 //! payload bytes to [`ServerCore`] and its replies and publications back onto the network.
 
+use std::collections::{HashMap, HashSet};
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant};
 
 use protocol::{EnvTopic, ErrorCode, ErrorReply, KeySpace};
@@ -19,7 +20,7 @@ use zenoh::{Session, Wait};
 
 use super::config::{ConfigError, ServerConfig};
 use super::core::{reply_bytes, Response, ServerCore};
-use super::env::{Gates, Publication};
+use super::env::{Gates, Publication, Watch};
 use super::pools::ServedPool;
 
 /// Why the server could not start.
@@ -66,6 +67,8 @@ struct Ctx {
     keys: KeySpace,
     /// One flag per topic of [`TOPICS`]: does any subscriber match `{p}/env/*/{topic}`?
     gates: [Arc<AtomicBool>; 5],
+    /// Per env, narrower flags (see [`EnvWatch`]).
+    env_watch: Arc<EnvWatch>,
     stop: watch::Receiver<bool>,
     /// Single-env steps are answered on the zenoh thread (see [`Ctx::answers_inline`]).
     inline_steps: bool,
@@ -76,6 +79,42 @@ struct Ctx {
 /// the thread it would hold up carries every other trainer's traffic.
 const INLINE_STEP_MAX_AGENTS: usize = 64;
 
+/// Per-env publication flags. The topic gates say whether anybody subscribes to a topic of
+/// *some* env; a viewer or an observer usually follows one env while a trainer steps hundreds,
+/// and publishing all of them costed a batched trainer half its throughput (docs/VIEWER.md).
+/// While a topic's gate is open, [`sync_env_watch`] keeps one publisher per open env on
+/// `{p}/env/{env_id}/{topic}` whose matching status (zenoh's) sets that env's flag. An env it
+/// has not reached yet (created in the last quarter second) publishes, as with topic gates only.
+#[derive(Default)]
+struct EnvWatch {
+    flags: RwLock<HashMap<String, [Option<Arc<AtomicBool>>; 5]>>,
+}
+
+/// [`Watch`] of a request: the topic gates of the moment narrowed by [`EnvWatch`].
+struct NetWatch<'a> {
+    topics: Gates,
+    flags: RwLockReadGuard<'a, HashMap<String, [Option<Arc<AtomicBool>>; 5]>>,
+}
+
+impl Watch for NetWatch<'_> {
+    fn gates(&self, env_id: &str) -> Gates {
+        let mut g = self.topics;
+        if let Some(flags) = self.flags.get(env_id) {
+            let narrow = |open: &mut bool, flag: &Option<Arc<AtomicBool>>| {
+                if let Some(f) = flag {
+                    *open = *open && f.load(Ordering::Relaxed);
+                }
+            };
+            narrow(&mut g.states, &flags[0]);
+            narrow(&mut g.uncertainty, &flags[1]);
+            narrow(&mut g.risk_graph, &flags[2]);
+            narrow(&mut g.events, &flags[3]);
+            narrow(&mut g.result, &flags[4]);
+        }
+        g
+    }
+}
+
 impl Ctx {
     fn gates(&self) -> Gates {
         let g = |i: usize| self.gates[i].load(Ordering::Relaxed);
@@ -85,6 +124,17 @@ impl Ctx {
             risk_graph: g(2),
             events: g(3),
             result: g(4),
+        }
+    }
+
+    fn watch(&self) -> NetWatch<'_> {
+        NetWatch {
+            topics: self.gates(),
+            flags: self
+                .env_watch
+                .flags
+                .read()
+                .unwrap_or_else(|p| p.into_inner()),
         }
     }
 
@@ -173,14 +223,18 @@ impl Ctx {
             .payload()
             .map(|p| p.to_bytes().into_owned())
             .unwrap_or_default();
-        let gates = self.gates();
+        let watch = self.watch();
         let resp: Response = match kind {
             Kind::Info => core.handle_info(&payload),
             Kind::Create => core.handle_create(&payload, Instant::now()),
-            Kind::Batch => core.handle_batch(&payload, gates),
+            Kind::Batch => core.handle_batch(&payload, &watch),
             Kind::EnvOp => match self.keys.parse_env_op(core.server_id(), &key) {
-                Some((env_id, protocol::EnvOp::Reset)) => core.handle_reset(env_id, &payload, gates),
-                Some((env_id, protocol::EnvOp::Step)) => core.handle_step(env_id, &payload, gates),
+                Some((env_id, protocol::EnvOp::Reset)) => {
+                    core.handle_reset(env_id, &payload, watch.gates(env_id))
+                }
+                Some((env_id, protocol::EnvOp::Step)) => {
+                    core.handle_step(env_id, &payload, watch.gates(env_id))
+                }
                 Some((env_id, protocol::EnvOp::Close)) => core.handle_close(env_id, &payload),
                 None => Response {
                     reply: reply_bytes::<()>(Err(ErrorReply::new(
@@ -214,7 +268,8 @@ impl Ctx {
         loop {
             tokio::select! {
                 _ = tick.tick() => {
-                    match self.core.realtime_tick(&env_id, self.gates()) {
+                    let gates = self.watch().gates(&env_id);
+                    match self.core.realtime_tick(&env_id, gates) {
                         None => break,
                         Some(pubs) => self.publish(pubs).await,
                     }
@@ -332,11 +387,13 @@ impl Server {
             gate_publishers.push(publisher);
         }
 
+        let env_watch = Arc::new(EnvWatch::default());
         let ctx = Arc::new(Ctx {
             core: core.clone(),
             session: session.clone(),
             keys: keys.clone(),
-            gates,
+            gates: gates.clone(),
+            env_watch: env_watch.clone(),
             stop: stop_rx.clone(),
             inline_steps: core.max_scene_agents() <= INLINE_STEP_MAX_AGENTS,
         });
@@ -390,6 +447,15 @@ impl Server {
             })
             .await
             .map_err(zerr)?;
+
+        tasks.push(tokio::spawn(sync_env_watch(
+            session.clone(),
+            core.clone(),
+            keys.clone(),
+            gates,
+            env_watch,
+            stop_rx.clone(),
+        )));
 
         // Trainers' liveliness and reaping.
         let trainers = session
@@ -530,5 +596,130 @@ pub async fn shutdown_signal() {
     tokio::select! {
         _ = ctrl_c => {},
         _ = term => {},
+    }
+}
+
+/// Keeps [`EnvWatch`] in step with the open envs every quarter second while any topic gate is
+/// open: a publisher (and its matching listener) per open env and open topic; all dropped
+/// when nobody subscribes to anything.
+async fn sync_env_watch(
+    session: Session,
+    core: Arc<ServerCore>,
+    keys: KeySpace,
+    gates: [Arc<AtomicBool>; 5],
+    watch: Arc<EnvWatch>,
+    mut stop: watch::Receiver<bool>,
+) {
+    let mut publishers: HashMap<(String, usize), (Publisher<'static>, Arc<AtomicBool>)> =
+        HashMap::new();
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stop.changed() => break,
+        }
+        let open_topics: Vec<bool> = gates.iter().map(|g| g.load(Ordering::Relaxed)).collect();
+        let envs: HashSet<String> = if open_topics.iter().any(|&o| o) {
+            core.open_envs().into_iter().collect()
+        } else {
+            HashSet::new()
+        };
+        let before = publishers.len();
+        publishers.retain(|(env, t), _| open_topics[*t] && envs.contains(env));
+        let mut changed = publishers.len() != before;
+        for env in &envs {
+            for (t, topic) in TOPICS.iter().enumerate() {
+                if !open_topics[t] || publishers.contains_key(&(env.clone(), t)) {
+                    continue;
+                }
+                let Ok(key) = keys.env_topic(env, *topic) else {
+                    continue;
+                };
+                let Ok(publisher) = session.declare_publisher(key).await else {
+                    continue;
+                };
+                let flag = Arc::new(AtomicBool::new(true));
+                let f = flag.clone();
+                let listening = publisher
+                    .matching_listener()
+                    .callback(move |s| f.store(s.matching(), Ordering::Relaxed))
+                    .background()
+                    .await;
+                if listening.is_err() {
+                    continue; // no listener: keep publishing this env (flag stays absent)
+                }
+                if let Ok(status) = publisher.matching_status().await {
+                    flag.fetch_and(status.matching(), Ordering::Relaxed);
+                }
+                publishers.insert((env.clone(), t), (publisher, flag));
+                changed = true;
+            }
+        }
+        if changed {
+            let mut table: HashMap<String, [Option<Arc<AtomicBool>>; 5]> = HashMap::new();
+            for ((env, t), (_, flag)) in &publishers {
+                table.entry(env.clone()).or_default()[*t] = Some(flag.clone());
+            }
+            *watch.flags.write().unwrap_or_else(|p| p.into_inner()) = table;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flag(on: bool) -> Option<Arc<AtomicBool>> {
+        Some(Arc::new(AtomicBool::new(on)))
+    }
+
+    #[test]
+    fn an_env_nobody_watches_publishes_nothing_while_a_watched_one_does() {
+        let watch = EnvWatch::default();
+        watch.flags.write().unwrap().extend([
+            (
+                "watched".to_string(),
+                [flag(true), flag(false), flag(true), flag(true), None],
+            ),
+            (
+                "ignored".to_string(),
+                [flag(false), flag(false), flag(false), flag(false), None],
+            ),
+        ]);
+        let net = NetWatch {
+            topics: Gates::ALL,
+            flags: watch.flags.read().unwrap(),
+        };
+        let watched = net.gates("watched");
+        assert!(watched.states && watched.risk_graph && watched.events);
+        assert!(!watched.uncertainty, "a topic nobody watches on this env");
+        assert!(
+            watched.result,
+            "no per-env flag yet: the topic gate decides"
+        );
+        assert_eq!(
+            net.gates("ignored"),
+            Gates {
+                result: true,
+                ..Gates::NONE
+            }
+        );
+        // An env the sync task has not reached yet publishes what the topic gates say.
+        assert_eq!(net.gates("new"), Gates::ALL);
+    }
+
+    #[test]
+    fn a_closed_topic_gate_wins_over_an_env_flag() {
+        let watch = EnvWatch::default();
+        watch.flags.write().unwrap().insert(
+            "e".to_string(),
+            [flag(true), flag(true), flag(true), flag(true), flag(true)],
+        );
+        let net = NetWatch {
+            topics: Gates::NONE,
+            flags: watch.flags.read().unwrap(),
+        };
+        assert_eq!(net.gates("e"), Gates::NONE);
     }
 }
