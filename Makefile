@@ -108,6 +108,10 @@ table1: $(SERVER) $(VENV)/.installed ## paper Table I on the test split (calibra
 	$(PY) -m calibration.paired --table docs/table1_collisions.json
 	$(SERVER) eval-peds --pool embedded:hbs-general --split test --params $(CALIBRATED_COLL) --out docs/table1_general_collisions.json
 	$(PY) -m calibration.paired --table docs/table1_general_collisions.json
+	@# 5-fold cross-validation over all 77 scenes (fits cached in out/crossval; a smaller budget:
+	@# CROSSVAL_ARGS='--n-init 5 --n-iter 10 --out out/crossval-small')
+	$(PY) -m calibration.crossval --server $(SERVER) --folds 5 --table docs/table1_crossval.json $(CROSSVAL_ARGS)
+	$(PY) -m calibration.paired --table docs/table1_crossval.json
 
 TRAIN_ARGS ?= --set variant=g_sac_cog total_frames=200000 log_dir=runs/g_sac_cog
 CKPT ?= runs/g_sac_cog/checkpoints/last.pt

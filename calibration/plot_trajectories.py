@@ -6,8 +6,10 @@ path, the recorded pedestrian tracks and that model's simulated tracks.
 
 Which scenarios (unless ``--scenarios`` names them), chosen by rule from the test results only:
 1. *typical*: the scenario whose CR-SFM ADE is the median;
-2. *collision*: the one in which the most models collide (ties: larger SFM ADE), if any collides;
-3. *divergent*: the one where the ADEs of SFM and CR-SFM differ most.
+2. *SFM collides, CR-SFM does not* (the paper's qualitative case), if any: the one with the
+   largest SFM ADE among them;
+3. *collision*: the one in which the most models collide (ties: larger SFM ADE), if any collides;
+4. *divergent*: the one where the ADEs of SFM and CR-SFM differ most (until there are three).
 Each rule skips scenarios already chosen; a missing case falls back to the next divergent one.
 
 Usage: ``python -m calibration.plot_trajectories --trajectories DIR --out docs/figures``
@@ -35,7 +37,7 @@ def load(dirpath: Path) -> dict[str, dict]:
 
 
 def choose(scen: dict[str, dict]) -> list[tuple[str, str]]:
-    """Three (scenario file stem, reason) pairs chosen by the module's rules."""
+    """Three or four (scenario file stem, reason) pairs chosen by the module's rules."""
     names = sorted(scen)
     models = [m for m in MODELS if all(m in scen[n]["models"] for n in names)]
     chosen: list[tuple[str, str]] = []
@@ -49,6 +51,17 @@ def choose(scen: dict[str, dict]) -> list[tuple[str, str]]:
 
     ranked = sorted(names, key=lambda n: (ade(n, "cr_sfm"), n))
     chosen.append((ranked[len(ranked) // 2], "typical (median CR-SFM ADE)"))
+    if "sfm" in models and "cr_sfm" in models:
+        contrast = [
+            n
+            for n in names
+            if n not in {c for c, _ in chosen}
+            and scen[n]["models"]["sfm"]["collided"]
+            and not scen[n]["models"]["cr_sfm"]["collided"]
+        ]
+        if contrast:
+            best = max(contrast, key=lambda n: (ade(n, "sfm"), n))
+            chosen.append((best, "SFM's pedestrian collides, CR-SFM's does not"))
     colliding = [
         n
         for n in names
