@@ -11,7 +11,9 @@ Rounds alternate, detached first, so drift on a shared machine hits both alike.
 A second table isolates the server's side: a zenoh subscriber (``sharedspace.observer``, no
 browser) to the states and risk graph of the batch's first env, of an env outside the batch,
 and of every env (``env_id="*"``), against none; the server publishes only the envs somebody
-subscribes to (per-env gates, sim-server/src/server/net.rs ``EnvWatch``).
+subscribes to (per-env gates, sim-server/src/server/net.rs ``EnvWatch``). With
+``--baseline-server`` another build (e.g. one gated per topic only) runs beside it, rounds
+interleaved.
 
 Usage: python bench/viewer_cost.py [--k 8 256] [--rounds 4] [--seconds 5]
 Prints a table and a JSON line.
@@ -77,43 +79,87 @@ def steps_per_s(vec: VectorClient, k: int, seconds: float, acts: np.ndarray) -> 
     return n * k / (time.perf_counter() - t0)
 
 
-def subscriber_rounds(endpoint, prefix, client, vec, k, rounds, seconds, acts) -> dict:
-    """Median env-steps/s with no subscriber, one to the batch's first env, one to an env
-    outside the batch, and one to every env; and the messages each received per second."""
-    other = client.create(1)["env_ids"][0]
-    targets = {
-        "none": None,
-        "first env": vec.env_ids[0],
-        "other env": other,
-        "every env": "*",
-    }
-    rates: dict[str, list[float]] = {c: [] for c in targets}
-    msgs: dict[str, list[float]] = {c: [] for c in targets}
-    for _ in range(rounds):
-        for cond, env_id in targets.items():
-            count = [0]
-            obs = None
-            if env_id is not None:
-                obs = Observer(
-                    endpoint,
-                    prefix,
-                    env_id=env_id,
-                    topics=("states", "risk_graph"),
-                    callback=lambda _m, c=count: c.__setitem__(0, c[0] + 1),
-                )
-                time.sleep(1.0)  # subscribed, and the server's per-env gates in step
-            count[0] = 0
-            rates[cond].append(steps_per_s(vec, k, seconds, acts))
-            msgs[cond].append(count[0] / seconds)
-            if obs is not None:
-                obs.close()
-    client.close(other)
-    return {
-        c: {
-            "env_steps_per_s": statistics.median(rates[c]),
-            "msgs_per_s": statistics.median(msgs[c]),
+def start_server(binary: str, prefix: str) -> tuple[subprocess.Popen, str]:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    proc = subprocess.Popen(
+        [
+            binary,
+            "serve",
+            "--cfg",
+            f'zenoh/listen/endpoints:["{endpoint}"]',
+            "--cfg",
+            f"prefix:{prefix}",
+            "--cfg",
+            "server_id:bench",
+        ],
+        env={**os.environ, "RUST_LOG": "warn"},
+    )
+    wait_port(port, proc)
+    return proc, endpoint
+
+
+def subscriber_table(
+    servers: dict[str, str], k: int, rounds: int, seconds: float
+) -> dict:
+    """Per server binary (label -> path; rounds interleaved across them): median env-steps/s of
+    a K-env batch with no subscriber, one to the batch's first env, one to an env outside the
+    batch, and one to every env; and the messages each subscriber received per second."""
+    setups = {}
+    for label, binary in servers.items():
+        prefix = f"benchsub{len(setups)}"
+        proc, endpoint = start_server(binary, prefix)
+        client = SimClient(endpoint, prefix, timeout=10.0)
+        client.servers(timeout=10.0)
+        vec = VectorClient(k, client=client, seed=0, autoreset=True, max_agents=8)
+        vec.reset()
+        other = client.create(1)["env_ids"][0]
+        targets = {
+            "none": None,
+            "first env": vec.env_ids[0],
+            "other env": other,
+            "every env": "*",
         }
-        for c in targets
+        setups[label] = (proc, endpoint, prefix, client, vec, targets)
+    acts = np.random.default_rng(0).uniform(-1, 1, (16, k, 1, 2)).astype(np.float32)
+    rates: dict = {}
+    msgs: dict = {}
+    try:
+        for _ in range(rounds):
+            for label, (_, endpoint, prefix, _, vec, targets) in setups.items():
+                for cond, env_id in targets.items():
+                    count = [0]
+                    obs = None
+                    if env_id is not None:
+                        obs = Observer(
+                            endpoint,
+                            prefix,
+                            env_id=env_id,
+                            topics=("states", "risk_graph"),
+                            callback=lambda _m, c=count: c.__setitem__(0, c[0] + 1),
+                        )
+                        time.sleep(
+                            1.0
+                        )  # subscribed, and the server's per-env gates in step
+                    count[0] = 0
+                    rates.setdefault((label, cond), []).append(
+                        steps_per_s(vec, k, seconds, acts)
+                    )
+                    msgs.setdefault((label, cond), []).append(count[0] / seconds)
+                    if obs is not None:
+                        obs.close()
+    finally:
+        for proc, _, _, client, vec, _ in setups.values():
+            vec.close()
+            client.shutdown()
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=10)
+    return {
+        f"{label} / {cond}": {
+            "env_steps_per_s": statistics.median(rates[(label, cond)]),
+            "msgs_per_s": statistics.median(msgs[(label, cond)]),
+        }
+        for (label, cond) in rates
     }
 
 
@@ -125,6 +171,11 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, nargs="+", default=[8, 256], help="batch sizes")
     ap.add_argument("--rounds", type=int, default=4, help="rounds of each condition")
     ap.add_argument("--seconds", type=float, default=5.0, help="seconds per round")
+    ap.add_argument(
+        "--baseline-server",
+        default="",
+        help="another sim-server build for the subscriber table, measured in the same rounds",
+    )
     args = ap.parse_args(argv)
     os.environ.setdefault("SHAREDSPACE_SIM_SERVER", args.server)
 
@@ -175,18 +226,6 @@ def main(argv=None) -> int:
                                 shown.append(
                                     (frames_shown(driver) - before) / args.seconds
                                 )
-                    driver.get("about:blank")  # the page unsubscribes
-                    time.sleep(1.0)
-                    subscribed = subscriber_rounds(
-                        endpoint,
-                        prefix,
-                        client,
-                        vec,
-                        k,
-                        args.rounds,
-                        args.seconds,
-                        acts,
-                    )
                     vec.close()
                     med = {c: statistics.median(v) for c, v in runs.items()}
                     results.append(
@@ -198,7 +237,6 @@ def main(argv=None) -> int:
                             "median_attached": med["attached"],
                             "attached_over_detached": med["attached"] / med["detached"],
                             "frames_drawn_per_s": statistics.median(shown),
-                            "subscriber": subscribed,
                         }
                     )
             finally:
@@ -221,13 +259,20 @@ def main(argv=None) -> int:
             f"| {r['k']} | {r['median_detached']:,.0f} | {r['median_attached']:,.0f} | "
             f"{r['attached_over_detached']:.3f} | {r['frames_drawn_per_s']:.1f} |"
         )
+    servers = {"this server": args.server}
+    if args.baseline_server:
+        servers = {"baseline": args.baseline_server, **servers}
     print()
-    print("| K | subscriber | env-steps/s | messages/s received |")
+    print("| K | server / subscriber | env-steps/s | messages/s received |")
     print("|---:|---|---:|---:|")
-    for r in results:
-        for cond, v in r["subscriber"].items():
+    for k in args.k:
+        table = subscriber_table(servers, k, args.rounds, args.seconds)
+        for r in results:
+            if r["k"] == k:
+                r["subscriber"] = table
+        for cond, v in table.items():
             print(
-                f"| {r['k']} | {cond} | {v['env_steps_per_s']:,.0f} | {v['msgs_per_s']:,.0f} |"
+                f"| {k} | {cond} | {v['env_steps_per_s']:,.0f} | {v['msgs_per_s']:,.0f} |"
             )
     print(json.dumps({"viewer_cost": results}))
     return 0
