@@ -1,7 +1,7 @@
 """The live browser viewer, in Debian's Chromium (headless, through chromium-driver), against a
 real server: the page joins zenoh through the router's remote-api WebSocket, lists the open env,
 follows it step by step and across a reset, draws the right number of agents and risk edges,
-pauses, and shows a clicked agent's u and psi.
+pauses, shows a clicked agent's u and psi, and moves on to the next env when its env closes.
 
 ``make test`` installs Chromium and builds the page and sets SHAREDSPACE_REQUIRE_BROWSER=1, so
 there a missing browser fails the test instead of skipping it. The screenshot is written to the
@@ -241,6 +241,17 @@ def test_the_viewer_follows_a_live_env_with_its_agents_and_risk_edges(
             assert shot.stat().st_size > 10_000
             if os.environ.get("SHAREDSPACE_VIEWER_SCREENSHOT"):
                 shutil.copy(shot, Path(os.environ["SHAREDSPACE_VIEWER_SCREENSHOT"]))
+            # Its env closed (a trainer restarting), the page follows the next open env.
+            stepper.close()
+            client.close(env_id)
+            env2 = client.create(1, max_agents=8, autoreset=True)["env_ids"][0]
+            client.reset(env2, seed=7)
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline and _shown(browser)["env"] != env2:
+                client.step(env2, np.zeros((1, 2), np.float32))
+                time.sleep(0.3)
+            assert _shown(browser)["env"] == env2
+
             severe = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
             assert not [e for e in severe if "favicon" not in e["message"]], severe
     finally:

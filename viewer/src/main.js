@@ -30,6 +30,7 @@ const state = {
   view: null,
   userMoved: false,
   paused: false,
+  autoFollow: !params.get("env"), // switch to another env when the followed one closes
   selected: null,
   frames: 0,
 };
@@ -126,9 +127,14 @@ async function refreshEnvs() {
     ...(envs.length ? [] : [new Option("(no open env)", "")]),
     ...envs.map((e) => new Option(`${e.env_id}  (${e.client_id})`, e.env_id)),
   );
-  if (envs.some((e) => e.env_id === current)) select.value = current;
+  const open = envs.some((e) => e.env_id === current);
+  if (envs.length && (!current || (!open && state.autoFollow))) {
+    // Nothing followed yet, or the env it picked itself closed (a trainer restarted): follow
+    // the first open env. An env the user picked (or named in the address) is kept.
+    await follow(envs[0].env_id);
+    select.value = envs[0].env_id;
+  } else if (open) select.value = current;
   else if (current) select.add(new Option(`${current} (closed)`, current), 0), (select.value = current);
-  if (!current && envs.length) await follow(envs[0].env_id), (select.value = envs[0].env_id);
 }
 
 function resize() {
@@ -291,7 +297,10 @@ function setupInteraction() {
     requestRender();
   });
   $("topk").addEventListener("change", () => requestRender());
-  $("envs").addEventListener("change", (ev) => follow(ev.target.value));
+  $("envs").addEventListener("change", (ev) => {
+    state.autoFollow = false;
+    follow(ev.target.value);
+  });
   window.addEventListener("resize", () => {
     resize();
     if (!state.userMoved) state.view = null;
