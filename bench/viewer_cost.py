@@ -179,22 +179,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     os.environ.setdefault("SHAREDSPACE_SIM_SERVER", args.server)
 
-    port = free_port()
-    endpoint, prefix = f"tcp/127.0.0.1:{port}", "benchview"
-    server = subprocess.Popen(
-        [
-            args.server,
-            "serve",
-            "--cfg",
-            f'zenoh/listen/endpoints:["{endpoint}"]',
-            "--cfg",
-            f"prefix:{prefix}",
-            "--cfg",
-            "server_id:bench",
-        ],
-        env={**os.environ, "RUST_LOG": "warn"},
-    )
-    wait_port(port, server)
+    prefix = "benchview"
+    server, endpoint = start_server(args.server, prefix)
     results = []
     try:
         client = SimClient(endpoint, prefix, timeout=10.0)
