@@ -151,6 +151,16 @@ mod tests {
     }
 
     #[test]
+    fn a_remote_api_section_without_a_websocket_port_is_refused() {
+        let c = load_config(None, &["plugins/remote_api:{}".into()]).unwrap();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        let e = rt.block_on(run(&c, async {})).unwrap_err();
+        assert!(e.to_string().contains("websocket_port"), "{e}");
+    }
+
+    #[test]
     fn deploy_router_file_parses() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy/router.json5");
         let c = load_config(Some(&path), &[]).unwrap();

@@ -99,6 +99,9 @@ struct NetWatch<'a> {
 impl Watch for NetWatch<'_> {
     fn gates(&self, env_id: &str) -> Gates {
         let mut g = self.topics;
+        if g == Gates::NONE {
+            return g; // nobody watches anything: no per-env lookup on the batch path
+        }
         if let Some(flags) = self.flags.get(env_id) {
             let narrow = |open: &mut bool, flag: &Option<Arc<AtomicBool>>| {
                 if let Some(f) = flag {
