@@ -7,17 +7,7 @@
 //! cargo run --release -p scenarios --example step_timing -- steps N STEPS   # for callgrind
 //! cargo run --release -p scenarios --example step_timing -- dump FILE [portable]  # trajectories
 //! cargo run --release -p scenarios --example step_timing -- allocs N STEPS  # heap use per step
-//! cargo run --release -p scenarios --example step_timing -- floor N [SECONDS] # per-edge floor
 //! ```
-//!
-//! `floor` times the per-edge arithmetic of a step alone (belief update, distance, clearance,
-//! risk, force: one square root, two divisions, two `exp`, in f64 without FMA as the step), on
-//! the warmed-up world's edges with every input already laid out contiguously, eight lanes wide
-//! where the CPU has AVX-512, and then the step itself, and prints the ratio. It does none of
-//! the step's other work (the gathers of each target's state and belief, the grid and
-//! candidate search, the edge store, the moves), and leaves out a few of the step's selects, so
-//! it bounds the step from below for as long as the step does this arithmetic in this form:
-//! removing everything else would not make a step faster than that fraction of its time.
 //!
 //! `STEP_TIMING_KERNELS=portable|avx2|avx512` makes `time`, `steps` and `allocs` run that
 //! variant of the observe pass instead of the widest one the CPU has (`STEP_TIMING_PORTABLE=1`
@@ -309,184 +299,6 @@ fn dump(path: &str, portable: bool) {
     println!("{path}: {} episodes", out.lines().count());
 }
 
-/// Per-edge outputs of [`floor`], as many as the step stores (`mu`, `u`, clearance, `psi`)
-/// plus the force.
-#[derive(Default)]
-struct FloorOutputs {
-    mu_x: Vec<f64>,
-    mu_y: Vec<f64>,
-    u: Vec<f64>,
-    clearance: Vec<f64>,
-    psi: Vec<f64>,
-    fx: Vec<f64>,
-    fy: Vec<f64>,
-}
-
-/// The arithmetic of one edge as `World::step` does it (constant-velocity prediction, disc
-/// footprints, CR-SFM force): inputs are the centre offset, the target's velocity, acceleration
-/// norm and the sum of radii, and the observer's belief. It restates the operations of
-/// sim-core's private `edge_state`, `edge_risk` and `edge_force` (`sim_core::world`) with the
-/// default parameters folded in, less their selects on vehicle targets, rectangles and
-/// coincident risk; the public `risk` and `cognition` functions are the unfolded reference
-/// forms, with branches and a logarithm, which the step does not run.
-#[inline(always)]
-fn floor_edge(
-    (dx, dy): (f64, f64),
-    (vx, vy): (f64, f64),
-    acc: f64,
-    radii: f64,
-    (mx, my): (f64, f64),
-    (kl_const, half_inv_s2o, w_prior, w_obs): (f64, f64, f64, f64),
-) -> [f64; 7] {
-    let (ex, ey) = (vx - mx, vy - my);
-    let u = kl_const + half_inv_s2o * (ex * ex + ey * ey);
-    let (nmx, nmy) = (w_prior * mx + w_obs * vx, w_prior * my + w_obs * vy);
-    let dist = (dx * dx + dy * dy).sqrt();
-    let clearance = (dist - radii).max(0.0);
-    let along = vx * dx + vy * dy;
-    let inv_dist = 1.0 / if dist > 0.0 { dist } else { 1.0 };
-    let k = if along > 0.0 { -1.0 } else { 1.0 };
-    let z = 0.5 * k * (along.abs() * inv_dist + acc);
-    let one_plus_e = 1.0 + sim_core::fastmath::exp(-2.0 * z);
-    let psi = one_plus_e / (one_plus_e + 2.0 * clearance);
-    let w = psi * (1.0 + u);
-    let rep = 2.1 * sim_core::fastmath::exp(clearance * (-1.0 / 0.3));
-    [
-        nmx,
-        nmy,
-        u,
-        clearance,
-        psi,
-        dx * inv_dist * rep * w,
-        dy * inv_dist * rep * w,
-    ]
-}
-
-/// [`floor_edge`] over every edge of `cols` (the centre offset `dx`, `dy`, the target's
-/// velocity `vx`, `vy`, acceleration norm and the sum of radii, then the belief `mu_x`,
-/// `mu_y`), one contiguous column each.
-#[inline(always)]
-fn floor_pass(cols: &[Vec<f64>; 8], out: &mut FloorOutputs) {
-    let m = cols[0].len();
-    let consts = (0.1, 0.5, 0.6, 0.4);
-    let [dxs, dys, vxs, vys, accs, radiis, mxs, mys] = cols;
-    let (dxs, dys, vxs, vys) = (&dxs[..m], &dys[..m], &vxs[..m], &vys[..m]);
-    let (accs, radiis, mxs, mys) = (&accs[..m], &radiis[..m], &mxs[..m], &mys[..m]);
-    let o = out;
-    let (omx, omy, ou) = (&mut o.mu_x[..m], &mut o.mu_y[..m], &mut o.u[..m]);
-    let (oc, op) = (&mut o.clearance[..m], &mut o.psi[..m]);
-    let (ofx, ofy) = (&mut o.fx[..m], &mut o.fy[..m]);
-    for c in 0..m {
-        let r = floor_edge(
-            (dxs[c], dys[c]),
-            (vxs[c], vys[c]),
-            accs[c],
-            radiis[c],
-            (mxs[c], mys[c]),
-            consts,
-        );
-        (omx[c], omy[c], ou[c], oc[c], op[c], ofx[c], ofy[c]) =
-            (r[0], r[1], r[2], r[3], r[4], r[5], r[6]);
-    }
-}
-
-/// [`floor_pass`] compiled for AVX-512 (no FMA, as the step).
-///
-/// # Safety
-/// The CPU must support AVX-512F, DQ and VL.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl")]
-unsafe fn floor_pass_avx512(cols: &[Vec<f64>; 8], out: &mut FloorOutputs) {
-    floor_pass(cols, out)
-}
-
-/// Times [`floor_pass`] over the edges of the `N`-pedestrian bench world (see the module
-/// documentation) and prints ns per edge beside the step's own.
-fn floor(n: usize, seconds: f64) {
-    let base = bench_world(n);
-    let agents: std::collections::HashMap<AgentId, sim_core::world::AgentView> =
-        base.agents().map(|a| (a.id, a)).collect();
-    // The AV's rectangle stands in as a 1 m disc: the operations, not the values, are timed.
-    let radius = |a: &sim_core::world::AgentView| match a.shape {
-        sim_core::Shape::Disc { radius } => radius,
-        _ => 1.0,
-    };
-    let mut cols: [Vec<f64>; 8] = Default::default();
-    for e in base.graph_edges() {
-        let (i, j) = (&agents[&e.observer], &agents[&e.target]);
-        let d = i.position - j.position;
-        let row = [
-            d.x,
-            d.y,
-            j.velocity.x,
-            j.velocity.y,
-            j.acceleration.norm(),
-            radius(i) + radius(j),
-            0.9 * j.velocity.x,
-            1.1 * j.velocity.y,
-        ];
-        for (col, x) in cols.iter_mut().zip(row) {
-            col.push(x);
-        }
-    }
-    let m = cols[0].len();
-    let mut out = FloorOutputs::default();
-    for v in [
-        &mut out.mu_x,
-        &mut out.mu_y,
-        &mut out.u,
-        &mut out.clearance,
-        &mut out.psi,
-        &mut out.fx,
-        &mut out.fy,
-    ] {
-        v.resize(m, 0.0);
-    }
-    #[cfg(target_arch = "x86_64")]
-    let wide = std::arch::is_x86_feature_detected!("avx512f")
-        && std::arch::is_x86_feature_detected!("avx512dq")
-        && std::arch::is_x86_feature_detected!("avx512vl");
-    #[cfg(not(target_arch = "x86_64"))]
-    let wide = false;
-    // Passes between two readings of the clock: a few hundred thousand edges, so that reading
-    // it costs nothing next to them at small N.
-    let batch = (200_000 / m.max(1)).max(1) as u64;
-    let (mut passes, t0) = (0u64, Instant::now());
-    while t0.elapsed().as_secs_f64() < seconds / 2.0 {
-        for _ in 0..batch {
-            #[cfg(target_arch = "x86_64")]
-            if wide {
-                // SAFETY: the CPU has these features (checked above).
-                unsafe { floor_pass_avx512(&cols, &mut out) };
-            } else {
-                floor_pass(&cols, &mut out);
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            floor_pass(&cols, &mut out);
-        }
-        passes += batch;
-    }
-    let arithmetic = t0.elapsed().as_secs_f64() / passes as f64;
-    // Keeps the passes' results alive.
-    let checksum: f64 = out.psi.iter().chain(&out.fx).sum();
-    let (mut step, mut steps) = (0.0, 0u64);
-    while step < seconds / 2.0 {
-        step += run_steps(&base, 10);
-        steps += 10;
-    }
-    let step = step / steps as f64;
-    println!(
-        "N={n}: {m} edges; edge arithmetic {:.1} us ({:.2} ns/edge, {}), whole step {:.1} us \
-         ({:.2} ns/edge); arithmetic/step {:.2} (checksum {checksum:.3})",
-        arithmetic * 1e6,
-        arithmetic / m as f64 * 1e9,
-        if wide { "avx512" } else { "portable" },
-        step * 1e6,
-        step / m as f64 * 1e9,
-        arithmetic / step,
-    );
-}
-
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let arg = |k: usize| args.get(k).map(String::as_str);
@@ -497,14 +309,10 @@ fn main() {
         ),
         (Some("steps"), Some(n), Some(k)) => steps(n.parse().expect("N"), k.parse().expect("K")),
         (Some("allocs"), Some(n), Some(k)) => allocs(n.parse().expect("N"), k.parse().expect("K")),
-        (Some("floor"), Some(n), s) => floor(
-            n.parse().expect("N"),
-            s.map_or(3.0, |s| s.parse().expect("seconds")),
-        ),
         (Some("dump"), Some(path), None) => dump(path, false),
         (Some("dump"), Some(path), Some("portable")) => dump(path, true),
         _ => {
-            eprintln!("usage: step_timing time N [SECONDS] | floor N [SECONDS] | steps N STEPS | allocs N STEPS | dump FILE [portable]");
+            eprintln!("usage: step_timing time N [SECONDS] | steps N STEPS | allocs N STEPS | dump FILE [portable]");
             std::process::exit(2);
         }
     }

@@ -37,9 +37,6 @@ pub struct VarianceSchedule {
     post: Vec<f64>,
     /// The constants of update `n` (one record: one lookup per update).
     update: Vec<UpdateConsts>,
-    /// `update` by field (`kl_const`, `w_prior`, `w_obs`): for the vectorised observe pass,
-    /// which loads eight beliefs' constants at once.
-    columns: [Vec<f64>; 3],
     /// `0.5 / s2_o`: the KL's factor on the squared mean difference.
     half_inv_s2o: f64,
 }
@@ -69,7 +66,6 @@ impl VarianceSchedule {
                 w_prior: 0.0,
                 w_obs: 0.0,
             }],
-            columns: [vec![0.0], vec![0.0], vec![0.0]],
             half_inv_s2o: 0.5 / s2_o,
         };
         loop {
@@ -84,9 +80,6 @@ impl VarianceSchedule {
                 w_obs: s2_post / s2_o,
             };
             s.update.push(c);
-            for (column, value) in s.columns.iter_mut().zip([c.kl_const, c.w_prior, c.w_obs]) {
-                column.push(value);
-            }
             if s2_post == last || s.post.len() >= MAX_SCHEDULE {
                 break;
             }
@@ -106,14 +99,6 @@ impl VarianceSchedule {
 
     fn index(&self, updates: u32) -> usize {
         (updates as usize).min(self.post.len() - 1)
-    }
-
-    /// The constants of every update number as columns `[kl_const, w_prior, w_obs]` (each as
-    /// long as the table; an update number `n` reads entry `min(n, len - 1)`), and the KL's
-    /// factor `0.5 / s2_o` on the squared mean difference: what [`Belief::update`] reads, for a
-    /// vectorised copy of it.
-    pub(crate) fn update_columns(&self) -> (&[Vec<f64>; 3], f64) {
-        (&self.columns, self.half_inv_s2o)
     }
 
     /// Posterior variance after `updates` updates.

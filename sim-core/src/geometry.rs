@@ -164,6 +164,13 @@ fn rect_rect_gap(
     best
 }
 
+/// `1 / dist`, and 1 for coincident centres (`dist` = 0): an unconditional division keeps the
+/// loops that call it vectorisable.
+#[inline(always)]
+pub fn inv_distance(dist: f64) -> f64 {
+    1.0 / if dist > 0.0 { dist } else { 1.0 }
+}
+
 /// Clearance between two placed footprints in metres, floored at 0 (model.md section 1).
 pub fn clearance(a: &Placed, b: &Placed) -> f64 {
     clearance_and_normal(a, b).0

@@ -93,6 +93,11 @@ impl PedestrianModel {
         }
     }
 
+    /// Position of the model in [`Self::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
     /// Parses a model name; `None` when it is not one of [`Self::name`]'s values.
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|m| m.name() == name)

@@ -51,9 +51,8 @@ pub fn edge_psi(
     acc_norm: f64,
     clearance: f64,
 ) -> (f64, f64) {
-    // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too); an unconditional
-    // division keeps the loop vectorisable.
-    let inv_dist = 1.0 / if dist > 0.0 { dist } else { 1.0 };
+    // |v_j| |cos phi|, 0 for coincident centres (where `along` is 0 too).
+    let inv_dist = crate::geometry::inv_distance(dist);
     let radial_speed = along.abs() * inv_dist;
     let k = if along > 0.0 { -1.0 } else { 1.0 };
     let z = gamma1 * k * (radial_speed + acc_norm);

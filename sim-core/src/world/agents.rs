@@ -1,0 +1,99 @@
+//! The agents present at the current step, one slot each (structure of arrays), and the
+//! episode record of each external agent.
+
+use super::{AgentId, Control};
+use crate::fastmath;
+use crate::geometry::{Shape, Vec2};
+use crate::metrics::EpisodeStatus;
+use crate::scenario::{AgentKind, AgentRecord};
+
+#[derive(Debug, Clone)]
+pub(super) struct ExternalTrack {
+    pub(super) id: AgentId,
+    pub(super) active: bool,
+    /// Speed at every step of its episode so far (the metrics' input).
+    pub(super) speeds: Vec<f64>,
+    pub(super) last_acc: Option<f64>,
+    /// Centre distance to the goal at the current step, m.
+    pub(super) goal_distance: f64,
+    pub(super) status: Option<EpisodeStatus>,
+}
+
+/// Structure-of-arrays state of the agents present at the current step.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Agents {
+    pub(super) id: Vec<AgentId>,
+    pub(super) kind: Vec<AgentKind>,
+    pub(super) control: Vec<Control>,
+    pub(super) shape: Vec<Shape>,
+    pub(super) pos: Vec<Vec2>,
+    pub(super) vel: Vec<Vec2>,
+    pub(super) acc: Vec<Vec2>,
+    /// Acceleration at the previous step (what the constant-acceleration prediction extrapolates).
+    pub(super) prev_acc: Vec<Vec2>,
+    /// Unicycle speed for vehicles, `|v|` for pedestrians.
+    pub(super) speed: Vec<f64>,
+    pub(super) heading: Vec<f64>,
+    pub(super) goal: Vec<Vec2>,
+    pub(super) v0: Vec<f64>,
+    pub(super) initial_vel: Vec<Vec2>,
+    /// `edges[edge_start[i]..edge_start[i] + edge_len[i]]` are agent `i`'s out-edges.
+    pub(super) edge_start: Vec<u32>,
+    pub(super) edge_len: Vec<u32>,
+    pub(super) leaving: Vec<bool>,
+}
+
+impl Agents {
+    pub(super) fn len(&self) -> usize {
+        self.id.len()
+    }
+
+    pub(super) fn retain(&mut self, keep: &[bool]) {
+        fn r<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+            let mut k = 0;
+            v.retain(|_| {
+                k += 1;
+                keep[k - 1]
+            });
+        }
+        r(&mut self.id, keep);
+        r(&mut self.kind, keep);
+        r(&mut self.control, keep);
+        r(&mut self.shape, keep);
+        r(&mut self.pos, keep);
+        r(&mut self.vel, keep);
+        r(&mut self.acc, keep);
+        r(&mut self.prev_acc, keep);
+        r(&mut self.speed, keep);
+        r(&mut self.heading, keep);
+        r(&mut self.goal, keep);
+        r(&mut self.v0, keep);
+        r(&mut self.initial_vel, keep);
+        r(&mut self.edge_start, keep);
+        r(&mut self.edge_len, keep);
+        r(&mut self.leaving, keep);
+    }
+}
+
+pub(super) fn v2(a: [f64; 2]) -> Vec2 {
+    Vec2::new(a[0], a[1])
+}
+
+/// Heading of a recorded agent at sample `k`: the direction of its recorded velocity, or, when it
+/// stands still, of the nearest sample where it moves (0 if it never does).
+pub(super) fn recorded_heading(rec: &AgentRecord, k: usize) -> f64 {
+    const MOVING: f64 = 1e-6;
+    let n = rec.velocities.len();
+    for d in 0..n {
+        for idx in [k.checked_sub(d), k.checked_add(d).filter(|&i| i < n)]
+            .into_iter()
+            .flatten()
+        {
+            let v = rec.velocities[idx];
+            if v[0].hypot(v[1]) > MOVING {
+                return fastmath::atan2(v[1], v[0]);
+            }
+        }
+    }
+    0.0
+}

@@ -1,0 +1,151 @@
+//! Stage 5 of a step: collision events and every reward term of each external agent's
+//! transition (model.md 7), and whether the episode is over.
+
+use super::{AgentOutcome, Event, RewardTerms, StepOutcome, World};
+use crate::metrics::{EpisodeMetrics, EpisodeStatus};
+use crate::scenario::AgentKind;
+
+impl World {
+    /// The step's outcome from the events so far: collisions added, each active external agent's
+    /// rewards, the episode's end.
+    pub(super) fn outcome(&mut self, mut events: Vec<Event>) -> StepOutcome {
+        for i in 0..self.agents.len() {
+            if !self.contact[i] {
+                continue;
+            }
+            let range = self.out_range(i);
+            let (targets, clearances) = (
+                &self.edges.target[range.clone()],
+                &self.edges.clearance[range],
+            );
+            let me = self.agents.id[i];
+            for (&target, &clearance) in targets.iter().zip(clearances) {
+                if clearance <= 0.0 && me < target {
+                    events.push(Event::Collision { a: me, b: target });
+                }
+            }
+        }
+        let mut outcome = StepOutcome {
+            step: self.step,
+            agents: Vec::with_capacity(self.externals.len()),
+            events,
+            episode_over: false,
+        };
+        let truncated = self.step >= self.horizon;
+        let clipped_of = std::mem::take(&mut self.clipped_of);
+        for k in 0..self.externals.len() {
+            if !self.externals[k].active {
+                continue;
+            }
+            let id = self.externals[k].id;
+            let (clipped, omega) = clipped_of
+                .iter()
+                .find(|(a, _, _)| *a == id)
+                .map_or((false, 0.0), |c| (c.1, c.2));
+            let agent_outcome =
+                self.external_outcome(k, clipped, omega, truncated, &mut outcome.events);
+            outcome.agents.push(agent_outcome);
+        }
+        self.clipped_of = clipped_of;
+        // Over when every external agent has entered and finished (one whose record starts
+        // later keeps the episode running until it enters), or at the horizon.
+        let all_finished = !self.externals.is_empty()
+            && self
+                .externals
+                .iter()
+                .all(|e| !e.active && !e.speeds.is_empty());
+        self.over = truncated || all_finished;
+        outcome.episode_over = self.over;
+        outcome
+    }
+
+    fn external_outcome(
+        &mut self,
+        k: usize,
+        action_clipped: bool,
+        omega: f64,
+        truncated: bool,
+        events: &mut Vec<Event>,
+    ) -> AgentOutcome {
+        let w = self.params.reward;
+        let dt = self.params.dt;
+        let id = self.externals[k].id;
+        let mut reward = RewardTerms::default();
+        let Some(i) = self.slot_of(id) else {
+            // Left with its record (cannot happen to an external agent, kept total for safety).
+            self.externals[k].active = false;
+            return AgentOutcome {
+                agent: id,
+                reward,
+                terminated: true,
+                truncated: false,
+                action_clipped,
+                metrics: None,
+            };
+        };
+        let is_vehicle = self.agents.kind[i] == AgentKind::Vehicle;
+        let goal = self.agents.goal[i];
+        let d_now = (self.agents.pos[i] - goal).norm();
+        reward.progress = w.progress * (self.externals[k].goal_distance - d_now);
+        self.externals[k].goal_distance = d_now;
+        let goal_radius = if is_vehicle {
+            self.params.vehicle.goal_radius
+        } else {
+            self.params.ped_goal_radius
+        };
+        let arrived = d_now <= goal_radius;
+        let mut collided = false;
+        let mut c_min = f64::INFINITY;
+        for e in self.out_edges(i) {
+            let other_is_ped = self.agents.kind[e.target_slot as usize] == AgentKind::Pedestrian;
+            // Vehicles collide with pedestrians and with other vehicles; a pedestrian with vehicles.
+            if e.clearance <= 0.0 && (is_vehicle || !other_is_ped) {
+                collided = true;
+            }
+            if other_is_ped {
+                c_min = c_min.min(e.clearance);
+            }
+        }
+        if arrived {
+            reward.success = w.success;
+            events.push(Event::GoalReached { agent: id });
+        }
+        if collided {
+            reward.collision = w.collision;
+        }
+        if c_min < w.danger_clearance {
+            reward.danger = w.danger * (c_min - w.danger_clearance);
+        }
+        let speed = self.agents.speed[i];
+        let track = &mut self.externals[k];
+        let prev_speed = track.speeds.last().copied().unwrap_or(speed);
+        let acc = (speed - prev_speed) / dt;
+        let jerk = track.last_acc.map_or(0.0, |a| (acc - a) / dt);
+        track.last_acc = Some(acc);
+        track.speeds.push(speed);
+        reward.comfort = -w.jerk_penalty * jerk * jerk - w.yaw_rate_penalty * omega * omega;
+        let terminated = arrived || collided;
+        let mut metrics = None;
+        if terminated || truncated {
+            let status = if collided {
+                EpisodeStatus::Collision
+            } else if arrived {
+                EpisodeStatus::Success
+            } else {
+                EpisodeStatus::Timeout
+            };
+            track.status = Some(status);
+            track.active = false;
+            metrics = Some(EpisodeMetrics::from_speeds(status, &track.speeds, dt));
+            self.agents.leaving[i] = true;
+        }
+        AgentOutcome {
+            agent: id,
+            reward,
+            terminated,
+            truncated: truncated && !terminated,
+            action_clipped,
+            metrics,
+        }
+    }
+}
