@@ -41,14 +41,27 @@ pub struct VarianceSchedule {
     half_inv_s2o: f64,
 }
 
-/// What update `n` needs besides the means.
+/// What update `n` needs besides the means ([`VarianceSchedule::update_consts`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct UpdateConsts {
+pub struct UpdateConsts {
     /// The part of the KL that does not depend on the means.
-    kl_const: f64,
+    pub kl_const: f64,
     /// `s2_post / s2_p` and `s2_post / s2_o`: the weights of the posterior mean.
-    w_prior: f64,
-    w_obs: f64,
+    pub w_prior: f64,
+    pub w_obs: f64,
+}
+
+impl UpdateConsts {
+    /// The update proper (model.md 3): from the prediction `mu_p` and the observation `v_obs`,
+    /// the posterior mean `(s2_post / s2_p) mu_p + (s2_post / s2_o) v_obs` and the uncertainty
+    /// `u = KL(N(mu_p, s2_p I) || N(v_obs, s2_o I))`, whose mean term is
+    /// `half_inv_s2o |v_obs - mu_p|^2` ([`VarianceSchedule::half_inv_s2o`]).
+    #[inline(always)]
+    pub fn apply(&self, mu_p: Vec2, v_obs: Vec2, half_inv_s2o: f64) -> (Vec2, f64) {
+        let diff = v_obs - mu_p;
+        let u = self.kl_const + half_inv_s2o * diff.norm_squared();
+        (mu_p * self.w_prior + v_obs * self.w_obs, u)
+    }
 }
 
 /// Bound on the tabulated length; the recurrence converges long before it for any sane parameters.
@@ -101,6 +114,19 @@ impl VarianceSchedule {
         (updates as usize).min(self.post.len() - 1)
     }
 
+    /// The constants of update number `updates` (>= 1; numbers past the table share its last
+    /// entry).
+    #[inline(always)]
+    pub fn update_consts(&self, updates: u32) -> UpdateConsts {
+        self.update[self.index(updates)]
+    }
+
+    /// `0.5 / s_o^2`: the KL's factor on the squared mean difference.
+    #[inline(always)]
+    pub fn half_inv_s2o(&self) -> f64 {
+        self.half_inv_s2o
+    }
+
     /// Posterior variance after `updates` updates.
     pub fn posterior_variance(&self, updates: u32) -> f64 {
         self.post[self.index(updates)]
@@ -147,10 +173,9 @@ impl Belief {
     /// posterior.
     #[inline]
     pub fn update(&mut self, mu_p: Vec2, v_obs: Vec2, s: &VarianceSchedule) -> f64 {
-        let c = s.update[s.index(self.updates.saturating_add(1))];
-        let diff = v_obs - mu_p;
-        let u = c.kl_const + s.half_inv_s2o * diff.norm_squared();
-        self.mu = mu_p * c.w_prior + v_obs * c.w_obs;
+        let c = s.update_consts(self.updates.saturating_add(1));
+        let (mu, u) = c.apply(mu_p, v_obs, s.half_inv_s2o);
+        self.mu = mu;
         self.updates = self.updates.saturating_add(1);
         u
     }

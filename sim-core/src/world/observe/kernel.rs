@@ -6,7 +6,7 @@
 
 use std::mem::MaybeUninit;
 
-use super::{disc_radius, ObserveInputs, ObserveWorker, TargetInfo};
+use super::{disc_radius, ObserveInputs, ObserveWorker, PriorBeliefs, TargetInfo};
 use crate::cognition::Belief;
 use crate::geometry::{self, clearance_and_normal_oriented, Placed, Vec2};
 use crate::pedestrian::{lane_max, lane_sum};
@@ -17,7 +17,7 @@ use crate::world::Control;
 
 impl ObserveWorker {
     /// Indexes observer `i`'s beliefs of the previous graph by target id (in `stamp`, under a
-    /// new epoch, which it returns).
+    /// new epoch, which it returns) and copies them into `prior`.
     #[inline(always)]
     pub(super) fn index_beliefs(&mut self, inp: &ObserveInputs, i: usize) -> u32 {
         let a = inp.agents;
@@ -29,10 +29,20 @@ impl ObserveWorker {
         self.epoch += 1;
         let epoch = self.epoch;
         let s = a.edge_start[i] as usize;
-        let old_targets = &old.target[s..s + a.edge_len[i] as usize];
-        for (k, &t) in old_targets.iter().enumerate() {
-            self.stamp[t as usize] = (epoch, (s + k) as u32);
+        let range = s..s + a.edge_len[i] as usize;
+        for (k, &t) in old.target[range.clone()].iter().enumerate() {
+            self.stamp[t as usize] = (epoch, k as u32);
         }
+        // The update reads these beliefs in the new graph's order, at random within the run: a
+        // sequential copy first (which the hardware prefetcher streams) brings them from
+        // wherever the old graph is (megabytes at large N) into the nearest cache.
+        let prior = &mut self.prior;
+        prior.mu_x.clear();
+        prior.mu_x.extend_from_slice(&old.mu_x[range.clone()]);
+        prior.mu_y.clear();
+        prior.mu_y.extend_from_slice(&old.mu_y[range.clone()]);
+        prior.updates.clear();
+        prior.updates.extend_from_slice(&old.updates[range]);
         epoch
     }
 
@@ -85,7 +95,7 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
+            let st = edge_state(inp, &self.stamp, &self.prior, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
             e_target[c] = MaybeUninit::new(t.id);
             e_slot[c] = MaybeUninit::new(j as u32);
@@ -195,7 +205,7 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
+            let st = edge_state(inp, &self.stamp, &self.prior, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
             let (psi, inv_dist) = risk::edge_psi(
                 gamma1,
@@ -351,6 +361,7 @@ struct EdgeState {
 fn edge_state(
     inp: &ObserveInputs,
     stamp: &[(u32, u32)],
+    prior: &PriorBeliefs,
     epoch: u32,
     model: crate::params::PredictionModel,
     observer: &Observer,
@@ -362,7 +373,7 @@ fn edge_state(
     let vj = t.vel;
     let (seen, k) = stamp[t.id as usize];
     let (belief, u) = if seen == epoch {
-        let mut b = inp.old.belief(k as usize);
+        let mut b = prior.belief(k as usize);
         let mu_p = b.predict(model, inp.last_change[j]);
         let u = b.update(mu_p, vj, inp.schedule);
         (b, u)
