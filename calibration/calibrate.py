@@ -190,7 +190,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--server", type=Path, default=DEFAULT_SERVER)
     ap.add_argument("--pool", type=Path, default=None, help="pool file; the embedded pool if absent")
-    ap.add_argument("--models", default="sfm,ra_sfm,cr_sfm")
+    ap.add_argument("--models", default=",".join(SPACES))
     ap.add_argument("--n-init", type=int, default=15, help="initial points per model (incl. defaults)")
     ap.add_argument("--n-iter", type=int, default=110, help="GP-guided iterations per model")
     ap.add_argument("--seed", type=int, default=7)
@@ -211,7 +211,7 @@ def main() -> None:
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     for m in models:
         if m not in SPACES:
-            ap.error(f"--models: `{m}` has no parameters to calibrate (sfm, ra_sfm, cr_sfm)")
+            ap.error(f"--models: `{m}` has no parameters to calibrate ({', '.join(SPACES)})")
     pool_cmd = ["--pool", str(args.pool)] if args.pool else []
     info = run_json([str(args.server), "eval-peds", "--split", "train", "--models", "cv", *pool_cmd])
     train_episodes = info["models"]["cv"]["episodes"]

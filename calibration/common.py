@@ -8,6 +8,8 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
+from sharedspace.models import MODELS
+
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_SERVER = REPO / "target" / "release" / "sim-server"
 
@@ -51,7 +53,19 @@ CR_PARAMS = RA_PARAMS + [
     Param("lambda1", "force", 0.0, 5.0, False),
     Param("lambda2", "force", 0.0, 5.0, False),
 ]
-SPACES: dict[str, list[Param]] = {"sfm": SFM_PARAMS, "ra_sfm": RA_PARAMS, "cr_sfm": CR_PARAMS}
+
+
+def _space(model: dict) -> list[Param]:
+    """The parameters calibrated for a social-force model, from how it weighs its forces: the
+    SFM's always, the risk parameters and ``lambda3`` when its weights use ``psi``, ``lambda1``
+    and ``lambda2`` when they use ``u``."""
+    if model["cognitive"]:
+        return CR_PARAMS
+    return RA_PARAMS if model["risk"] else SFM_PARAMS
+
+
+#: The search space of every social-force model (sim-core's list, sharedspace.models).
+SPACES: dict[str, list[Param]] = {m["name"]: _space(m) for m in MODELS if m["social_force"]}
 
 # model.md section 5 starting values (and WorldParams::default() for the risk parameters).
 STARTING_VALUES = {

@@ -21,10 +21,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+from sharedspace.models import EVALUATED_MODELS
+
 from calibration.common import DEFAULT_SERVER, REPO
 
 PAPER_POOL = REPO / "scenarios" / "data" / "hbs-paper.json"
-MODELS = ("cv", "sfm", "ra_sfm", "cr_sfm")
+MODELS = EVALUATED_MODELS
 
 
 def fold_pool(pool: dict, folds: int, fold: int) -> dict:

@@ -15,9 +15,10 @@ import itertools
 import json
 from pathlib import Path
 
+from sharedspace.models import LABELS, SOCIAL_FORCE_MODELS
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
 
-NAMES = {"cv": "CV", "sfm": "SFM", "ra_sfm": "RA-SFM", "cr_sfm": "CR-SFM"}
+NAMES = LABELS
 
 
 def compare(table: dict, a: str, b: str, metric: str) -> dict:
@@ -69,7 +70,7 @@ def render(table: dict, models: list[str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--table", default="docs/table1.json", help="sim-server eval-peds --out JSON")
-    ap.add_argument("--models", default="sfm,ra_sfm,cr_sfm", help="models to compare, in order")
+    ap.add_argument("--models", default=",".join(SOCIAL_FORCE_MODELS), help="models to compare, in order")
     args = ap.parse_args(argv)
     table = json.loads(Path(args.table).read_text())
     print(render(table, args.models.split(",")))

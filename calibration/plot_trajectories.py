@@ -22,13 +22,15 @@ import json
 from pathlib import Path
 
 import matplotlib
+from sharedspace.models import EVALUATED_MODELS, LABELS
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-MODELS = ["cv", "sfm", "ra_sfm", "cr_sfm"]
-LABELS = {"cv": "CV", "sfm": "SFM", "ra_sfm": "RA-SFM", "cr_sfm": "CR-SFM"}
-COLOURS = {"cv": "tab:gray", "sfm": "tab:blue", "ra_sfm": "tab:orange", "cr_sfm": "tab:green"}
+MODELS = list(EVALUATED_MODELS)
+# One colour per model, in sim-core's order (the paper's figure: CV grey, SFM blue, ...).
+_PALETTE = ["tab:gray", "tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown"]
+COLOURS = dict(zip(MODELS, _PALETTE, strict=False))
 PED_MARKERS = ["o", "s", "^", "D", "v", "P"]
 
 

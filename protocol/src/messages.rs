@@ -75,22 +75,9 @@ pub enum Split {
     Test,
 }
 
-/// Pedestrian model (model.md section 5).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PedestrianModel {
-    /// `"cv"`: constant velocity.
-    Cv,
-    /// `"sfm"`: social force model.
-    Sfm,
-    /// `"ra_sfm"`: risk-aware SFM.
-    RaSfm,
-    /// `"cr_sfm"`: cognitive-risk SFM (the paper's model).
-    #[default]
-    CrSfm,
-    /// `"replay"`: recorded trajectories.
-    Replay,
-}
+/// Pedestrian model (model.md section 5): sim-core's one list of models, on the wire by name
+/// (`"cv"`, `"sfm"`, `"ra_sfm"`, `"cr_sfm"`, `"replay"`; default `cr_sfm`).
+pub use sim_core::params::PedestrianModel;
 
 /// How an env advances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]

@@ -318,13 +318,7 @@ pub fn server_info() -> ServerInfo {
         max_batch: 64,
         max_agents: 32,
         dt: 0.5,
-        pedestrian_models: vec![
-            PedestrianModel::Cv,
-            PedestrianModel::Sfm,
-            PedestrianModel::RaSfm,
-            PedestrianModel::CrSfm,
-            PedestrianModel::Replay,
-        ],
+        pedestrian_models: PedestrianModel::ALL.to_vec(),
         pools: vec![
             PoolSummary {
                 name: "hbs_3ped".to_string(),

@@ -63,7 +63,14 @@ impl Default for RiskParams {
 }
 
 /// Which model moves a pedestrian (model.md section 5).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+///
+/// **The one list of pedestrian models.** A model is a variant here, a row of [`MODELS`] (its
+/// name, label, and how it weighs its forces, which [`crate::pedestrian::ModelForces`] reads) and,
+/// when it has social forces, a field of [`PedestrianParams`]. Everything else derives its list
+/// from these: the wire protocol uses this enum, the CLI and parameter files parse
+/// [`PedestrianModel::from_name`], and the Python side reads `clients/src/sharedspace/models.json`,
+/// which a test keeps equal to [`models_json`] (docs/ARCHITECTURE.md, "Adding a pedestrian model").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PedestrianModel {
     /// Constant initial velocity vector.
@@ -73,27 +80,101 @@ pub enum PedestrianModel {
     /// Risk-aware SFM: weights from physical risk only.
     RaSfm,
     /// Cognitive-risk SFM (the paper's model).
+    #[default]
     CrSfm,
     /// Follows its recorded track.
     Replay,
 }
 
+/// How a social-force model weighs its forces (model.md 5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Weighting {
+    /// Repulsion weights are `psi` (and the goal force is damped by `exp(-lambda3 max_w)`);
+    /// otherwise every weight is 1.
+    pub risk: bool,
+    /// The weights are `psi (1 + lambda u)` (`lambda1` towards vehicles, `lambda2` towards
+    /// pedestrians); requires `risk`.
+    pub cognitive: bool,
+}
+
+/// One row of [`MODELS`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModelInfo {
+    pub model: PedestrianModel,
+    /// The name in configs, on the wire and on the command line.
+    pub name: &'static str,
+    /// The label in tables and figures (the paper's).
+    pub label: &'static str,
+    /// The social-force weighting; `None` for a model without social forces (and so without
+    /// parameters in [`PedestrianParams`]).
+    pub weighting: Option<Weighting>,
+}
+
+/// Every pedestrian model, in [`PedestrianModel::ALL`] order.
+pub const MODELS: [ModelInfo; 5] = [
+    ModelInfo {
+        model: PedestrianModel::Cv,
+        name: "cv",
+        label: "CV",
+        weighting: None,
+    },
+    ModelInfo {
+        model: PedestrianModel::Sfm,
+        name: "sfm",
+        label: "SFM",
+        weighting: Some(Weighting {
+            risk: false,
+            cognitive: false,
+        }),
+    },
+    ModelInfo {
+        model: PedestrianModel::RaSfm,
+        name: "ra_sfm",
+        label: "RA-SFM",
+        weighting: Some(Weighting {
+            risk: true,
+            cognitive: false,
+        }),
+    },
+    ModelInfo {
+        model: PedestrianModel::CrSfm,
+        name: "cr_sfm",
+        label: "CR-SFM",
+        weighting: Some(Weighting {
+            risk: true,
+            cognitive: true,
+        }),
+    },
+    ModelInfo {
+        model: PedestrianModel::Replay,
+        name: "replay",
+        label: "Replay",
+        weighting: None,
+    },
+];
+
 impl PedestrianModel {
-    pub const ALL: [PedestrianModel; 5] =
-        [Self::Cv, Self::Sfm, Self::RaSfm, Self::CrSfm, Self::Replay];
+    pub const ALL: [PedestrianModel; 5] = {
+        let mut all = [PedestrianModel::Cv; 5];
+        let mut k = 0;
+        while k < MODELS.len() {
+            all[k] = MODELS[k].model;
+            k += 1;
+        }
+        all
+    };
+
+    /// This model's row of [`MODELS`].
+    pub fn info(self) -> &'static ModelInfo {
+        &MODELS[self.index()]
+    }
 
     /// The model's name as used in configs and on the wire (`cv`, `sfm`, `ra_sfm`, `cr_sfm`, `replay`).
     pub fn name(self) -> &'static str {
-        match self {
-            Self::Cv => "cv",
-            Self::Sfm => "sfm",
-            Self::RaSfm => "ra_sfm",
-            Self::CrSfm => "cr_sfm",
-            Self::Replay => "replay",
-        }
+        self.info().name
     }
 
-    /// Position of the model in [`Self::ALL`].
+    /// Position of the model in [`Self::ALL`] and [`MODELS`].
     pub fn index(self) -> usize {
         self as usize
     }
@@ -102,6 +183,37 @@ impl PedestrianModel {
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|m| m.name() == name)
     }
+
+    /// Every model's name, `", "`-separated and the last after `or` (for messages).
+    pub fn names() -> String {
+        let names: Vec<&str> = Self::ALL.iter().map(|m| m.name()).collect();
+        let (last, rest) = names.split_last().expect("at least one model");
+        format!("{} or {last}", rest.join(", "))
+    }
+}
+
+/// [`MODELS`] as the JSON document `clients/src/sharedspace/models.json` holds (the Python side's
+/// list of models): `{"models": [{"name", "label", "social_force", "risk", "cognitive"}, ...],
+/// "default": name}`.
+pub fn models_json() -> String {
+    let rows: Vec<serde_json::Value> = MODELS
+        .iter()
+        .map(|m| {
+            let w = m.weighting;
+            serde_json::json!({
+                "name": m.name,
+                "label": m.label,
+                "social_force": w.is_some(),
+                "risk": w.is_some_and(|w| w.risk),
+                "cognitive": w.is_some_and(|w| w.cognitive),
+            })
+        })
+        .collect();
+    let doc = serde_json::json!({
+        "models": rows,
+        "default": PedestrianModel::default().name(),
+    });
+    serde_json::to_string_pretty(&doc).expect("plain JSON") + "\n"
 }
 
 /// Social-force parameters of one pedestrian model (model.md section 5; unit mass, forces in m/s²).

@@ -68,15 +68,11 @@ pub struct ModelForces {
 impl ModelForces {
     /// The forces of `model` under its parameters `p`; `None` for a model without social forces.
     pub fn new(model: PedestrianModel, p: &SocialForceParams) -> Option<Self> {
-        let (risk_weighted, cognitive) = match model {
-            PedestrianModel::Sfm => (false, false),
-            PedestrianModel::RaSfm => (true, false),
-            PedestrianModel::CrSfm => (true, true),
-            PedestrianModel::Cv | PedestrianModel::Replay => return None,
-        };
+        let w = model.info().weighting?;
+        let cognitive = w.risk && w.cognitive;
         Some(Self {
-            unit_weight: !risk_weighted,
-            goal_damping: risk_weighted,
+            unit_weight: !w.risk,
+            goal_damping: w.risk,
             a_veh: p.a_veh,
             neg_inv_b_veh: -1.0 / p.b_veh,
             a_ped: p.a_ped,

@@ -191,8 +191,8 @@ struct RolloutArgs {
     /// Scenario name, or its index in the pool.
     #[arg(long, default_value = "0")]
     scenario: String,
-    /// Pedestrian model: cv, sfm, ra_sfm, cr_sfm or replay.
-    #[arg(long, default_value = "cr_sfm")]
+    /// Pedestrian model.
+    #[arg(long, default_value = "cr_sfm", value_parser = model_names())]
     model: String,
     /// `replay` (the AV follows its record) or a constant normalised action `ACC,YAW_RATE` in [-1, 1].
     #[arg(long, default_value = "replay")]
@@ -213,9 +213,17 @@ fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
     }
 }
 
+/// The pedestrian models' names, as a clap parser (the help lists them).
+fn model_names() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(PedestrianModel::ALL.map(|m| m.name()))
+}
+
 fn parse_model(name: &str) -> Result<PedestrianModel, String> {
     PedestrianModel::from_name(name).ok_or_else(|| {
-        format!("unknown pedestrian model `{name}` (expected cv, sfm, ra_sfm, cr_sfm or replay)")
+        format!(
+            "unknown pedestrian model `{name}` (expected {})",
+            PedestrianModel::names()
+        )
     })
 }
 

@@ -116,7 +116,8 @@ impl ParamsDoc {
                     return Err(parse_error(
                         origin,
                         format!(
-                            "models.{name}: unknown pedestrian model (expected cv, sfm, ra_sfm, cr_sfm or replay)"
+                            "models.{name}: unknown pedestrian model (expected {})",
+                            PedestrianModel::names()
                         ),
                     ));
                 }

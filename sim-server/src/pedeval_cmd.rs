@@ -42,8 +42,8 @@ pub struct EvalPedsArgs {
     /// Split to evaluate: train, test or all.
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// Comma-separated pedestrian models.
-    #[arg(long, default_value = "cv,sfm,ra_sfm,cr_sfm")]
+    /// Comma-separated pedestrian models (default: every model but `replay`).
+    #[arg(long, default_value_t = evaluated_models())]
     pub models: String,
     /// Only these scenarios (comma-separated names) of the split.
     #[arg(long)]
@@ -135,6 +135,17 @@ impl ModelResult {
     }
 }
 
+/// Every model an evaluation can run, comma-separated: all but `replay`, which only repeats the
+/// recording.
+fn evaluated_models() -> String {
+    let names: Vec<&str> = PedestrianModel::ALL
+        .iter()
+        .filter(|m| **m != PedestrianModel::Replay)
+        .map(|m| m.name())
+        .collect();
+    names.join(",")
+}
+
 /// Parses `cv,sfm,...` into models (no duplicates).
 pub fn parse_models(text: &str) -> Result<Vec<PedestrianModel>, String> {
     let mut models = Vec::new();
@@ -142,7 +153,10 @@ pub fn parse_models(text: &str) -> Result<Vec<PedestrianModel>, String> {
         let m = PedestrianModel::from_name(name)
             .filter(|m| *m != PedestrianModel::Replay)
             .ok_or_else(|| {
-                format!("--models: unknown pedestrian model `{name}` (expected cv, sfm, ra_sfm or cr_sfm)")
+                format!(
+                    "--models: unknown pedestrian model `{name}` (expected one of {})",
+                    evaluated_models()
+                )
             })?;
         if !models.contains(&m) {
             models.push(m);

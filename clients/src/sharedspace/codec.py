@@ -26,6 +26,7 @@ from .errors import (
     WrongShape,
     server_error,
 )
+from .models import DEFAULT_MODEL
 
 __all__ = [
     "PROTOCOL_VERSION",
@@ -257,7 +258,7 @@ def create_env(
     pool: str | None = None,
     split: str = "train",
     seed: int = 0,
-    pedestrian_model: str = "cr_sfm",
+    pedestrian_model: str = DEFAULT_MODEL,
     pedestrian_params: Mapping[str, float] | None = None,
     external_agents: Sequence[str] = ("vehicle_0",),
     reward_weights: Mapping[str, float] | None = None,

@@ -47,6 +47,7 @@ from pettingzoo import ParallelEnv
 
 from .client import SimClient, VectorClient
 from .errors import EnvClosed, WrongShape
+from .models import DEFAULT_MODEL
 from .render import render_observation
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
@@ -146,7 +147,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         split: str = "train",
         pool: str | None = None,
         scenario: str | Sequence[str] | None = None,
-        pedestrian_model: str = "cr_sfm",
+        pedestrian_model: str = DEFAULT_MODEL,
         pedestrian_params: Mapping[str, float] | None = None,
         reward_weights: Mapping[str, float] | None = None,
         seed: int = 0,

@@ -48,6 +48,7 @@ from .local_env import (
     NODE_FEATURES,
     set_contract_specs,
 )
+from .models import DEFAULT_MODEL
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
 __all__ = ["RemoteBatchedEnv", "RemoteMultiAgentEnv"]
@@ -144,7 +145,7 @@ class RemoteBatchedEnv(_ServerEnvs):
         scenarios: str | Sequence[str | int] | None = None,
         pool: str | Path | Sequence[Mapping[str, Any]] | None = None,
         params: Mapping[str, Any] | None = None,
-        pedestrian_model: str = "cr_sfm",
+        pedestrian_model: str = DEFAULT_MODEL,
         device: str | torch.device = "cpu",
         *,
         endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
@@ -461,7 +462,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         seed: int = 0,
         pool: str | None = None,
         scenario: str | None = None,
-        pedestrian_model: str = "cr_sfm",
+        pedestrian_model: str = DEFAULT_MODEL,
         device: str | torch.device = "cpu",
         *,
         endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,

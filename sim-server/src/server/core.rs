@@ -16,8 +16,7 @@ use protocol::wire::{decode_batch_step, write_batch_step_ok, BatchColumns, Batch
 use protocol::{
     decode, decode_or_default, encode, ActionMsg, ActionSpace, BatchStep, BatchStepResult, Close,
     Closed, CreateEnv, EnvCreated, ErrorCode, ErrorReply, InfoRequest, KeySpace, Mode, ObsLayout,
-    OpenEnv, PedestrianModel as WireModel, Reply, Reset, ServerInfo, Split as WireSplit, Step,
-    SyntheticScenes, PROTOCOL_VERSION,
+    OpenEnv, Reply, Reset, ServerInfo, Split as WireSplit, Step, SyntheticScenes, PROTOCOL_VERSION,
 };
 use serde::Serialize;
 use sim_core::params::{PedestrianModel, WorldParams};
@@ -170,16 +169,6 @@ fn apply_reward_weights(
         }
     }
     Ok(p)
-}
-
-fn model_of(m: WireModel) -> PedestrianModel {
-    match m {
-        WireModel::Cv => PedestrianModel::Cv,
-        WireModel::Sfm => PedestrianModel::Sfm,
-        WireModel::RaSfm => PedestrianModel::RaSfm,
-        WireModel::CrSfm => PedestrianModel::CrSfm,
-        WireModel::Replay => PedestrianModel::Replay,
-    }
 }
 
 fn split_of(s: WireSplit) -> Split {
@@ -462,13 +451,7 @@ impl ServerCore {
             max_batch: self.limits.max_batch,
             max_agents: self.limits.max_agents,
             dt: self.params.base().dt,
-            pedestrian_models: vec![
-                WireModel::Cv,
-                WireModel::Sfm,
-                WireModel::RaSfm,
-                WireModel::CrSfm,
-                WireModel::Replay,
-            ],
+            pedestrian_models: PedestrianModel::ALL.to_vec(),
             pools: self.pools.iter().map(|p| p.summary()).collect(),
             envs: self.open_env_owners(),
         }
@@ -610,7 +593,7 @@ impl ServerCore {
             ))
         })?;
         let params = apply_pedestrian_params(
-            *self.params.for_model(model_of(req.pedestrian_model)),
+            *self.params.for_model(req.pedestrian_model),
             &req.pedestrian_params,
         )?;
         let params = apply_reward_weights(params, &req.reward_weights)?;
@@ -653,7 +636,7 @@ impl ServerCore {
             split,
             candidates: Arc::new(candidates),
             pinned,
-            model: model_of(req.pedestrian_model),
+            model: req.pedestrian_model,
             params,
             external_names: req.external_agents.clone(),
             external_vehicles: vehicles,

@@ -8,6 +8,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from sharedspace.models import DEFAULT_MODEL
 
 __all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
 
@@ -31,7 +32,7 @@ class TrainConfig:
     env_backend: str = "local"  # "local" (in-process LocalBatchedEnv) | "remote" (Zenoh server)
     num_envs: int = 8  # K, sub-envs stepped together (env batch size)
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
-    pedestrian_model: str = "cr_sfm"  # pedestrian model of the simulated crowd
+    pedestrian_model: str = DEFAULT_MODEL  # pedestrian model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
     server_endpoint: str = "tcp/127.0.0.1:7447"  # Zenoh endpoint of the server (remote only)
     server_prefix: str = "sharedspace"  # Zenoh key prefix of the server (remote only)

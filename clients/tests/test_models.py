@@ -1,0 +1,41 @@
+"""Every Python list of pedestrian models is sim-core's (``sharedspace.models``, from
+``models.json``, which ``sim-core/tests/models.rs`` holds equal to ``sim_core::params::MODELS``),
+and so is the list a live server reports."""
+
+from __future__ import annotations
+
+import inspect
+import sys
+from pathlib import Path
+
+from sharedspace import codec, models
+from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
+from sharedspace.train.config import TrainConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from calibration import common, crossval, paired, plot_trajectories  # noqa: E402
+
+
+def test_the_server_reports_the_same_models(sim_server, sim_client):
+    info = sim_client.info(sim_server.server_id)
+    assert tuple(info["pedestrian_models"]) == models.PEDESTRIAN_MODELS
+
+
+def test_calibration_lists_derive_from_the_table():
+    assert tuple(common.SPACES) == models.SOCIAL_FORCE_MODELS
+    assert tuple(crossval.MODELS) == models.EVALUATED_MODELS
+    assert tuple(plot_trajectories.MODELS) == models.EVALUATED_MODELS
+    assert set(plot_trajectories.COLOURS) == set(models.EVALUATED_MODELS)
+    assert paired.NAMES == models.LABELS
+    # a model's calibrated parameters follow its weighting: cognitive > risk > plain SFM
+    sizes = {m["name"]: len(common.SPACES[m["name"]]) for m in models.MODELS if m["social_force"]}
+    assert sizes["sfm"] < sizes["ra_sfm"] < sizes["cr_sfm"]
+
+
+def test_client_defaults_are_the_tables_default():
+    assert models.DEFAULT_MODEL in models.PEDESTRIAN_MODELS
+    assert TrainConfig().pedestrian_model == models.DEFAULT_MODEL
+    for fn in (codec.create_env, SharedSpaceParallelEnv.__init__):
+        default = inspect.signature(fn).parameters["pedestrian_model"].default
+        assert default == models.DEFAULT_MODEL, fn
