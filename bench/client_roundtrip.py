@@ -211,8 +211,11 @@ def bench_batch(client: SimClient, k: int, seconds: float) -> dict:
 def bench_torchrl(client: SimClient, k: int, seconds: float) -> dict:
     import torch
 
-    from sharedspace.local_env import LocalBatchedEnv
     from sharedspace.torchrl_env import RemoteBatchedEnv
+
+    # The in-process numpy twin of the env is a test oracle, not part of the package.
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "clients" / "tests"))
+    from local_env import LocalBatchedEnv
 
     out = {}
     for name, make in (

@@ -65,11 +65,12 @@ def fake_batch(batch: int, max_agents: int = 8, features: int = 11) -> TensorDic
 
 def env_batches(count: int, batch: int, seed: int = 0) -> list[TensorDict]:
     """``count`` replay batches sampled from transitions of the paper pool's train split
-    (the in-process env, a uniform random policy): real observations, whose masks fill 4 of
-    the 8 nodes as the paper's scenes do."""
-    from sharedspace.local_env import LocalBatchedEnv
+    (the trainer's env on a local sim-server, a uniform random policy): real observations,
+    whose masks fill 4 of the 8 nodes as the paper's scenes do."""
+    from sharedspace.train.config import TrainConfig
+    from sharedspace.train.sac import make_env
 
-    env = LocalBatchedEnv(num_envs=16, max_agents=8, split="train", seed=seed)
+    env = make_env(TrainConfig(num_envs=16, max_agents=8, seed=seed), split="train")
     torch.manual_seed(seed)
     data = env.rollout(64, break_when_any_done=False).reshape(-1)
     env.close()

@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT / "clients" / "src"))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from client_roundtrip import free_port, wait_port  # noqa: E402
+
 from sharedspace.client import SimClient, VectorClient  # noqa: E402
 from sharedspace.observer import Observer  # noqa: E402
 from sharedspace.viewer import Viewer  # noqa: E402

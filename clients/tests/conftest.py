@@ -35,39 +35,27 @@ def pytest_terminal_summary(terminalreporter):
 
 import os  # noqa: E402
 import signal  # noqa: E402
-import socket  # noqa: E402
 import subprocess  # noqa: E402
-import time  # noqa: E402
 import uuid  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 
+from sharedspace import local_server  # noqa: E402
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def sim_server_binary() -> Path | None:
-    """``$SHAREDSPACE_SIM_SERVER``, else ``target/release/sim-server``, else the debug build."""
-    env = os.environ.get("SHAREDSPACE_SIM_SERVER")
-    candidates = (
-        [Path(env)]
-        if env
-        else [
-            REPO_ROOT / "target" / "release" / "sim-server",
-            REPO_ROOT / "target" / "debug" / "sim-server",
-        ]
-    )
-    for path in candidates:
-        if path.is_file() and os.access(path, os.X_OK):
-            return path
-    return None
+    """The binary the package would use (``sharedspace.local_server.sim_server_binary``), or
+    ``None`` when there is none (the tests that need it then skip)."""
+    try:
+        return local_server.sim_server_binary()
+    except FileNotFoundError:
+        return None
 
 
-def free_port() -> int:
-    """A free TCP port on the loopback interface."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+free_port = local_server.free_port
 
 
 class SimServer:
@@ -100,17 +88,11 @@ class SimServer:
         self._wait_listening(20.0)
 
     def _wait_listening(self, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"sim-server exited with {self.proc.returncode} at start-up")
-            try:
-                with socket.create_connection(("127.0.0.1", self.port), timeout=0.2):
-                    return
-            except OSError:
-                time.sleep(0.05)
-        self.stop()
-        raise RuntimeError(f"sim-server did not listen on {self.endpoint} within {timeout} s")
+        try:
+            local_server.wait_port(self.port, self.proc, timeout)
+        except RuntimeError:
+            self.stop()
+            raise
 
     def kill(self, sig: int = signal.SIGKILL) -> None:
         if self.proc.poll() is None:

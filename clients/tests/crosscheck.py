@@ -8,7 +8,7 @@ import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sharedspace.reference import ReferenceWorld
+from reference import ReferenceWorld
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 POOL_PATH = REPO_ROOT / "scenarios" / "data" / "hbs-paper.json"

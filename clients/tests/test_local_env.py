@@ -10,10 +10,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from local_env import LocalBatchedEnv, load_pool, split_indices  # noqa: E402
+from reference import ReferenceWorld, wrap_angle  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
-
-from sharedspace.local_env import LocalBatchedEnv, load_pool, split_indices  # noqa: E402
-from sharedspace.reference import ReferenceWorld, wrap_angle  # noqa: E402
 
 POOL = load_pool()
 
@@ -142,9 +141,8 @@ def test_local_defaults_are_the_servers_shipped_defaults(model, tmp_path):
     import subprocess
 
     from conftest import sim_server_binary
-
-    from sharedspace.local_env import shipped_params
-    from sharedspace.reference import DEFAULT_PARAMS, merge_params
+    from local_env import shipped_params
+    from reference import DEFAULT_PARAMS, merge_params
 
     binary = sim_server_binary()
     if binary is None:

@@ -9,8 +9,7 @@ import crosscheck
 import numpy as np
 import pytest
 import synthetic
-
-from sharedspace.reference import (
+from reference import (
     DEFAULT_PARAMS,
     ReferenceWorld,
     StepRefused,

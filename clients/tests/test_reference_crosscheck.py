@@ -1,4 +1,4 @@
-"""Cross-check of the numpy reference (sharedspace.reference) against the Rust core.
+"""Cross-check of the numpy reference (the numpy oracle (tests/reference.py)) against the Rust core.
 
 For each case the release ``sim-server rollout`` writes every step of an episode as JSON lines
 (docs/ROLLOUT.md); ReferenceWorld replays the same set-up (same scenario, the parameters from the

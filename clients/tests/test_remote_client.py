@@ -9,12 +9,12 @@ import time
 import numpy as np
 import pytest
 from conftest import REPO_ROOT, free_port
+from reference import ReferenceWorld
 
 from sharedspace import codec
 from sharedspace.client import SimClient, VectorClient
 from sharedspace.errors import EnvClosed, NoServer, VersionMismatch, WrongShape
 from sharedspace.observer import Observer
-from sharedspace.reference import ReferenceWorld
 from sharedspace.transport import Transport
 
 POOL = json.loads((REPO_ROOT / "scenarios" / "data" / "hbs-paper.json").read_text())["scenarios"]

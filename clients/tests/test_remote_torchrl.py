@@ -8,9 +8,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from local_env import LocalBatchedEnv  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
-from sharedspace.local_env import LocalBatchedEnv  # noqa: E402
 from sharedspace.torchrl_env import RemoteBatchedEnv  # noqa: E402
 
 

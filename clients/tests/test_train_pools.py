@@ -2,7 +2,7 @@
 
 import json
 
-from sharedspace.local_env import DEFAULT_POOL_PATH
+from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.train.pools import main, paper_plus_general, record_ids
 
 

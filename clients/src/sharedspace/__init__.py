@@ -2,7 +2,9 @@
 
 - :mod:`sharedspace.codec`: MessagePack wire codec (protocol/SPEC.md);
 - :mod:`sharedspace.errors`: the exceptions;
-- :mod:`sharedspace.reference`: a pure-numpy reference of the world step (shared/spec/model.md);
+- :mod:`sharedspace.models`: the pedestrian models (sim-core's one list);
+- :mod:`sharedspace.pool`: scenario pools and what their records say;
+- :mod:`sharedspace.local_server`: ``sim-server`` on this machine (a local server, a rollout);
 - :mod:`sharedspace.transport`: the zenoh session, server discovery, liveliness;
 - :mod:`sharedspace.client`: :class:`SimClient` and the batched :class:`VectorClient` (failover);
 - :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``;

@@ -1,9 +1,9 @@
 """Batched TorchRL env over the sharedspace server (clients/ENV_CONTRACT.md).
 
-:class:`RemoteBatchedEnv` is the remote twin of :class:`~sharedspace.local_env.LocalBatchedEnv`:
-same constructor keywords (plus ``endpoint`` and ``prefix``), same keys and specs, batch size
-``[K]``. Its K sub-envs are created by one ``CreateEnv`` on the least-loaded server and stepped
-with one ``BatchStep`` per step.
+:class:`RemoteBatchedEnv` follows the env contract (ENV_CONTRACT.md; the test suite holds it to
+an in-process numpy twin, ``clients/tests/local_env.py``): keys and specs of
+:func:`set_contract_specs`, batch size ``[K]``. Its K sub-envs are created by one ``CreateEnv``
+on the least-loaded server and stepped with one ``BatchStep`` per step.
 
 Scenario order:
 
@@ -38,22 +38,56 @@ from typing import Any
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from .client import SimClient, VectorClient
+from .codec import FEATURE_NAMES
 from .errors import SharedspaceError
-from .local_env import (
-    EPISODE_FLAG_KEYS,
-    EPISODE_FLOAT_KEYS,
-    NODE_FEATURES,
-    set_contract_specs,
-)
 from .models import DEFAULT_MODEL
+from .pool import DEFAULT_POOL_PATH
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
-__all__ = ["RemoteBatchedEnv", "RemoteMultiAgentEnv"]
+__all__ = [
+    "EPISODE_FLAG_KEYS",
+    "EPISODE_FLOAT_KEYS",
+    "NODE_FEATURES",
+    "RemoteBatchedEnv",
+    "RemoteMultiAgentEnv",
+    "set_contract_specs",
+]
 
-_DEFAULT_POOL = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
+NODE_FEATURES = len(FEATURE_NAMES)
+EPISODE_FLAG_KEYS = ("episode_success", "episode_collision", "episode_timeout")
+EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_abs_acc")
+
+
+def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
+    """Sets the specs of clients/ENV_CONTRACT.md on ``env`` (batch size ``[k]``, ``m`` nodes):
+    the one definition every batched env uses."""
+    dev = env.device
+    bool_spec = Categorical(2, shape=(k, 1), dtype=torch.bool, device=dev)
+    obs = {
+        "features": Unbounded((k, m, NODE_FEATURES), dtype=torch.float32, device=dev),
+        "adjacency": Unbounded((k, m, m), dtype=torch.float32, device=dev),
+        "mask": Binary(n=m, shape=(k, m), dtype=torch.bool, device=dev),
+        "scenario_index": Unbounded((k, 1), dtype=torch.int64, device=dev),
+    }
+    for key in EPISODE_FLAG_KEYS:
+        obs[key] = bool_spec.clone()
+    for key in EPISODE_FLOAT_KEYS:
+        obs[key] = Unbounded((k, 1), dtype=torch.float32, device=dev)
+    env.observation_spec = Composite(obs, shape=(k,), device=dev)
+    env.action_spec = Bounded(-1.0, 1.0, (k, 2), dtype=torch.float32, device=dev)
+    env.reward_spec = Unbounded((k, 1), dtype=torch.float32, device=dev)
+    env.done_spec = Composite(
+        done=bool_spec.clone(),
+        terminated=bool_spec.clone(),
+        truncated=bool_spec.clone(),
+        shape=(k,),
+        device=dev,
+    )
+
 
 
 def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
@@ -61,7 +95,7 @@ def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
     if isinstance(pool, str) and not pool.endswith(".json") and not Path(pool).is_file():
         return pool, []  # a pool name: the server lists its scenarios
     if pool is None:
-        path = _DEFAULT_POOL
+        path = DEFAULT_POOL_PATH
         if not path.is_file():
             return None, []
         data = json.loads(path.read_text())
@@ -116,8 +150,9 @@ class RemoteBatchedEnv(_ServerEnvs):
     """K server envs as one TorchRL env of batch size ``[K]`` (ENV_CONTRACT.md).
 
     Args:
-        num_envs, max_agents, split, seed, scenario_order, pedestrian_model: as
-            :class:`~sharedspace.local_env.LocalBatchedEnv`.
+        num_envs, max_agents, split, seed, scenario_order, pedestrian_model: K, M, the split
+            (``train``/``test``/``all``), the base seed, ``random``/``cycle``, the crowd's model
+            (ENV_CONTRACT.md).
         pool: the server pool: its name (``"hbs-paper"``, ``"hbs-general"``, see
             ``SimClient.pools()``), or the path of the scenario file the server serves (or its
             scenario dicts), whose ``name`` selects the pool; the pool's order gives

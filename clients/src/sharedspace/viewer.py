@@ -16,53 +16,20 @@ from __future__ import annotations
 import argparse
 import functools
 import http.server
-import os
 import signal
-import socket
 import subprocess
 import threading
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import urlencode
 
-__all__ = ["VIEWER_DIST", "Viewer", "sim_server_binary"]
+from .local_server import free_port, sim_server_binary, wait_port
+
+__all__ = ["VIEWER_DIST", "Viewer"]
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 #: The built page (``npm ci && npm run build`` in viewer/).
 VIEWER_DIST = REPO_ROOT / "viewer" / "dist"
-
-
-def sim_server_binary() -> Path:
-    """``$SHAREDSPACE_SIM_SERVER``, else the release build, else the debug build."""
-    env = os.environ.get("SHAREDSPACE_SIM_SERVER")
-    candidates = [Path(env)] if env else []
-    candidates += [REPO_ROOT / "target" / b / "sim-server" for b in ("release", "debug")]
-    for path in candidates:
-        if path.is_file() and os.access(path, os.X_OK):
-            return path
-    raise FileNotFoundError(
-        "sim-server not found: build it (`make build`) or set SHAREDSPACE_SIM_SERVER"
-    )
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_port(port: int, proc: subprocess.Popen, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"the viewer's router exited with {proc.returncode} at start-up")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.05)
-    raise RuntimeError(f"the viewer's router did not open its WebSocket port {port} in {timeout} s")
 
 
 class _Quiet(http.server.SimpleHTTPRequestHandler):
@@ -105,8 +72,8 @@ class Viewer:
         endpoints = [connect] if isinstance(connect, str) else list(connect)
         self.prefix = prefix
         self.host = host
-        self.ws_port = ws_port or _free_port()
-        router_port = _free_port()
+        self.ws_port = ws_port or free_port()
+        router_port = free_port()
         quoted = ",".join(f'"{e}"' for e in endpoints)
         cmd = [
             str(sim_server_binary()),
@@ -131,7 +98,7 @@ class Viewer:
             cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
         )
         try:
-            _wait_port(self.ws_port, self._router, 20.0)
+            wait_port(self.ws_port, self._router, 20.0, "the viewer's router")
             handler = functools.partial(_Quiet, directory=str(dist))
             self._http = http.server.ThreadingHTTPServer((host, http_port), handler)
         except BaseException:

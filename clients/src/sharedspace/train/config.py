@@ -8,6 +8,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
 from sharedspace.models import DEFAULT_MODEL
 
 __all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
@@ -29,13 +30,13 @@ class TrainConfig:
     device: str = "cpu"  # torch device of the networks and the updates ("cpu", "cuda")
     num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
     # --- env
-    env_backend: str = "local"  # "local" (in-process LocalBatchedEnv) | "remote" (Zenoh server)
+    env_backend: str = "remote"  # the Rust server over Zenoh (the only one; kept for old configs)
     num_envs: int = 8  # K, sub-envs stepped together (env batch size)
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
-    pedestrian_model: str = DEFAULT_MODEL  # pedestrian model of the simulated crowd (sharedspace.models)
+    pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
-    server_endpoint: str = "tcp/127.0.0.1:7447"  # Zenoh endpoint of the server (remote only)
-    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server (remote only)
+    server_endpoint: str = ""  # Zenoh endpoint of the server; "" = start a local sim-server
+    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server
     zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
@@ -65,8 +66,14 @@ class TrainConfig:
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {VARIANTS}, not {self.variant!r}")
-        if self.env_backend not in ("local", "remote"):
-            raise ValueError(f"env_backend must be local or remote, not {self.env_backend!r}")
+        if self.env_backend == "local":
+            raise ValueError(
+                "env_backend=local was removed: the numpy world is a test oracle now "
+                "(clients/tests/reference.py); leave server_endpoint empty and the trainer "
+                "starts a local sim-server"
+            )
+        if self.env_backend != "remote":
+            raise ValueError(f"env_backend must be remote, not {self.env_backend!r}")
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
 

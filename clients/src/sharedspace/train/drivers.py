@@ -151,7 +151,7 @@ class HumanReplayDriver(nn.Module):
 
     def __init__(self, pool: Sequence[dict[str, Any]], limits: VehicleLimits = VehicleLimits()):  # noqa: B008
         super().__init__()
-        from sharedspace.reference import _recorded_headings
+        from sharedspace.pool import recorded_headings
 
         self.limits = limits
         self.speeds, self.headings = [], []
@@ -159,7 +159,7 @@ class HumanReplayDriver(nn.Module):
             vel = np.asarray(sc["agents"][int(sc["ego"])]["velocities"], dtype=float)
             vel = vel.reshape(-1, 2)
             self.speeds.append(np.hypot(vel[:, 0], vel[:, 1]))
-            self.headings.append(np.asarray(_recorded_headings(vel), dtype=float))
+            self.headings.append(np.asarray(recorded_headings(vel), dtype=float))
         self.t = 0
 
     def forward(self, scenario_index: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
@@ -195,7 +195,7 @@ def make_driver(name: str, pool: Sequence[dict[str, Any]] | None = None) -> Tens
     count: make a new one per evaluation."""
     if name == "human_replay":
         if pool is None:
-            from sharedspace.local_env import load_pool
+            from sharedspace.pool import load_pool
 
             pool = load_pool()
         return TensorDictModule(
@@ -216,7 +216,7 @@ def reachability(
     (position, speed, heading of the first frame), the semi-implicit unicycle of model.md
     section 2, for each cruise speed: the earliest arrival step within the horizon (recorded
     steps + ``horizon_extra`` s), or ``None`` if no cruise speed arrives."""
-    from sharedspace.reference import _recorded_headings
+    from sharedspace.pool import recorded_headings
 
     out = []
     for sc in scenarios:
@@ -227,7 +227,7 @@ def reachability(
         recorded_steps = len(pos) - 1
         horizon = recorded_steps + int(round(horizon_extra / dt))
         goal = pos[-1]
-        theta0 = float(_recorded_headings(vel)[0])
+        theta0 = float(recorded_headings(vel)[0])
         best: dict[str, Any] = {"steps": None, "cruise": None}
         for cruise in cruises:
             x, y, th, v = float(pos[0, 0]), float(pos[0, 1]), theta0, float(np.hypot(*vel[0]))

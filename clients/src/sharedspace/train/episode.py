@@ -197,8 +197,7 @@ def episode_figure(
 
 def _human_profile(scenario: str, pool: Any = None) -> tuple[list[float], list[float]] | None:
     """The recorded ego's speeds and headings of ``scenario`` (the embedded pool file)."""
-    from sharedspace.local_env import load_pool
-    from sharedspace.reference import _recorded_headings
+    from sharedspace.pool import load_pool, recorded_headings
 
     try:
         scenarios = load_pool(pool)
@@ -207,7 +206,7 @@ def _human_profile(scenario: str, pool: Any = None) -> tuple[list[float], list[f
     for sc in scenarios:
         if sc["name"] == scenario:
             vel = np.asarray(sc["agents"][int(sc["ego"])]["velocities"], dtype=float).reshape(-1, 2)
-            return np.hypot(vel[:, 0], vel[:, 1]).tolist(), list(_recorded_headings(vel))
+            return np.hypot(vel[:, 0], vel[:, 1]).tolist(), list(recorded_headings(vel))
     return None
 
 

@@ -23,8 +23,7 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from sharedspace.local_env import load_pool, split_indices
-from sharedspace.reference import _recorded_headings, episode_metrics
+from sharedspace.pool import load_pool, recorded_headings, split_indices
 from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.sac import make_actor, make_env
@@ -104,6 +103,22 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
     return [r for r in records if r is not None]
 
 
+def human_metrics(speeds: Sequence[float], dt: float) -> dict[str, Any]:
+    """A recording scored as a successful episode, as sim-core's ``EpisodeMetrics::from_speeds``
+    scores one (mean speed after the start, mean |jerk|, max |acc|; ``metrics.rs``, whose
+    tests fix these definitions)."""
+    steps = max(len(speeds) - 1, 0)
+    accs = [(b - a) / dt for a, b in zip(speeds[:-1], speeds[1:], strict=True)]
+    jerks = [abs((b - a) / dt) for a, b in zip(accs[:-1], accs[1:], strict=True)]
+    return {
+        "status": "success",
+        "avg_speed": sum(speeds[1:]) / steps if steps else 0.0,
+        "avg_abs_jerk": sum(jerks) / len(jerks) if jerks else 0.0,
+        "max_abs_acc": max((abs(a) for a in accs), default=0.0),
+        "steps": steps,
+    }
+
+
 def human_episodes(pool: Sequence[dict], indices: Sequence[int]) -> list[dict[str, Any]]:
     """The recorded ego of each scenario scored like an episode (status ``success``), with its
     speed and heading traces."""
@@ -113,13 +128,13 @@ def human_episodes(pool: Sequence[dict], indices: Sequence[int]) -> list[dict[st
         ego = sc["agents"][int(sc["ego"])]
         vel = np.asarray(ego["velocities"], dtype=float).reshape(-1, 2)
         speeds = [math.sqrt(v[0] * v[0] + v[1] * v[1]) for v in vel]
-        m = episode_metrics("success", speeds, float(sc["dt"]))
+        m = human_metrics(speeds, float(sc["dt"]))
         out.append(
             {
                 "scenario_index": int(idx),
                 **m,
                 "speeds": speeds,
-                "headings": _recorded_headings(vel).tolist(),
+                "headings": recorded_headings(vel).tolist(),
                 "positions": np.asarray(ego["positions"], dtype=float).tolist(),
             }
         )

@@ -23,8 +23,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sharedspace.local_env import load_pool  # noqa: E402
-from sharedspace.reference import DEFAULT_PARAMS, ReferenceWorld  # noqa: E402
+from sharedspace.local_server import rollout  # noqa: E402
+from sharedspace.models import DEFAULT_MODEL  # noqa: E402
+from sharedspace.pool import load_pool  # noqa: E402
 
 __all__ = ["read_metrics", "plot_learning_curves", "plot_profiles", "plot_scene", "main"]
 
@@ -83,10 +84,11 @@ def plot_learning_curves(csv_path: str | Path, out: str | Path, metrics: Sequenc
     plt.close(fig)
 
 
-def _policy_profile(ep: dict[str, Any], heading0: float, dt: float) -> dict[str, np.ndarray]:
+def _policy_profile(
+    ep: dict[str, Any], heading0: float, dt: float, omega_max: float
+) -> dict[str, np.ndarray]:
     """Speed, acceleration and heading of a policy episode: speed from the ego node feature,
     heading integrated from the yaw-rate actions as the unicycle does."""
-    omega_max = DEFAULT_PARAMS["vehicle"]["omega_max"]
     speeds = np.asarray(ep["speeds"])
     heading = [heading0]
     for a in ep["actions"]:
@@ -94,15 +96,22 @@ def _policy_profile(ep: dict[str, Any], heading0: float, dt: float) -> dict[str,
     return {"speed": speeds, "acc": np.diff(speeds) / dt, "heading": np.unwrap(np.array(heading))}
 
 
-def plot_profiles(eval_json: str | Path, out: str | Path, max_episodes: int = 4, dt: float = 0.5):
-    """Speed / acceleration / heading over time of test episodes, policy vs recorded human."""
+def plot_profiles(
+    eval_json: str | Path,
+    out: str | Path,
+    omega_max: float,
+    max_episodes: int = 4,
+    dt: float = 0.5,
+):
+    """Speed / acceleration / heading over time of test episodes, policy vs recorded human
+    (``omega_max``: the vehicle's yaw-rate limit, rad/s, which maps the actions)."""
     rec = json.loads(Path(eval_json).read_text())
     human = {h["scenario_index"]: h for h in rec["human"]}
     eps = rec["episodes"][:max_episodes]
     fig, axes = plt.subplots(len(eps), 3, figsize=(12, 2.6 * len(eps)), squeeze=False)
     for row, ep in zip(axes, eps, strict=True):
         h = human[ep["scenario_index"]]
-        pol = _policy_profile(ep, h["headings"][0], dt)
+        pol = _policy_profile(ep, h["headings"][0], dt, omega_max)
         hs = np.asarray(h["speeds"])
         hum = {
             "speed": hs,
@@ -124,26 +133,26 @@ def plot_profiles(eval_json: str | Path, out: str | Path, max_episodes: int = 4,
     plt.close(fig)
 
 
-def plot_scene(scenario: dict[str, Any], step: int, out: str | Path, pedestrian_model="cr_sfm"):
-    """The scene at ``step`` (every vehicle replaying its record, pedestrians simulated) with
-    the directed risk-graph edges coloured by ``A = psi (1 + lambda u)``."""
-    world = ReferenceWorld(scenario, pedestrian_model=pedestrian_model, external=[])
-    for _ in range(step):
-        if world.is_over:
-            break
-        world.step({})
+def plot_scene(
+    scenario: dict[str, Any], step: int, out: str | Path, pedestrian_model: str = DEFAULT_MODEL
+):
+    """The scene at ``step`` (every vehicle replaying its record, pedestrians simulated by the
+    Rust core through ``sim-server rollout``) with the directed risk-graph edges coloured by
+    ``A = psi (1 + lambda u)``."""
+    header, steps = rollout(scenario, pedestrian_model, steps=step)
+    state = steps[-1]
+    shape = header["params"]["vehicle"]["shape"]  # {"type": "rect", "length", "width"}
     fig, ax = plt.subplots(figsize=(7, 6))
-    edges = world.edges()
-    pos = world.positions()
-    a_vals = [v[2] for v in edges.values()] or [0.0, 1.0]
+    pos = {a["id"]: (a["x"], a["y"]) for a in state["agents"]}
+    edges = state["edges"]
+    a_vals = [e[4] for e in edges] or [0.0, 1.0]
     norm = matplotlib.colors.Normalize(vmin=0.0, vmax=max(a_vals))
     cmap = plt.get_cmap("inferno_r")
-    for (i, j), (_, _, a) in edges.items():
-        p, q = pos[i], pos[j]
+    for i, j, _psi, _u, a in edges:
         ax.annotate(
             "",
-            xy=q,
-            xytext=p,
+            xy=pos[j],
+            xytext=pos[i],
             arrowprops=dict(
                 arrowstyle="->",
                 color=cmap(norm(a)),
@@ -155,14 +164,17 @@ def plot_scene(scenario: dict[str, Any], step: int, out: str | Path, pedestrian_
             ),
         )
     ego = int(scenario["ego"])
-    states = world.agent_states()
-    for aid, (x, y, vx, vy, th) in states.items():
-        veh = scenario["agents"][aid]["kind"] == "vehicle"
-        if veh:
+    ped_radius = header["params"]["ped_radius"]
+    for agent in state["agents"]:
+        aid, x, y = agent["id"], agent["x"], agent["y"]
+        vx, vy, th = agent["vx"], agent["vy"], agent["heading"]
+        if scenario["agents"][aid]["kind"] == "vehicle":
+            length = shape.get("length", 2 * shape.get("radius", 0.0))
+            width = shape.get("width", length)
             rect = matplotlib.patches.Rectangle(
-                (x - 2.0, y - 0.9),
-                4.0,
-                1.8,
+                (x - length / 2, y - width / 2),
+                length,
+                width,
                 angle=math.degrees(th),
                 rotation_point="center",
                 color="C3" if aid == ego else "C1",
@@ -170,7 +182,7 @@ def plot_scene(scenario: dict[str, Any], step: int, out: str | Path, pedestrian_
             )
             ax.add_patch(rect)
         else:
-            ax.add_patch(matplotlib.patches.Circle((x, y), 0.3, color="C0", alpha=0.8))
+            ax.add_patch(matplotlib.patches.Circle((x, y), ped_radius, color="C0", alpha=0.8))
         ax.arrow(x, y, vx * 0.5, vy * 0.5, width=0.05, color="k", alpha=0.6)
         ax.text(x + 0.4, y + 0.4, ("ego " if aid == ego else "") + str(aid), fontsize=8)
     xs = [p[0] for p in pos.values()]
@@ -181,7 +193,7 @@ def plot_scene(scenario: dict[str, Any], step: int, out: str | Path, pedestrian_
     ax.set_aspect("equal")
     ax.grid(alpha=0.3)
     fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="A(i, j)")
-    ax.set_title(f"{scenario['name']} at t = {world.time:.1f} s: risk graph (edge i -> j)")
+    ax.set_title(f"{scenario['name']} at t = {state['time']:.1f} s: risk graph (edge i -> j)")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -204,10 +216,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.run:
         plot_learning_curves(Path(args.run) / "metrics.csv", out / "learning_curves.png")
+    pool = load_pool(args.pool or None)
     if args.eval_json:
-        plot_profiles(args.eval_json, out / "profiles.png")
+        # The yaw-rate limit the server maps actions with (its shipped parameters).
+        omega_max = rollout(pool[0], DEFAULT_MODEL, steps=0)[0]["params"]["vehicle"]["omega_max"]
+        plot_profiles(args.eval_json, out / "profiles.png", omega_max)
     if args.scene >= 0:
-        pool = load_pool(args.pool or None)
         plot_scene(pool[args.scene], args.step, out / f"scene_{args.scene}_t{args.step}.png")
     return 0
 

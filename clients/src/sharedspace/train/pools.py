@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from sharedspace.local_env import DEFAULT_POOL_PATH
+from sharedspace.pool import DEFAULT_POOL_PATH
 
 __all__ = ["paper_plus_general", "record_ids"]
 

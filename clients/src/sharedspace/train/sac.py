@@ -43,8 +43,11 @@ def make_env(
     seed: int | None = None,
     scenario_order: str = "random",
 ) -> EnvBase:
-    """The batched env of ``cfg.env_backend`` (ENV_CONTRACT.md): ``local`` steps reference worlds
-    in this process; ``remote`` talks to the Rust server over Zenoh."""
+    """The batched env (ENV_CONTRACT.md) on the Rust server: the one at ``cfg.server_endpoint``
+    or reached through ``cfg.zenoh_config``, else a ``sim-server`` this process starts on a free
+    loopback port (:func:`sharedspace.local_server.shared_server`)."""
+    from sharedspace.torchrl_env import RemoteBatchedEnv
+
     kwargs = dict(
         num_envs=num_envs or cfg.num_envs,
         max_agents=cfg.max_agents,
@@ -55,16 +58,6 @@ def make_env(
     )
     if cfg.scenario_pool:
         kwargs["pool"] = cfg.scenario_pool
-    if cfg.env_backend == "local":
-        from sharedspace.local_env import LocalBatchedEnv
-
-        return LocalBatchedEnv(**kwargs)
-    try:  # built by another issue; must take the same keyword arguments (ENV_CONTRACT.md)
-        from sharedspace.torchrl_env import RemoteBatchedEnv
-    except ImportError as exc:  # pragma: no cover - depends on the remote env being present
-        raise RuntimeError(
-            "env_backend=remote needs sharedspace.torchrl_env.RemoteBatchedEnv"
-        ) from exc
     if cfg.zenoh_config:
         from sharedspace.client import SimClient
 
@@ -76,7 +69,12 @@ def make_env(
             config=settings,
         )
         return RemoteBatchedEnv(prefix=cfg.server_prefix, client=client, **kwargs)
-    return RemoteBatchedEnv(endpoint=cfg.server_endpoint, prefix=cfg.server_prefix, **kwargs)
+    if cfg.server_endpoint:
+        return RemoteBatchedEnv(endpoint=cfg.server_endpoint, prefix=cfg.server_prefix, **kwargs)
+    from sharedspace.local_server import shared_server
+
+    server = shared_server([cfg.scenario_pool] if cfg.scenario_pool else [])
+    return RemoteBatchedEnv(endpoint=server.endpoint, prefix=server.prefix, **kwargs)
 
 
 def zenoh_file_settings(path: str) -> dict[str, Any]:

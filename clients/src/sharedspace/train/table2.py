@@ -45,7 +45,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
-from sharedspace.local_env import load_pool, split_indices
+from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
 from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver, reachability

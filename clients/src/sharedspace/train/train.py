@@ -23,7 +23,7 @@ import torch
 import tqdm
 from tensordict import TensorDictBase
 
-from sharedspace.local_env import EPISODE_FLAG_KEYS, EPISODE_FLOAT_KEYS
+from sharedspace.torchrl_env import EPISODE_FLAG_KEYS, EPISODE_FLOAT_KEYS
 from sharedspace.train.config import (
     TrainConfig,
     _read_table,

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from sharedspace.codec import FEATURE_NAMES
+from sharedspace.models import PEDESTRIAN_MODELS as _MODELS
 
 __all__ = [
     "DEFAULT_PARAMS",
@@ -44,7 +45,7 @@ __all__ = [
     "StepRefused",
 ]
 
-PEDESTRIAN_MODELS = ("cv", "sfm", "ra_sfm", "cr_sfm", "replay")
+PEDESTRIAN_MODELS = _MODELS
 
 _SFM_DEFAULTS = {
     "tau": 0.5,

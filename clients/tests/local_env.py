@@ -1,4 +1,5 @@
-"""In-process batched TorchRL environment over :class:`~sharedspace.reference.ReferenceWorld`.
+"""In-process batched TorchRL environment over the numpy oracle (``reference.ReferenceWorld``),
+for tests only: the package's envs all step the Rust core through ``sim-server``.
 
 :class:`LocalBatchedEnv` steps ``K`` numpy reference worlds (one scenario episode each, the
 scenario's ego vehicle driven by the action) in the calling process. It follows the env contract
@@ -16,7 +17,6 @@ autoreset does), so that its cost counts as step time.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -24,34 +24,22 @@ from typing import Any
 
 import numpy as np
 import torch
+from reference import ReferenceWorld, merge_params
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from sharedspace.reference import ReferenceWorld, merge_params
+from sharedspace.pool import load_pool, split_indices
+from sharedspace.torchrl_env import (
+    EPISODE_FLAG_KEYS,
+    EPISODE_FLOAT_KEYS,
+    NODE_FEATURES,
+    set_contract_specs,
+)
 
-__all__ = [
-    "DEFAULT_POOL_PATH",
-    "EPISODE_FLOAT_KEYS",
-    "EPISODE_FLAG_KEYS",
-    "NODE_FEATURES",
-    "LocalBatchedEnv",
-    "load_pool",
-    "split_indices",
-]
+__all__ = ["LocalBatchedEnv", "load_pool", "shipped_params", "split_indices"]
 
-#: The paper's scenario pool (HBS shared space, 59 train + 18 test scenarios).
-DEFAULT_POOL_PATH = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
 #: The server's shipped default parameters (calibrated on the HBS train split, docs/RESULTS.md).
-SHIPPED_PARAMS_PATH = Path(__file__).resolve().parents[3] / "params" / "calibrated.json5"
-NODE_FEATURES = len(ReferenceWorld.FEATURE_NAMES)
-EPISODE_FLAG_KEYS = ("episode_success", "episode_collision", "episode_timeout")
-EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_abs_acc")
-
-
-def load_pool(path: str | Path | None = None) -> list[dict[str, Any]]:
-    """The scenarios of a scenario file (scenarios/FORMAT.md), in pool order."""
-    return json.loads(Path(path or DEFAULT_POOL_PATH).read_text())["scenarios"]
+SHIPPED_PARAMS_PATH = Path(__file__).resolve().parents[2] / "params" / "calibrated.json5"
 
 
 def shipped_params(pedestrian_model: str) -> dict[str, Any]:
@@ -63,45 +51,6 @@ def shipped_params(pedestrian_model: str) -> dict[str, Any]:
     doc = json5.loads(SHIPPED_PARAMS_PATH.read_text())
     overlay = doc.pop("models", {}).get(pedestrian_model, {})
     return merge_params(doc, overlay)
-
-
-def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
-    """Sets the specs of clients/ENV_CONTRACT.md on ``env`` (batch size ``[k]``, ``m`` nodes):
-    the one definition both the local and the remote batched env use."""
-    dev = env.device
-    bool_spec = Categorical(2, shape=(k, 1), dtype=torch.bool, device=dev)
-    obs = {
-        "features": Unbounded((k, m, NODE_FEATURES), dtype=torch.float32, device=dev),
-        "adjacency": Unbounded((k, m, m), dtype=torch.float32, device=dev),
-        "mask": Binary(n=m, shape=(k, m), dtype=torch.bool, device=dev),
-        "scenario_index": Unbounded((k, 1), dtype=torch.int64, device=dev),
-    }
-    for key in EPISODE_FLAG_KEYS:
-        obs[key] = bool_spec.clone()
-    for key in EPISODE_FLOAT_KEYS:
-        obs[key] = Unbounded((k, 1), dtype=torch.float32, device=dev)
-    env.observation_spec = Composite(obs, shape=(k,), device=dev)
-    env.action_spec = Bounded(-1.0, 1.0, (k, 2), dtype=torch.float32, device=dev)
-    env.reward_spec = Unbounded((k, 1), dtype=torch.float32, device=dev)
-    env.done_spec = Composite(
-        done=bool_spec.clone(),
-        terminated=bool_spec.clone(),
-        truncated=bool_spec.clone(),
-        shape=(k,),
-        device=dev,
-    )
-
-
-def split_indices(pool: Sequence[Mapping[str, Any]], split: str | None) -> list[int]:
-    """Pool indices of the scenarios of ``split`` (``"train"``, ``"test"``, or ``None``/"all")."""
-    if split in (None, "all"):
-        return list(range(len(pool)))
-    if split not in ("train", "test"):
-        raise ValueError(f"unknown split {split!r}")
-    out = [i for i, s in enumerate(pool) if s.get("split") == split]
-    if not out:
-        raise ValueError(f"no scenario in split {split!r}")
-    return out
 
 
 class LocalBatchedEnv(EnvBase):

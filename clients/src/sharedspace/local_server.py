@@ -1,0 +1,188 @@
+"""The Rust simulator on this machine: find ``sim-server``, run one on a free loopback port, or
+roll out one scenario with it.
+
+The Python package carries no simulator of its own: everything that steps a world (the trainer,
+the figures) goes through ``sim-server``. A trainer pointed at no server starts one here
+(:func:`shared_server`); it stops when the process exits.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "LocalServer",
+    "free_port",
+    "rollout",
+    "shared_server",
+    "sim_server_binary",
+    "wait_port",
+]
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+
+
+def sim_server_binary() -> Path:
+    """``$SHAREDSPACE_SIM_SERVER``, else this checkout's release or debug build, else
+    ``sim-server`` on ``PATH``."""
+    env = os.environ.get("SHAREDSPACE_SIM_SERVER")
+    candidates = [Path(env)] if env else []
+    candidates += [REPO_ROOT / "target" / b / "sim-server" for b in ("release", "debug")]
+    on_path = shutil.which("sim-server")
+    candidates += [Path(on_path)] if on_path else []
+    for path in candidates:
+        if path.is_file() and os.access(path, os.X_OK):
+            return path
+    raise FileNotFoundError(
+        "sim-server not found: build it (`make build`), put it on PATH or set "
+        "SHAREDSPACE_SIM_SERVER"
+    )
+
+
+def free_port() -> int:
+    """A free TCP port on the loopback interface."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_port(port: int, proc: subprocess.Popen, timeout: float, what: str = "sim-server") -> None:
+    """Returns once ``port`` accepts connections; raises if ``proc`` exits or ``timeout`` s pass."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"{what} exited with {proc.returncode} at start-up")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise RuntimeError(f"{what} did not listen on 127.0.0.1:{port} within {timeout} s")
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child
+    """Linux: the server gets SIGTERM when the process that started it dies, even by SIGKILL."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+
+
+class LocalServer:
+    """``sim-server serve`` on a free loopback port (multicast scouting off): ``endpoint`` and
+    ``prefix`` are what a client connects with. ``cfg`` adds ``--cfg KEY:VALUE`` settings."""
+
+    def __init__(
+        self,
+        prefix: str = "sharedspace",
+        cfg: Sequence[str] = (),
+        binary: str | Path | None = None,
+        log: str | Path | None = None,
+        timeout: float = 30.0,
+    ):
+        self.binary = Path(binary) if binary else sim_server_binary()
+        self.prefix = prefix
+        self.port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        cmd = [
+            str(self.binary),
+            "serve",
+            "--cfg",
+            f'zenoh/listen/endpoints:["{self.endpoint}"]',
+            "--cfg",
+            "zenoh/scouting/multicast/enabled:false",
+            "--cfg",
+            f"prefix:{prefix}",
+        ]
+        for c in cfg:
+            cmd += ["--cfg", c]
+        self._log = open(log or os.devnull, "ab")  # noqa: SIM115 - closed in close()
+        self.proc = subprocess.Popen(
+            cmd,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")},
+            preexec_fn=_die_with_parent,
+        )
+        try:
+            wait_port(self.port, self.proc, timeout)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Stops the server (SIGTERM, then SIGKILL after 10 s)."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
+        self._log.close()
+
+    def __enter__(self) -> LocalServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+_shared: dict[tuple[str, ...], LocalServer] = {}
+_shared_lock = threading.Lock()
+
+
+def shared_server(pools: Sequence[str | Path] = ()) -> LocalServer:
+    """This process's local server for ``pools`` (scenario files or ``embedded:NAME``; the
+    server's defaults, both embedded pools, when empty), started on first use and stopped at
+    exit: what a trainer uses when no endpoint is given."""
+    key = tuple(str(p) for p in pools)
+    with _shared_lock:
+        server = _shared.get(key)
+        if server is None or server.proc.poll() is not None:
+            cfg = [f"pools:{json.dumps(list(key))}"] if key else []
+            server = LocalServer(cfg=cfg)
+            atexit.register(server.close)
+            _shared[key] = server
+        return server
+
+
+def rollout(
+    scenario: Mapping[str, Any],
+    pedestrian_model: str,
+    steps: int | None = None,
+    binary: str | Path | None = None,
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """``sim-server rollout`` of one scenario (every vehicle replaying its record, the
+    pedestrians simulated by ``pedestrian_model``, the shipped parameters): the header and the
+    first ``steps + 1`` step lines (all when ``None``; docs/ROLLOUT.md)."""
+    exe = Path(binary) if binary else sim_server_binary()
+    with tempfile.TemporaryDirectory() as tmp:
+        pool = Path(tmp) / "pool.json"
+        doc = {"version": 1, "name": "rollout", "provenance": "one scenario"}
+        doc["scenarios"] = [scenario]
+        pool.write_text(json.dumps(doc))
+        out = subprocess.run(
+            [str(exe), "rollout", "--pool", str(pool), "--model", pedestrian_model],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+    lines = [json.loads(line) for line in out.splitlines() if line.strip()]
+    header = lines[0]
+    step_lines = [x for x in lines if x.get("type") == "step"]
+    return header, step_lines if steps is None else step_lines[: steps + 1]

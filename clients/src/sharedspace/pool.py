@@ -1,0 +1,56 @@
+"""Scenario pools (scenarios/FORMAT.md) as the Python side reads them: the scenarios of a file,
+the indices of a split, and what a record says without simulating anything (an agent's heading
+at every sample)."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["DEFAULT_POOL_PATH", "load_pool", "recorded_headings", "split_indices"]
+
+#: The paper's scenario pool (HBS shared space, 59 train + 18 test scenarios).
+DEFAULT_POOL_PATH = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
+
+
+def load_pool(path: str | Path | None = None) -> list[dict[str, Any]]:
+    """The scenarios of a scenario file (scenarios/FORMAT.md), in pool order."""
+    return json.loads(Path(path or DEFAULT_POOL_PATH).read_text())["scenarios"]
+
+
+def split_indices(pool: Sequence[Mapping[str, Any]], split: str | None) -> list[int]:
+    """Pool indices of the scenarios of ``split`` (``"train"``, ``"test"``, or ``None``/"all")."""
+    if split in (None, "all"):
+        return list(range(len(pool)))
+    if split not in ("train", "test"):
+        raise ValueError(f"unknown split {split!r}")
+    out = [i for i, s in enumerate(pool) if s.get("split") == split]
+    if not out:
+        raise ValueError(f"no scenario in split {split!r}")
+    return out
+
+
+def recorded_headings(velocities: np.ndarray) -> np.ndarray:
+    """Heading at every sample of a record (as sim-core's ``recorded_heading``): the direction of
+    the recorded velocity, or of the nearest moving sample (earlier first on ties), 0 if it
+    never moves."""
+    n = len(velocities)
+    speeds = np.hypot(velocities[:, 0], velocities[:, 1])
+    moving = speeds > 1e-6
+    out = np.zeros(n)
+    for k in range(n):
+        for d in range(n):
+            found = None
+            for idx in (k - d, k + d):
+                if 0 <= idx < n and moving[idx]:
+                    found = idx
+                    break
+            if found is not None:
+                out[k] = math.atan2(velocities[found, 1], velocities[found, 0])
+                break
+    return out
