@@ -5,6 +5,8 @@
 //! The equations and every decision the paper leaves open are in `shared/spec/model.md`; each
 //! module names the section it implements.
 
+#![deny(unsafe_op_in_unsafe_fn)]
+
 pub mod cognition;
 pub mod fastmath;
 pub mod geometry;

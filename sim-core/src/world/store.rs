@@ -137,14 +137,19 @@ impl EdgeStore {
     /// Those entries must have been written, every field of each (through [`EdgeStore::sink`]).
     pub(super) unsafe fn commit(&mut self, m: usize) {
         let len = self.len() + m;
-        self.target.set_len(len);
-        self.slot.set_len(len);
-        self.mu_x.set_len(len);
-        self.mu_y.set_len(len);
-        self.updates.set_len(len);
-        self.clearance.set_len(len);
-        self.psi.set_len(len);
-        self.u.set_len(len);
+        // SAFETY: the caller wrote entries `len - m..len` of every field (this function's
+        // contract), which lie within each field's capacity (`sink` handed them out of the
+        // spare capacity).
+        unsafe {
+            self.target.set_len(len);
+            self.slot.set_len(len);
+            self.mu_x.set_len(len);
+            self.mu_y.set_len(len);
+            self.updates.set_len(len);
+            self.clearance.set_len(len);
+            self.psi.set_len(len);
+            self.u.set_len(len);
+        }
     }
 
     pub(super) fn push(&mut self, e: Edge) {

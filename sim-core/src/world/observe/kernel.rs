@@ -6,7 +6,7 @@
 
 use std::mem::MaybeUninit;
 
-use super::{disc_radius, ObserveInputs, ObserveWorker, PriorBeliefs, TargetInfo};
+use super::{disc_radius, ObserveInputs, ObserveWorker, TargetInfo};
 use crate::cognition::Belief;
 use crate::geometry::{self, clearance_and_normal_oriented, Placed, Vec2};
 use crate::pedestrian::{lane_max, lane_sum};
@@ -17,7 +17,7 @@ use crate::world::Control;
 
 impl ObserveWorker {
     /// Indexes observer `i`'s beliefs of the previous graph by target id (in `stamp`, under a
-    /// new epoch, which it returns) and copies them into `prior`.
+    /// new epoch, which it returns) and starts fetching them.
     #[inline(always)]
     pub(super) fn index_beliefs(&mut self, inp: &ObserveInputs, i: usize) -> u32 {
         let a = inp.agents;
@@ -31,18 +31,16 @@ impl ObserveWorker {
         let s = a.edge_start[i] as usize;
         let range = s..s + a.edge_len[i] as usize;
         for (k, &t) in old.target[range.clone()].iter().enumerate() {
-            self.stamp[t as usize] = (epoch, k as u32);
+            self.stamp[t as usize] = (epoch, (s + k) as u32);
         }
-        // The update reads these beliefs in the new graph's order, at random within the run: a
-        // sequential copy first (which the hardware prefetcher streams) brings them from
-        // wherever the old graph is (megabytes at large N) into the nearest cache.
-        let prior = &mut self.prior;
-        prior.mu_x.clear();
-        prior.mu_x.extend_from_slice(&old.mu_x[range.clone()]);
-        prior.mu_y.clear();
-        prior.mu_y.extend_from_slice(&old.mu_y[range.clone()]);
-        prior.updates.clear();
-        prior.updates.extend_from_slice(&old.updates[range]);
+        // The update reads these beliefs in the new graph's order, at random within the run:
+        // ask for their cache lines now (the old graph is megabytes at large N, out of the
+        // nearer caches), so that the misses overlap the candidate gather that comes first.
+        if range.len() >= PREFETCH_MIN_EDGES {
+            prefetch(&old.mu_x[range.clone()]);
+            prefetch(&old.mu_y[range.clone()]);
+            prefetch(&old.updates[range]);
+        }
         epoch
     }
 
@@ -95,7 +93,7 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let st = edge_state(inp, &self.stamp, &self.prior, epoch, model, &observer, t, j);
+            let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
             e_target[c] = MaybeUninit::new(t.id);
             e_slot[c] = MaybeUninit::new(j as u32);
@@ -205,7 +203,7 @@ impl ObserveWorker {
         for c in 0..m {
             let j = cand[c] as usize;
             let t = &inp.targets[j];
-            let st = edge_state(inp, &self.stamp, &self.prior, epoch, model, &observer, t, j);
+            let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
             let (psi, inv_dist) = risk::edge_psi(
                 gamma1,
@@ -361,7 +359,6 @@ struct EdgeState {
 fn edge_state(
     inp: &ObserveInputs,
     stamp: &[(u32, u32)],
-    prior: &PriorBeliefs,
     epoch: u32,
     model: crate::params::PredictionModel,
     observer: &Observer,
@@ -373,7 +370,7 @@ fn edge_state(
     let vj = t.vel;
     let (seen, k) = stamp[t.id as usize];
     let (belief, u) = if seen == epoch {
-        let mut b = prior.belief(k as usize);
+        let mut b = inp.old.belief(k as usize);
         let mu_p = b.predict(model, inp.last_change[j]);
         let u = b.update(mu_p, vj, inp.schedule);
         (b, u)
@@ -436,4 +433,29 @@ pub(in crate::world) fn edge_direction(a: &Agents, i: usize, j: usize) -> ((f64,
         )
     });
     ((normal.x, normal.y, rect), geometry::inv_distance(dist))
+}
+
+/// Observers with fewer old edges do not prefetch their beliefs (a short run is a few lines).
+const PREFETCH_MIN_EDGES: usize = 32;
+
+/// Asks the CPU to bring the cache lines of `run` into the nearest cache: a hint, which changes
+/// no value (and does nothing off x86-64). Not vector code: the one intrinsic the observe pass
+/// keeps (docs/BENCHMARKS.md section 1 measures it).
+#[inline(always)]
+fn prefetch<T>(run: &[T]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let start = run.as_ptr().cast::<i8>();
+        for offset in (0..std::mem::size_of_val(run)).step_by(64) {
+            // SAFETY: a prefetch never faults and writes nothing; the address lies inside
+            // `run` (`offset` is below its size in bytes).
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    start.add(offset),
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = run;
 }

@@ -300,10 +300,8 @@ pub struct KernelsUnavailable(pub Kernels);
 #[derive(Debug, Clone, Default)]
 pub(super) struct ObserveWorker {
     /// `stamp[id].0 == epoch` when the current observer had a belief about agent `id`, held by
-    /// entry `stamp[id].1` of `prior`.
+    /// edge `stamp[id].1` of the previous graph.
     stamp: Vec<(u32, u32)>,
-    /// The current observer's beliefs of the previous graph.
-    prior: PriorBeliefs,
     epoch: u32,
     /// Slots of the current observer's targets.
     cand: Vec<u32>,
@@ -495,24 +493,6 @@ impl ObserveWorker {
             &mut self.w,
         ] {
             v.resize(n, 0.0);
-        }
-    }
-}
-
-/// One observer's beliefs of the previous graph, copied out of the old edge store.
-#[derive(Debug, Clone, Default)]
-struct PriorBeliefs {
-    mu_x: Vec<f64>,
-    mu_y: Vec<f64>,
-    updates: Vec<u32>,
-}
-
-impl PriorBeliefs {
-    #[inline(always)]
-    fn belief(&self, k: usize) -> crate::cognition::Belief {
-        crate::cognition::Belief {
-            mu: Vec2::new(self.mu_x[k], self.mu_y[k]),
-            updates: self.updates[k],
         }
     }
 }
