@@ -6,6 +6,11 @@ same density, no obstacles) are timed one after the other, and the ratio of step
 pysocialforce's social force is O(N^2) in time and memory, so at large N it runs only a few steps.
 
 Usage: python bench/step_vs_pysocialforce.py --server target/release/sim-server [--n 3 10 ...]
+       [--baseline-server OLD_BUILD/sim-server] [--rounds R]
+
+With ``--baseline-server`` every round times the new step, the baseline's step and pysocialforce
+one after the other for each N, and the medians over the rounds are printed side by side (the
+machines swing 1.5-2x within minutes, so old and new are only compared within one run).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import json
 import logging
 import platform
 import resource
+import statistics
 import subprocess
 import sys
 import time
@@ -106,6 +112,8 @@ def main() -> None:
     parser.add_argument(
         "--pysf-mem-gib", type=float, default=16.0, help="memory cap for pysocialforce"
     )
+    parser.add_argument("--baseline-server", help="an older sim-server build to time alongside")
+    parser.add_argument("--rounds", type=int, default=1, help="rounds (medians are printed)")
     parser.add_argument("--pysf-only", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     logging.disable(logging.CRITICAL)  # pysocialforce logs every step at DEBUG
@@ -117,29 +125,50 @@ def main() -> None:
     print(
         f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}"
     )
+    base = args.baseline_server
     print(
-        f"{'N':>6} {'rust us/step':>14} {'pysf us/step':>14} {'ratio':>9} {'rust us/ped':>12}"
+        f"{'N':>6} {'rust us/step':>14}"
+        + (f" {'baseline us/step':>17} {'new/baseline':>13}" if base else "")
+        + f" {'pysf us/step':>14} {'ratio':>9}"
+        + (f" {'baseline ratio':>15}" if base else "")
+        + f" {'rust us/ped':>12}"
     )
     for n in args.n:
-        rust = time_rust(args.server, n, args.seconds)
-        pysf_steps = args.pysf_max_steps if n < 5000 else 1
-        pysf = time_pysocialforce_isolated(
-            n, args.seconds, pysf_steps, args.pysf_mem_gib
-        )
+        times: dict[str, list[float]] = {"new": [], "base": [], "pysf": []}
+        for _ in range(args.rounds):
+            times["new"].append(time_rust(args.server, n, args.seconds))
+            if base:
+                times["base"].append(time_rust(base, n, args.seconds))
+            pysf_steps = args.pysf_max_steps if n < 5000 else 1
+            pysf = time_pysocialforce_isolated(n, args.seconds, pysf_steps, args.pysf_mem_gib)
+            if pysf is not None:
+                times["pysf"].append(pysf)
+        rust = statistics.median(times["new"])
+        old = statistics.median(times["base"]) if base else None
+        pysf = statistics.median(times["pysf"]) if times["pysf"] else None
         row = {
             "n": n,
+            "rounds": args.rounds,
             "rust_us_per_step": rust * 1e6,
+            "baseline_us_per_step": None if old is None else old * 1e6,
             "pysf_us_per_step": None if pysf is None else pysf * 1e6,
             "ratio": None if pysf is None else pysf / rust,
+            "baseline_ratio": None if pysf is None or old is None else pysf / old,
             "rust_us_per_ped": rust * 1e6 / n,
+            "samples_us": {k: [t * 1e6 for t in v] for k, v in times.items()},
         }
         rows.append(row)
-        pysf_text = (
-            f"{pysf * 1e6:>14.1f}" if pysf is not None else f"{'out of memory':>14}"
-        )
+        pysf_text = f"{pysf * 1e6:>14.1f}" if pysf is not None else f"{'out of memory':>14}"
         ratio_text = f"{pysf / rust:>8.0f}x" if pysf is not None else f"{'-':>9}"
+        base_text = ""
+        if old is not None:
+            base_text = f" {old * 1e6:>17.2f} {rust / old:>13.2f}"
+        base_ratio = ""
+        if old is not None:
+            base_ratio = f" {pysf / old:>14.0f}x" if pysf is not None else f" {'-':>15}"
         print(
-            f"{n:>6} {rust * 1e6:>14.2f} {pysf_text} {ratio_text} {rust * 1e6 / n:>12.4f}",
+            f"{n:>6} {rust * 1e6:>14.2f}{base_text} {pysf_text} {ratio_text}{base_ratio}"
+            f" {rust * 1e6 / n:>12.4f}",
             flush=True,
         )
     if args.json:
