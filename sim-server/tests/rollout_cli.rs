@@ -38,7 +38,10 @@ fn rollout_writes_header_steps_and_end() {
 #[test]
 fn bad_arguments_are_refused_with_a_message_naming_them() {
     for (args, needle) in [
-        (vec!["--model", "magic"], "unknown pedestrian model `magic`"),
+        (
+            vec!["--model", "magic"],
+            "invalid value 'magic' for '--model",
+        ),
         (vec!["--av", "0.5"], "--av `0.5`"),
         (vec!["--av", "nan,0"], "--av `nan,0`"),
         (
