@@ -34,6 +34,7 @@ import numpy as np
 
 from sharedspace.codec import FEATURE_NAMES
 from sharedspace.models import PEDESTRIAN_MODELS as _MODELS
+from sharedspace.pool import recorded_headings
 
 __all__ = [
     "DEFAULT_PARAMS",
@@ -277,24 +278,9 @@ def _clip_norm(v, vmax):
     return np.where((n > vmax)[..., None], v * scale[..., None], v)
 
 
-def _recorded_headings(velocities: np.ndarray) -> np.ndarray:
-    """Heading at every sample of a record: the direction of the recorded velocity, or of the
-    nearest moving sample (earlier first on ties), 0 if it never moves."""
-    n = len(velocities)
-    speeds = np.hypot(velocities[:, 0], velocities[:, 1])
-    moving = speeds > 1e-6
-    out = np.zeros(n)
-    for k in range(n):
-        for d in range(n):
-            found = None
-            for idx in (k - d, k + d):
-                if 0 <= idx < n and moving[idx]:
-                    found = idx
-                    break
-            if found is not None:
-                out[k] = math.atan2(velocities[found, 1], velocities[found, 0])
-                break
-    return out
+# What a record says without simulating (heading of each sample): read the same way as the
+# package reads it.
+_recorded_headings = recorded_headings
 
 
 def _round_half_away(x: float) -> int:
