@@ -25,27 +25,17 @@ pub fn risk_with(
     acc_j: f64,
     params: &RiskParams,
 ) -> f64 {
-    let along = v_j.dot(&to_i);
-    edge_psi(
-        params.gamma1,
-        2.0 * params.gamma2,
-        along,
-        dist,
-        acc_j,
-        clearance,
-    )
-    .0
+    edge_psi(params, v_j.dot(&to_i), dist, acc_j, clearance).0
 }
 
 /// The world step's `psi` of one edge, and `1 / dist` (1 for coincident centres): the one
 /// implementation of model.md section 4 that runs. Inputs: `along = v_j . (x_i - x_j)`, the
-/// centre distance, the target's acceleration norm and the clearance; `two_gamma2 = 2 gamma2`.
+/// centre distance, the target's acceleration norm and the clearance.
 /// Branch-free (selects only) and with the crate's vectorisable `exp`, so it is inlined into
 /// and compiled for each instruction-set variant of the observe pass.
 #[inline(always)]
 pub fn edge_psi(
-    gamma1: f64,
-    two_gamma2: f64,
+    params: &RiskParams,
     along: f64,
     dist: f64,
     acc_norm: f64,
@@ -55,9 +45,9 @@ pub fn edge_psi(
     let inv_dist = crate::geometry::inv_distance(dist);
     let radial_speed = along.abs() * inv_dist;
     let k = if along > 0.0 { -1.0 } else { 1.0 };
-    let z = gamma1 * k * (radial_speed + acc_norm);
+    let z = params.gamma1 * k * (radial_speed + acc_norm);
     let one_plus_e = 1.0 + crate::fastmath::exp(-2.0 * z);
-    let psi = one_plus_e / (one_plus_e + two_gamma2 * clearance);
+    let psi = one_plus_e / (one_plus_e + 2.0 * params.gamma2 * clearance);
     // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
     let psi = if one_plus_e == f64::INFINITY {
         1.0

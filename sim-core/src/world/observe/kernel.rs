@@ -123,18 +123,16 @@ impl ObserveWorker {
             )
         };
         let (alongs, dists, accns) = (&self.along[..m], &self.dist[..m], &self.accn[..m]);
-        let gamma1 = inp.params.risk.gamma1;
-        let two_gamma2 = 2.0 * inp.params.risk.gamma2;
+        let risk = &inp.params.risk;
         let fc = match a.control[i] {
             Control::Model(model) => inp.forces[model.index()],
             _ => None,
         };
+        // Two loops rather than a test per edge: the compiler vectorises each only without it.
         let (force, max_w) = match fc {
             None => {
                 for c in 0..m {
-                    let (psi, _) = risk::edge_psi(
-                        gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c],
-                    );
+                    let (psi, _) = risk::edge_psi(risk, alongs[c], dists[c], accns[c], clears[c]);
                     e_psi[c] = MaybeUninit::new(psi);
                 }
                 (Vec2::zeros(), 0.0)
@@ -146,11 +144,10 @@ impl ObserveWorker {
                 let fys = &mut self.fy[..m];
                 let ws = &mut self.w[..m];
                 for c in 0..m {
-                    let (psi, inv_dist) = risk::edge_psi(
-                        gamma1, two_gamma2, alongs[c], dists[c], accns[c], clears[c],
-                    );
+                    let (psi, inv_dist) =
+                        risk::edge_psi(risk, alongs[c], dists[c], accns[c], clears[c]);
                     e_psi[c] = MaybeUninit::new(psi);
-                    let (fx, fy, w) = fc.edge_force(
+                    (fxs[c], fys[c], ws[c]) = fc.edge_force(
                         psi,
                         us[c],
                         vehs[c],
@@ -158,9 +155,6 @@ impl ObserveWorker {
                         (nnxs[c], nnys[c], rects[c]),
                         clears[c],
                     );
-                    fxs[c] = fx;
-                    fys[c] = fy;
-                    ws[c] = w;
                 }
                 (Vec2::new(lane_sum(fxs), lane_sum(fys)), lane_max(ws))
             }
@@ -190,8 +184,6 @@ impl ObserveWorker {
         let a = inp.agents;
         let model = inp.params.cognition.prediction;
         let observer = Observer::of(inp, i);
-        let gamma1 = inp.params.risk.gamma1;
-        let two_gamma2 = 2.0 * inp.params.risk.gamma2;
         let fc = match a.control[i] {
             Control::Model(model) => inp.forces[model.index()],
             _ => None,
@@ -206,8 +198,7 @@ impl ObserveWorker {
             let st = edge_state(inp, &self.stamp, epoch, model, &observer, t, j);
             contact |= st.clearance <= 0.0;
             let (psi, inv_dist) = risk::edge_psi(
-                gamma1,
-                two_gamma2,
+                &inp.params.risk,
                 st.along,
                 st.dist,
                 t.acc_norm,
