@@ -58,41 +58,15 @@ def sim_server_binary() -> Path | None:
 free_port = local_server.free_port
 
 
-class SimServer:
-    """A ``sim-server serve`` subprocess on a loopback port, multicast scouting off."""
+class SimServer(local_server.LocalServer):
+    """A ``sim-server serve`` subprocess on a loopback port, multicast scouting off (the
+    package's :class:`~sharedspace.local_server.LocalServer`, with a server id)."""
 
     def __init__(self, binary: Path, prefix: str, server_id: str, *extra_cfg: str):
-        self.binary = binary
-        self.prefix = prefix
         self.server_id = server_id
-        self.port = free_port()
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        cmd = [
-            str(binary),
-            "serve",
-            "--cfg",
-            f'zenoh/listen/endpoints:["{self.endpoint}"]',
-            "--cfg",
-            "zenoh/scouting/multicast/enabled:false",
-            "--cfg",
-            f"prefix:{prefix}",
-            "--cfg",
-            f"server_id:{server_id}",
-        ]
-        for c in extra_cfg:
-            cmd += ["--cfg", c]
-        self.log = open(os.devnull, "wb")  # noqa: SIM115 - closed in stop()
-        self.proc = subprocess.Popen(
-            cmd, stdout=self.log, stderr=subprocess.STDOUT, env={**os.environ, "RUST_LOG": "warn"}
+        super().__init__(
+            prefix, [f"server_id:{server_id}", *extra_cfg], binary=binary, timeout=20.0
         )
-        self._wait_listening(20.0)
-
-    def _wait_listening(self, timeout: float) -> None:
-        try:
-            local_server.wait_port(self.port, self.proc, timeout)
-        except RuntimeError:
-            self.stop()
-            raise
 
     def kill(self, sig: int = signal.SIGKILL) -> None:
         if self.proc.poll() is None:
@@ -104,8 +78,7 @@ class SimServer:
                 self.proc.wait(timeout=10)
 
     def stop(self) -> None:
-        self.kill(signal.SIGTERM)
-        self.log.close()
+        self.close()
 
 
 def start_server(prefix: str, server_id: str, *extra_cfg: str) -> SimServer:
