@@ -113,3 +113,13 @@ def test_config_file_and_overrides(tmp_path):
         load_config(None, ["nope=1"])
     with pytest.raises(ValueError):
         load_config(None, ["variant=foo"])
+
+
+def test_the_removed_local_backend_is_refused_by_name():
+    """``env_backend=local`` (the numpy world, now a test oracle) is refused with a message that
+    says what replaced it; anything but ``remote`` is refused too."""
+    with pytest.raises(ValueError, match="env_backend=local was removed.*local sim-server"):
+        load_config(None, ["env_backend=local"])
+    with pytest.raises(ValueError, match="env_backend must be remote"):
+        load_config(None, ["env_backend=gpu"])
+    assert load_config(None, []).server_endpoint == ""  # the trainer starts its own server
