@@ -99,3 +99,27 @@ def test_same_seed_same_machine_trains_bit_identical_weights(sim_server, tmp_pat
     assert weights[0].keys() == weights[1].keys()
     for key in weights[0]:
         assert torch.equal(weights[0][key], weights[1][key]), key
+
+
+def test_without_an_endpoint_the_trainer_starts_its_own_server():
+    """No ``server_endpoint`` (the default): ``make_env`` starts a local ``sim-server`` on a free
+    loopback port and steps the Rust core through it."""
+    from conftest import sim_server_binary
+
+    from sharedspace import local_server
+    from sharedspace.train.sac import make_env
+
+    if sim_server_binary() is None:
+        pytest.skip("sim-server binary not found")
+    cfg = load_config(None, ["num_envs=2", "max_agents=4"])
+    assert cfg.server_endpoint == ""
+    env = make_env(cfg, split="test")
+    try:
+        td = env.reset()
+        assert tuple(td["features"].shape) == (2, 4, 11)
+        td = env.rand_step(td)
+        assert td["next", "reward"].shape == (2, 1)
+        server = local_server.shared_server()
+        assert server.proc.poll() is None and server.endpoint.startswith("tcp/127.0.0.1:")
+    finally:
+        env.close()
