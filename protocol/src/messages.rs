@@ -78,6 +78,7 @@ pub enum Split {
 /// Pedestrian model (model.md section 5): sim-core's one list of models, on the wire by name
 /// (`"cv"`, `"sfm"`, `"ra_sfm"`, `"cr_sfm"`, `"replay"`; default `cr_sfm`).
 pub use sim_core::params::PedestrianModel;
+pub use sim_core::variation::{PedestrianVariation, Variation, VariationSpec};
 
 /// How an env advances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
@@ -420,6 +421,10 @@ pub struct CreateEnv {
     /// Generated scenes instead of a pool (nil: draw from `pool`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub synthetic: Option<SyntheticScenes>,
+    /// Seeded scene variations, one drawn per episode (nil: the pool entry's, if it has
+    /// one, else none; SPEC 5.3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variations: Option<VariationSpec>,
 }
 
 /// `CreateEnv.synthetic`: the envs play `scenes` generated scenes (seeds `seed`,
@@ -477,6 +482,7 @@ impl CreateEnv {
             autoreset: false,
             realtime_factor: default_realtime_factor(),
             synthetic: None,
+            variations: None,
         }
     }
 
@@ -533,6 +539,10 @@ impl CreateEnv {
         if self.pool.as_deref() == Some("") {
             return bad("pool must not be empty".into());
         }
+        if let Some(v) = &self.variations {
+            v.validate()
+                .map_err(|e| ErrorReply::new(ErrorCode::BadRequest, e.to_string()))?;
+        }
         Ok(())
     }
 
@@ -559,6 +569,10 @@ pub struct Reset {
     /// Use this scenario for this episode (nil: the env's pinned scenario or a draw).
     #[serde(default)]
     pub scenario: Option<String>,
+    /// Play the variation of this seed in this episode (nil: the env's next draw); only for an
+    /// env with variations. It does not advance the env's own stream of variation seeds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variation: Option<u64>,
 }
 
 /// Validates an action array of shape `[.., n_agents, 2]` with the given leading dims and
@@ -902,6 +916,10 @@ pub struct ResetResult {
     pub agents: Vec<AgentDesc>,
     /// First observations.
     pub obs: ObsBatch,
+    /// The scene variation of this episode: its seed and every value applied (absent for an
+    /// env without variations).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variation: Option<Variation>,
 }
 
 /// Reward decomposition; each array is `[n_ext]` `<f4` (`[K, n_ext]` in a batch) and
@@ -1049,6 +1067,15 @@ pub struct BatchResets {
     pub agents: Vec<Vec<AgentDesc>>,
     /// The new episodes' first observations, shapes `[R, n_ext, M, F]` etc.
     pub obs: ObsBatch,
+    /// R variation seeds (nil for an env without variations; `Reset.variation` replays one);
+    /// absent when no reset env has variations.
+    #[serde(default, skip_serializing_if = "no_variation")]
+    pub variation: Vec<Option<u64>>,
+}
+
+/// Whether no entry of a `BatchResets::variation` column is set (the column is then left out).
+pub fn no_variation(seeds: &[Option<u64>]) -> bool {
+    seeds.iter().all(Option::is_none)
 }
 
 /// Reply to `BatchStep`: the K step results with arrays stacked along a leading K axis,
@@ -1163,6 +1190,10 @@ impl BatchStepResult {
                 ),
                 agents: resets.iter().map(|r| r.1.agents.clone()).collect(),
                 obs: ObsBatch::stack(&resets.iter().map(|r| r.1.obs.clone()).collect::<Vec<_>>())?,
+                variation: resets
+                    .iter()
+                    .map(|r| r.1.variation.as_ref().map(|v| v.seed))
+                    .collect(),
             };
         }
         Ok(out)
@@ -1187,6 +1218,7 @@ impl BatchResets {
                 mask: U8Array::zeros(zero_lead(like.mask.shape()))?,
                 node_ids: U32Array::zeros(zero_lead(like.node_ids.shape()))?,
             },
+            variation: Vec::new(),
         })
     }
 }

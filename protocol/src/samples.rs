@@ -117,6 +117,7 @@ pub fn create_env() -> CreateEnv {
         autoreset: true,
         realtime_factor: 1.0,
         synthetic: None,
+        variations: None,
     }
 }
 
@@ -199,6 +200,7 @@ pub fn reset_result() -> ResetResult {
         horizon_steps: 70,
         agents: agents(),
         obs: obs(0.0),
+        variation: None,
     }
 }
 
@@ -466,6 +468,7 @@ pub fn all() -> Vec<Sample> {
             Reset {
                 seed: Some(7),
                 scenario: None,
+                variation: None,
             },
         ),
         Sample::new(

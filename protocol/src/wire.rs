@@ -229,7 +229,10 @@ pub fn write_batch_step_ok(
     write_str(out, "resets");
     let r = &cols.resets;
     let rn = r.index.len() as u32;
-    out.extend_from_slice(b"\x86\xa5index");
+    // `variation` is left out when no reset env has variations (`messages::no_variation`).
+    let with_variation = !crate::messages::no_variation(&r.variation);
+    out.push(if with_variation { 0x87 } else { 0x86 });
+    out.extend_from_slice(b"\xa5index");
     write_array(out, &[rn], &r.index)?;
     out.extend_from_slice(b"\xa7episode");
     write_array(out, &[rn], &r.episode)?;
@@ -253,7 +256,18 @@ pub fn write_batch_step_ok(
             mask: &r.mask,
             node_ids: &r.node_ids,
         },
-    )
+    )?;
+    if with_variation {
+        out.extend_from_slice(b"\xa9variation");
+        write_array_len(out, r.variation.len());
+        for seed in &r.variation {
+            match seed {
+                Some(s) => write_uint(out, *s),
+                None => write_nil(out),
+            }
+        }
+    }
+    Ok(())
 }
 
 /// What a batch reply says of one env besides its stacked arrays, borrowed.
@@ -300,6 +314,7 @@ struct ResetColumns {
     adjacency: Vec<f32>,
     mask: Vec<u8>,
     node_ids: Vec<u32>,
+    variation: Vec<Option<u64>>,
 }
 
 impl ResetColumns {
@@ -313,6 +328,7 @@ impl ResetColumns {
         self.adjacency.extend_from_slice(&next.adjacency);
         self.mask.extend_from_slice(&next.mask);
         self.node_ids.extend_from_slice(&next.node_ids);
+        self.variation.extend_from_slice(&next.variation);
     }
 }
 
@@ -387,6 +403,7 @@ impl BatchColumns {
         c.adjacency.extend_from_slice(r.obs.adjacency);
         c.mask.extend_from_slice(r.obs.mask);
         c.node_ids.extend_from_slice(r.obs.node_ids);
+        c.variation.push(r.variation);
     }
 
     /// Appends the envs of `next`, which must start where these end.
@@ -466,6 +483,8 @@ pub struct ResetResultRef<'a> {
     /// In id order, as in `ResetResult::agents`.
     pub agents: &'a [AgentDescRef<'a>],
     pub obs: ObsRef<'a>,
+    /// The episode's variation seed (`ResetResult::variation`'s), if the env has variations.
+    pub variation: Option<u64>,
 }
 
 /// An array of `AgentDesc` maps.
@@ -669,6 +688,13 @@ mod tests {
                         episode: (i as u64) << (i % 40) | 1,
                         scenario: "r".repeat(i % 40),
                         obs: reset_obs(i),
+                        variation: (i % 8 == 1).then(|| Variation {
+                            seed: i as u64 * 31,
+                            mirrored: false,
+                            rotation_deg: 0.0,
+                            param_scales: Default::default(),
+                            pedestrians: Vec::new(),
+                        }),
                         ..reset.clone()
                     }),
                 }
@@ -774,6 +800,7 @@ mod tests {
                 scenario: &self.r.scenario,
                 horizon_steps: self.r.horizon_steps,
                 agents,
+                variation: self.r.variation.as_ref().map(|v| v.seed),
                 obs: ObsRef {
                     n_ext: shape[0],
                     m: shape[1],

@@ -53,6 +53,7 @@ fn every_message_round_trips() {
     roundtrip(&Reset {
         seed: Some(1),
         scenario: Some("hbs_0001".into()),
+        variation: Some(3),
     });
     roundtrip(&Step::from_rows(&[[0.5, -0.5], [1.0, 0.0]]));
     roundtrip(&BatchStep {

@@ -419,6 +419,7 @@ fn record(
         positions: samples.iter().map(|s| s.position).collect(),
         velocities: samples.iter().map(|s| s.velocity).collect(),
         non_reactive,
+        desired_speed: None,
     }
 }
 

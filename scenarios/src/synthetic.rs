@@ -54,39 +54,7 @@ pub const MAX_SIDE: f64 = 10_000.0;
 /// Upper bound on the number of pedestrians, to keep allocations bounded.
 pub const MAX_PEDESTRIANS: usize = 1_000_000;
 
-/// SplitMix64 (Steele, Lea, Flood 2014): a tiny, fast, seedable 64-bit generator.
-#[derive(Debug, Clone)]
-pub struct SplitMix64 {
-    state: u64,
-}
-
-impl SplitMix64 {
-    pub fn new(seed: u64) -> Self {
-        Self { state: seed }
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `[0, 1)` with 53 random bits.
-    pub fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Uniform in `[lo, hi)` (or `lo` when `hi <= lo`).
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        if hi <= lo {
-            lo
-        } else {
-            lo + (hi - lo) * self.next_f64()
-        }
-    }
-}
+pub use sim_core::rng::SplitMix64;
 
 /// How pedestrians walk relative to the ego vehicle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -443,6 +411,7 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
         positions: pos,
         velocities: vel,
         non_reactive: false,
+        desired_speed: None,
     });
     // The other vehicles, drawn without randomness so that V = 1 scenes stay as they were.
     for k in 1..cfg.vehicles {
@@ -461,6 +430,7 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
             positions: pos,
             velocities: vel,
             non_reactive: false,
+            desired_speed: None,
         });
     }
     let first_ped_id = cfg.vehicles as u64;
@@ -488,6 +458,7 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
             positions: pos,
             velocities: vel,
             non_reactive: false,
+            desired_speed: None,
         });
     }
     Ok(Scenario {

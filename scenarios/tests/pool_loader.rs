@@ -19,6 +19,7 @@ fn agent(id: u64, kind: AgentKind, start: u32, p0: [f64; 2], v: [f64; 2], n: usi
         positions,
         velocities: vec![v; n],
         non_reactive: false,
+        desired_speed: None,
     }
 }
 

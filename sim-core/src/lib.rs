@@ -18,7 +18,9 @@ pub mod params;
 pub mod pedestrian;
 pub mod pedeval;
 pub mod risk;
+pub mod rng;
 pub mod scenario;
+pub mod variation;
 pub mod vehicle;
 pub mod world;
 

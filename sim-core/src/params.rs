@@ -253,6 +253,35 @@ impl Default for SocialForceParams {
     }
 }
 
+impl SocialForceParams {
+    /// The model.md names of the fields, in declaration order ([`SocialForceParams::get_mut`]).
+    pub const NAMES: [&'static str; 8] = [
+        "tau", "a_ped", "b_ped", "a_veh", "b_veh", "lambda1", "lambda2", "lambda3",
+    ];
+
+    /// The field called `name` (one of [`SocialForceParams::NAMES`]).
+    pub fn get_mut(&mut self, name: &str) -> Option<&mut f64> {
+        Some(match name {
+            "tau" => &mut self.tau,
+            "a_ped" => &mut self.a_ped,
+            "b_ped" => &mut self.b_ped,
+            "a_veh" => &mut self.a_veh,
+            "b_veh" => &mut self.b_veh,
+            "lambda1" => &mut self.lambda1,
+            "lambda2" => &mut self.lambda2,
+            "lambda3" => &mut self.lambda3,
+            _ => return None,
+        })
+    }
+}
+
+impl PedestrianParams {
+    /// The parameter sets of every model with social forces (`sfm`, `ra_sfm`, `cr_sfm`).
+    pub fn social_force_sets_mut(&mut self) -> [&mut SocialForceParams; 3] {
+        [&mut self.sfm, &mut self.ra_sfm, &mut self.cr_sfm]
+    }
+}
+
 /// Parameters of every pedestrian model, so that agents with different models share one world.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

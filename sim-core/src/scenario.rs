@@ -40,6 +40,10 @@ pub struct AgentRecord {
     /// A non-reactive agent always replays its record, whatever model the world assigns.
     #[serde(default)]
     pub non_reactive: bool,
+    /// Desired speed `v0` of a simulated pedestrian in m/s; absent: the mean recorded speed
+    /// (model.md 5). Set by scene variations (`variation.rs`) that scale it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub desired_speed: Option<f64>,
 }
 
 impl AgentRecord {
@@ -56,7 +60,32 @@ impl AgentRecord {
             .expect("validated: tracks are never empty")
     }
 
-    /// Mean recorded speed in m/s (the pedestrian's desired speed `v0`).
+    /// The desired speed `v0` in m/s: [`AgentRecord::desired_speed`] if set, else the mean
+    /// recorded speed.
+    pub fn desired_speed(&self) -> f64 {
+        self.desired_speed.unwrap_or_else(|| self.mean_speed())
+    }
+
+    /// Heading at sample `k`: the direction of the recorded velocity, or, when the agent stands
+    /// still, of the nearest sample where it moves (0 if it never does).
+    pub fn heading_at(&self, k: usize) -> f64 {
+        const MOVING: f64 = 1e-6;
+        let n = self.velocities.len();
+        for d in 0..n {
+            for idx in [k.checked_sub(d), k.checked_add(d).filter(|&i| i < n)]
+                .into_iter()
+                .flatten()
+            {
+                let v = self.velocities[idx];
+                if v[0].hypot(v[1]) > MOVING {
+                    return crate::fastmath::atan2(v[1], v[0]);
+                }
+            }
+        }
+        0.0
+    }
+
+    /// Mean recorded speed in m/s.
     pub fn mean_speed(&self) -> f64 {
         let n = self.velocities.len().max(1) as f64;
         self.velocities

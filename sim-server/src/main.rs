@@ -8,6 +8,7 @@ use std::sync::Arc;
 use clap::{Parser, Subcommand};
 use sim_core::params::PedestrianModel;
 use sim_core::scenario::ScenarioPool;
+use sim_core::variation::VariationSpec;
 use sim_server::params_file::ParamsDoc;
 use sim_server::rollout::{rollout, EgoDrive};
 
@@ -204,6 +205,15 @@ struct RolloutArgs {
     /// output for every count.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
     threads: u16,
+    /// Play the scene variation of this seed (a reset result's `variation.seed`): the episode a
+    /// server env with the same variations played.
+    #[arg(long)]
+    variation: Option<u64>,
+    /// The variations (JSON, `CreateEnv.variations`' fields) that `--variation` draws from;
+    /// default: the benchmark's (position_sigma 0.25, start_offset_steps 1,
+    /// desired_speed_scale 0.1).
+    #[arg(long, requires = "variation")]
+    variations: Option<String>,
 }
 
 fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
@@ -262,6 +272,18 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
                 .and_then(|k| pool.scenarios.get(k))
         })
         .ok_or_else(|| format!("no scenario `{}` in pool `{}`", args.scenario, pool.name))?;
+    let variation = match args.variation {
+        None => None,
+        Some(seed) => {
+            let spec = match &args.variations {
+                None => VariationSpec::benchmark(),
+                Some(text) => serde_json::from_str::<VariationSpec>(text)
+                    .map_err(|e| format!("--variations: {e}"))?,
+            };
+            spec.validate().map_err(|e| format!("--variations: {e}"))?;
+            Some(spec.draw(scenario, &params, seed))
+        }
+    };
     let scenario = Arc::new(scenario.clone());
     let threads = usize::from(args.threads);
     let result = match &args.out {
@@ -269,13 +291,22 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
             let file = std::fs::File::create(path)
                 .map_err(|e| format!("creating {}: {e}", path.display()))?;
             let mut w = std::io::BufWriter::new(file);
-            rollout(scenario, params, model, ego, threads, &mut w)
+            rollout(
+                scenario,
+                params,
+                model,
+                ego,
+                variation.as_ref(),
+                threads,
+                &mut w,
+            )
         }
         None => rollout(
             scenario,
             params,
             model,
             ego,
+            variation.as_ref(),
             threads,
             &mut std::io::stdout().lock(),
         ),

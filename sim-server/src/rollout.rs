@@ -13,6 +13,7 @@ use std::sync::Arc;
 use serde_json::{json, Value};
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::Scenario;
+use sim_core::variation::Variation;
 use sim_core::world::{AgentOutcome, Control, EpisodeConfig, Event, World, WorldError};
 
 /// How the scenario's ego vehicle moves during a rollout.
@@ -103,17 +104,23 @@ fn step_json(world: &World, outcomes: &[AgentOutcome], events: &[Event]) -> Valu
     })
 }
 
-/// Runs `scenario` and writes the JSON lines to `out`, stepping on `threads` threads (scenes of
-/// at least [`sim_core::world::PARALLEL_MIN_AGENTS`] agents are split; the lines are the same
-/// for every count). Returns the number of steps taken.
+/// Runs `scenario` (in `variation`, if given: the same scene and parameters a server env with
+/// that variation plays) and writes the JSON lines to `out`, stepping on `threads` threads
+/// (scenes of at least [`sim_core::world::PARALLEL_MIN_AGENTS`] agents are split; the lines are
+/// the same for every count). Returns the number of steps taken.
 pub fn rollout(
     scenario: Arc<Scenario>,
     params: WorldParams,
     model: PedestrianModel,
     ego: EgoDrive,
+    variation: Option<&Variation>,
     threads: usize,
     out: &mut impl Write,
 ) -> Result<u32, RolloutError> {
+    let (scenario, params) = match variation {
+        Some(v) => (Arc::new(v.apply(&scenario)), v.apply_params(&params)),
+        None => (scenario, params),
+    };
     let config = match ego {
         EgoDrive::Replay => EpisodeConfig::replay_vehicles(model),
         EgoDrive::Constant(_) => EpisodeConfig::ego_external(&scenario, model),
@@ -145,6 +152,7 @@ pub fn rollout(
         "ego": scenario.ego,
         "ego_drive": match ego { EgoDrive::Replay => json!("replay"), EgoDrive::Constant(a) => json!(a) },
         "params": serde_json::to_value(params).expect("params serialise"),
+        "variation": serde_json::to_value(variation).expect("variation serialises"),
         "agents": agents,
     });
     writeln!(out, "{header}")?;

@@ -58,6 +58,7 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
         &Reset {
             seed: Some(5),
             scenario: None,
+            variation: None,
         },
     ))
     .await
@@ -196,7 +197,8 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
             &reset,
             encode(&Reset {
                 seed: None,
-                scenario: Some("nope".into())
+                scenario: Some("nope".into()),
+                variation: None,
             })
         )
         .await,

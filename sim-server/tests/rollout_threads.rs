@@ -1,10 +1,11 @@
 //! A rollout of a scene large enough to be split over threads writes the same bytes on one
-//! thread and on two.
+//! thread and on two, with and without a scene variation.
 
 use std::sync::Arc;
 
 use scenarios::synthetic::{generate, Layout, SyntheticConfig};
 use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::variation::VariationSpec;
 use sim_core::world::PARALLEL_MIN_AGENTS;
 use sim_server::rollout::{rollout, EgoDrive};
 
@@ -23,21 +24,37 @@ fn rollout_lines_do_not_depend_on_the_thread_count() {
         horizon_extra: 0.0,
         ..WorldParams::default()
     };
-    let run = |threads| {
+    let spec = VariationSpec {
+        param_noise: [("a_ped".to_string(), 0.2)].into(),
+        mirror: true,
+        rotation_deg: 90.0,
+        ..VariationSpec::benchmark()
+    };
+    let variation = spec.draw(&scenario, &params, 11);
+    let run = |threads, varied: bool| {
         let mut out = Vec::new();
         let steps = rollout(
             scenario.clone(),
             params,
             PedestrianModel::CrSfm,
             EgoDrive::Constant([0.2, 0.05]),
+            varied.then_some(&variation),
             threads,
             &mut out,
         )
         .expect("rollout");
         (steps, out)
     };
-    let (steps_1, one) = run(1);
-    let (steps_2, two) = run(2);
+    let (steps_v1, varied_1) = run(1, true);
+    let (steps_v2, varied_2) = run(2, true);
+    assert_eq!(steps_v1, steps_v2);
+    assert!(
+        varied_1 == varied_2,
+        "the varied two-thread rollout wrote other bytes"
+    );
+    let (steps_1, one) = run(1, false);
+    let (steps_2, two) = run(2, false);
+    assert!(one != varied_1, "the variation changed nothing");
     assert!(steps_1 >= 3, "a few steps at least, got {steps_1}");
     let text = String::from_utf8(one.clone()).unwrap();
     assert!(

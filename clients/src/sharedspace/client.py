@@ -163,6 +163,7 @@ class _Resets(msgspec.Struct):
     horizon_steps: _Arr
     agents: list[list[dict[str, Any]]]
     obs: _Obs
+    variation: list[int | None] = []
 
 
 class _Batch(msgspec.Struct):
@@ -280,6 +281,7 @@ def decode_batch_result(
             "horizon_steps": _view(r.horizon_steps),
             "agents": r.agents,
             "obs": _obs_views(r.obs),
+            "variation": r.variation,
         },
     }
 
@@ -684,14 +686,19 @@ class SimClient:
         return created
 
     def reset(
-        self, env_id: str, seed: int | None = None, scenario: str | None = None
+        self,
+        env_id: str,
+        seed: int | None = None,
+        scenario: str | None = None,
+        variation: int | None = None,
     ) -> dict[str, Any]:
-        """``Reset`` (SPEC 5.3) → ``ResetResult``."""
+        """``Reset`` (SPEC 5.3) → ``ResetResult``; ``variation``: play the scene variation of
+        this seed (an env with variations)."""
         sid = self._server_of(env_id)
         return self._request(
             sid,
             self.transport.key("server", sid, "env", env_id, "reset"),
-            codec.encode_reset(seed, scenario),
+            codec.encode_reset(seed, scenario, variation),
         )
 
     def reset_many(
@@ -699,8 +706,10 @@ class SimClient:
         env_ids: Sequence[str],
         seeds: Sequence[int | None] | None = None,
         scenarios: Sequence[str | None] | None = None,
+        variations: Sequence[int | None] | None = None,
     ) -> list[dict[str, Any]]:
-        """``Reset`` of several envs of one server, all queries in flight at once."""
+        """``Reset`` of several envs of one server, all queries in flight at once
+        (``variations``: per env, the variation seed to play, or None for the env's draw)."""
         if not env_ids:
             return []
         sid = self._server_of(env_ids[0])
@@ -710,10 +719,11 @@ class SimClient:
                 raise ValueError("reset_many: every env must live on the same server")
             seed = None if seeds is None else seeds[i]
             scen = None if scenarios is None else scenarios[i]
+            var = None if variations is None else variations[i]
             calls.append(
                 (
                     self.transport.key("server", sid, "env", env_id, "reset"),
-                    codec.encode_reset(seed, scen),
+                    codec.encode_reset(seed, scen, var),
                 )
             )
         return self._request_many(sid, calls)

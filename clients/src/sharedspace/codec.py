@@ -269,10 +269,13 @@ def create_env(
     realtime_factor: float = 1.0,
     protocol_version: int = PROTOCOL_VERSION,
     synthetic: Mapping[str, Any] | None = None,
+    variations: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """``CreateEnv`` (SPEC 5.2). ``synthetic``: generated scenes instead of a pool, a map of
     ``layout`` (``crossing``, ``counter_flow``, ``random``), ``pedestrians``, ``vehicles``,
-    ``density``, ``seed``, ``scenes`` (defaults in SPEC 5.2)."""
+    ``density``, ``seed``, ``scenes`` (defaults in SPEC 5.2). ``variations``: seeded scene
+    variations, a map of ``position_sigma``, ``start_offset_steps``, ``desired_speed_scale``,
+    ``param_noise``, ``mirror``, ``rotation_deg`` (SPEC 5.2.1; the server checks them)."""
     if split not in ("train", "test"):
         raise ValueError(f"split must be 'train' or 'test', got {split!r}")
     if mode not in ("lockstep", "realtime"):
@@ -293,11 +296,19 @@ def create_env(
         "scenario": scenario,
         "autoreset": bool(autoreset),
         "realtime_factor": float(realtime_factor),
-    } | ({"synthetic": dict(synthetic)} if synthetic is not None else {})
+    } | ({"synthetic": dict(synthetic)} if synthetic is not None else {}) | (
+        {"variations": dict(variations)} if variations is not None else {}
+    )
 
 
-def reset(seed: int | None = None, scenario: str | None = None) -> dict[str, Any]:
-    return {"seed": None if seed is None else int(seed), "scenario": scenario}
+def reset(
+    seed: int | None = None, scenario: str | None = None, variation: int | None = None
+) -> dict[str, Any]:
+    """``Reset`` (SPEC 5.3); ``variation``: the seed of the scene variation to play."""
+    out: dict[str, Any] = {"seed": None if seed is None else int(seed), "scenario": scenario}
+    if variation is not None:
+        out["variation"] = int(variation)
+    return out
 
 
 def _action_array(actions: Any, shape_tail: tuple[int, ...], what: str) -> np.ndarray:
@@ -347,8 +358,10 @@ def encode_create_env(client_id: str, **kwargs: Any) -> bytes:
     return encode(create_env(client_id, **kwargs))
 
 
-def encode_reset(seed: int | None = None, scenario: str | None = None) -> bytes:
-    return encode(reset(seed, scenario))
+def encode_reset(
+    seed: int | None = None, scenario: str | None = None, variation: int | None = None
+) -> bytes:
+    return encode(reset(seed, scenario, variation))
 
 
 def encode_step(actions: Any, n_ext: int | None = None) -> bytes:

@@ -117,6 +117,10 @@ class SharedSpaceParallelEnv(ParallelEnv):
             plays the next, cycling); ``reset(options={"scenario": name})`` overrides once.
         synthetic: generated scenes instead of a pool (SPEC 5.2 ``CreateEnv.synthetic``), e.g.
             ``{"layout": "crossing", "pedestrians": 60, "vehicles": 2, "seed": 0, "scenes": 4}``.
+        variations: seeded scene variations, one per episode (SPEC 5.2.1
+            ``CreateEnv.variations``), e.g. ``{"position_sigma": 0.25, "start_offset_steps": 1,
+            "desired_speed_scale": 0.1}``; ``env.variation`` is the episode's (seed and values),
+            ``reset(options={"variation": seed})`` replays one.
         seed: seed of the env at creation (``reset(seed=...)`` re-seeds).
         render_mode: ``None`` or ``"rgb_array"``.
         failover: re-create the env on a surviving server when its server dies (the step
@@ -158,6 +162,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         client: SimClient | None = None,
         max_cycles: int | None = None,
         synthetic: Mapping[str, Any] | None = None,
+        variations: Mapping[str, Any] | None = None,
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -182,6 +187,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
             max_agents=int(max_agents),
             autoreset=False,
             synthetic=synthetic,
+            variations=variations,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
@@ -348,6 +354,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self.agents = list(self.possible_agents)
         self._cycles = 0
         self.scenario = r["scenario"]
+        #: The episode's scene variation (``seed`` and the values applied), or None.
+        self.variation = r.get("variation")
         self.horizon_steps = r.get("horizon_steps")
         info = self._info()
         obs = {a: self._agent_obs(self._obs, self._index[a]) for a in self.agents}
@@ -371,11 +379,14 @@ class SharedSpaceParallelEnv(ParallelEnv):
             self._subscribe()
             time.sleep(0.3)
         scenario = (options or {}).get("scenario")
+        variation = (options or {}).get("variation")
         if scenario is None and self._scenario_list:
             scenario = self._scenario_list[self._resets % len(self._scenario_list)]
         self._resets += 1
-        if scenario is not None:
-            r = self._connected.client.reset(self.env_id, seed=seed, scenario=scenario)
+        if scenario is not None or variation is not None:
+            r = self._connected.client.reset(
+                self.env_id, seed=seed, scenario=scenario, variation=variation
+            )
         else:
             r = self._connected.reset(seed=seed)[0]
         return self._take_reset(r)

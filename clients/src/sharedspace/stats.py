@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["wilson", "sign_test", "paired_bootstrap"]
+__all__ = ["wilson", "sign_test", "paired_bootstrap", "cluster_bootstrap", "paired_clustered"]
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -42,3 +42,47 @@ def paired_bootstrap(
     rng = np.random.default_rng(seed)
     means = d[rng.integers(0, d.size, (resamples, d.size))].mean(1)
     return (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
+
+
+def cluster_bootstrap(
+    clusters: Sequence[Sequence[float]], resamples: int = 10_000, seed: int = 0
+) -> tuple[float, float]:
+    """95 % percentile interval of the mean over every value, resampling whole clusters (the
+    scenes of a test set) with replacement: values of one scene are not independent, so the
+    interval is as wide as the scenes, not the episodes, warrant."""
+    sizes = np.array([len(c) for c in clusters], dtype=float)
+    if sizes.sum() == 0:
+        return (0.0, 0.0)
+    sums = np.array([float(np.sum(c)) for c in clusters])
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(clusters), (resamples, len(clusters)))
+    n = sizes[pick].sum(1)
+    means = np.divide(sums[pick].sum(1), n, out=np.zeros(resamples), where=n > 0)
+    return (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
+
+
+def paired_clustered(
+    a: dict[tuple[int, int], float],
+    b: dict[tuple[int, int], float],
+    resamples: int = 10_000,
+    seed: int = 0,
+) -> dict[str, float]:
+    """The paired difference ``a - b`` over the episodes both played, keyed ``(scene,
+    variation)``: its mean, and its 95 % interval by :func:`cluster_bootstrap` with the scene
+    as cluster; ``pairs`` and ``scenes`` say what it rests on, ``half_width`` how tight it
+    is."""
+    keys = sorted(set(a) & set(b))
+    by_scene: dict[int, list[float]] = {}
+    for key in keys:
+        by_scene.setdefault(key[0], []).append(a[key] - b[key])
+    clusters = list(by_scene.values())
+    lo, hi = cluster_bootstrap(clusters, resamples, seed)
+    diffs = [d for c in clusters for d in c]
+    return {
+        "diff": float(np.mean(diffs)) if diffs else 0.0,
+        "lo": lo,
+        "hi": hi,
+        "half_width": (hi - lo) / 2,
+        "pairs": len(diffs),
+        "scenes": len(clusters),
+    }

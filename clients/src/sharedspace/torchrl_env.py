@@ -164,8 +164,15 @@ class RemoteBatchedEnv(_ServerEnvs):
         timeout: query timeout, s.
         failover: re-create the envs on a surviving server when theirs dies.
         client: an existing :class:`~sharedspace.client.SimClient` to share.
-        external_agents, reward_weights, pedestrian_params, synthetic: ``CreateEnv`` fields
-            (``synthetic``: generated scenes instead of a pool, SPEC 5.2).
+        external_agents, reward_weights, pedestrian_params, synthetic, variations:
+            ``CreateEnv`` fields (``synthetic``: generated scenes instead of a pool, SPEC 5.2;
+            ``variations``: seeded scene variations, one drawn per episode, SPEC 5.2.1).
+        variation_seeds: per sub-env, the variation seed every episode of that sub-env plays
+            (``Reset.variation``; needs ``variations``): a fixed, replayable set of variations,
+            as the evaluator uses. None: each episode draws its own.
+
+    ``last_variation_seeds`` (``[K]``, -1 without variations) is each sub-env's current
+    episode's variation seed: a side channel, like ``last_reward_terms``.
     """
 
     batch_locked = True
@@ -192,9 +199,19 @@ class RemoteBatchedEnv(_ServerEnvs):
         reward_weights: Mapping[str, float] | None = None,
         pedestrian_params: Mapping[str, float] | None = None,
         synthetic: Mapping[str, Any] | None = None,
+        variations: Mapping[str, Any] | None = None,
+        variation_seeds: Sequence[int] | None = None,
     ):
         if num_envs < 1 or max_agents < 1:
             raise ValueError("num_envs and max_agents must be at least 1")
+        if variation_seeds is not None:
+            variation_seeds = [int(s) for s in variation_seeds]
+            if variations is None:
+                raise ValueError("variation_seeds need variations (the spec they draw from)")
+            if len(variation_seeds) != num_envs:
+                raise ValueError(
+                    f"variation_seeds: {len(variation_seeds)} seeds for {num_envs} sub-envs"
+                )
         self._remember(
             client,
             num_envs=num_envs,
@@ -214,6 +231,8 @@ class RemoteBatchedEnv(_ServerEnvs):
             reward_weights=reward_weights,
             pedestrian_params=pedestrian_params,
             synthetic=synthetic,
+            variations=variations,
+            variation_seeds=variation_seeds,
         )
         if scenario_order not in ("random", "sequential"):
             raise ValueError(f"unknown scenario_order {scenario_order!r}")
@@ -254,6 +273,8 @@ class RemoteBatchedEnv(_ServerEnvs):
         self._seed = int(seed)
         self._reseed_pending = False
         self._cursor = [0] * k
+        self._variation_seeds = variation_seeds
+        self.last_variation_seeds = np.full(k, -1, dtype=np.int64)
         create = dict(
             seed=self._seed,
             split=split,
@@ -263,8 +284,10 @@ class RemoteBatchedEnv(_ServerEnvs):
             external_agents=list(external_agents),
             reward_weights=reward_weights,
             max_agents=m,
-            autoreset=scenario_order == "random",
+            # Fixed variation seeds are sent with each reset, so their sub-envs reset by request.
+            autoreset=scenario_order == "random" and variation_seeds is None,
             synthetic=synthetic,
+            variations=variations,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
@@ -339,6 +362,10 @@ class RemoteBatchedEnv(_ServerEnvs):
         self._obs["mask"][k] = obs["mask"][0].astype(bool)
         self._scenario[k] = self._index_of(result["scenario"])
         self._done[k] = False
+        variation = result.get("variation")
+        if isinstance(variation, Mapping):
+            variation = variation.get("seed")
+        self.last_variation_seeds[k] = -1 if variation is None else int(variation)
 
     def _blank(self) -> dict[str, np.ndarray]:
         k = self.num_envs
@@ -389,8 +416,12 @@ class RemoteBatchedEnv(_ServerEnvs):
                     scen.append(self._split_names[(k + self._cursor[k] * self.num_envs) % n])
                     self._cursor[k] += 1
             ids = self.vec.env_ids
+            fixed = self._variation_seeds
             results = self.vec.client.reset_many(
-                [ids[k] for k in queries], seeds=seeds, scenarios=scen
+                [ids[k] for k in queries],
+                seeds=seeds,
+                scenarios=scen,
+                variations=None if fixed is None else [fixed[k] for k in queries],
             )
             for k, r in zip(queries, results, strict=True):
                 self._take_reset(k, r)
@@ -429,10 +460,12 @@ class RemoteBatchedEnv(_ServerEnvs):
             out["episode_avg_abs_jerk"][k, 0] = met.get("avg_abs_jerk", 0.0)
             out["episode_max_abs_acc"][k, 0] = met.get("max_abs_acc", 0.0)
         resets = res["resets"]
+        seeds = resets.get("variation") or [None] * len(resets["index"])
         first = {
             int(k): {
                 "obs": {key: resets["obs"][key][j] for key in ("features", "adjacency", "mask")},
                 "scenario": resets["scenario"][j],
+                "variation": seeds[j],
             }
             for j, k in enumerate(resets["index"])
         }
@@ -479,9 +512,10 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             of them (SPEC 5.2).
         max_agents: M, nodes per observation.
         split, seed, pool, scenario, pedestrian_model, pedestrian_params, reward_weights,
-            synthetic: the ``CreateEnv`` fields (``pool`` by name, e.g. ``"hbs-general"``, whose
-            scenes have other cars; ``scenario`` pins every episode; ``synthetic`` generated
-            scenes with ``vehicles`` cars).
+            synthetic, variations: the ``CreateEnv`` fields (``pool`` by name, e.g.
+            ``"hbs-general"``, whose scenes have other cars; ``scenario`` pins every episode;
+            ``synthetic`` generated scenes with ``vehicles`` cars; ``variations`` seeded scene
+            variations, SPEC 5.2.1).
         endpoint, prefix, timeout, client: where the server is (as :class:`RemoteBatchedEnv`).
     """
 
@@ -507,6 +541,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         reward_weights: Mapping[str, float] | None = None,
         pedestrian_params: Mapping[str, float] | None = None,
         synthetic: Mapping[str, Any] | None = None,
+        variations: Mapping[str, Any] | None = None,
     ):
         if num_envs < 1 or max_agents < 1 or not external_agents:
             raise ValueError("num_envs, max_agents and external_agents must not be empty")
@@ -527,6 +562,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             reward_weights=reward_weights,
             pedestrian_params=pedestrian_params,
             synthetic=synthetic,
+            variations=variations,
         )
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = k = int(num_envs)
@@ -545,6 +581,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             max_agents=m,
             autoreset=True,
             synthetic=synthetic,
+            variations=variations,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)

@@ -2,10 +2,9 @@
 //! episode record of each external agent.
 
 use super::{AgentId, Control};
-use crate::fastmath;
 use crate::geometry::{Shape, Vec2};
 use crate::metrics::EpisodeStatus;
-use crate::scenario::{AgentKind, AgentRecord};
+use crate::scenario::AgentKind;
 
 #[derive(Debug, Clone)]
 pub(super) struct ExternalTrack {
@@ -77,23 +76,4 @@ impl Agents {
 
 pub(super) fn v2(a: [f64; 2]) -> Vec2 {
     Vec2::new(a[0], a[1])
-}
-
-/// Heading of a recorded agent at sample `k`: the direction of its recorded velocity, or, when it
-/// stands still, of the nearest sample where it moves (0 if it never does).
-pub(super) fn recorded_heading(rec: &AgentRecord, k: usize) -> f64 {
-    const MOVING: f64 = 1e-6;
-    let n = rec.velocities.len();
-    for d in 0..n {
-        for idx in [k.checked_sub(d), k.checked_add(d).filter(|&i| i < n)]
-            .into_iter()
-            .flatten()
-        {
-            let v = rec.velocities[idx];
-            if v[0].hypot(v[1]) > MOVING {
-                return fastmath::atan2(v[1], v[0]);
-            }
-        }
-    }
-    0.0
 }

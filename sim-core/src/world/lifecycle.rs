@@ -2,7 +2,7 @@
 //! leave at their goal, replayed agents at the end of their record and external agents after
 //! their episode (model.md 1, 5b).
 
-use super::agents::{recorded_heading, v2};
+use super::agents::v2;
 use super::Edge;
 use super::{Control, Event, StepScratch, World, NO_SLOT};
 use crate::geometry::{Shape, Vec2};
@@ -36,7 +36,7 @@ impl World {
             let k = (self.step - rec.start_step) as usize;
             let pos = v2(rec.positions[k]);
             let vel = v2(rec.velocities[k]);
-            let heading = recorded_heading(rec, k);
+            let heading = rec.heading_at(k);
             let control = self.control_of[id as usize];
             let (shape, speed) = match rec.kind {
                 AgentKind::Vehicle => (self.params.vehicle.shape, vel.norm()),
@@ -59,7 +59,7 @@ impl World {
             a.speed.push(speed);
             a.heading.push(heading);
             a.goal.push(v2(rec.goal()));
-            a.v0.push(rec.mean_speed());
+            a.v0.push(rec.desired_speed());
             a.initial_vel.push(vel);
             a.edge_start.push(0);
             a.edge_len.push(0);

@@ -2,7 +2,7 @@
 //! agents by their action ([`crate::vehicle`], [`crate::pedestrian::integrate`]), replayed agents
 //! by their record, simulated pedestrians by their social forces ([`crate::pedestrian`]).
 
-use super::agents::{recorded_heading, v2};
+use super::agents::v2;
 use super::AgentId;
 use super::{observe, Control, StepScratch, World};
 use crate::fastmath;
@@ -117,7 +117,7 @@ impl World {
         let k = step.checked_sub(rec.start_step)? as usize;
         let pos = v2(*rec.positions.get(k)?);
         let vel = v2(rec.velocities[k]);
-        Some((pos, vel, vel.norm(), recorded_heading(rec, k)))
+        Some((pos, vel, vel.norm(), rec.heading_at(k)))
     }
 
     fn move_pedestrian(&self, i: usize, model: PedestrianModel) -> (Vec2, Vec2, f64, f64) {
@@ -197,6 +197,7 @@ mod tests {
                 .collect(),
             velocities: vec![v; n],
             non_reactive: false,
+            desired_speed: None,
         }
     }
 

@@ -24,6 +24,7 @@ pub fn line(kind: AgentKind, start_step: u32, p0: [f64; 2], v: [f64; 2], n: usiz
         positions,
         velocities: vec![v; n],
         non_reactive: false,
+        desired_speed: None,
     }
 }
 
@@ -41,6 +42,7 @@ pub fn track(
         positions,
         velocities,
         non_reactive: false,
+        desired_speed: None,
     }
 }
 

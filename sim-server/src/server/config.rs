@@ -7,8 +7,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use serde_json::{json, Map, Value};
+use sim_core::variation::VariationSpec;
 
 use super::core::Limits;
 
@@ -40,8 +41,10 @@ pub struct ServerConfig {
     /// (`zenoh/transport/link/tx/lease`, ms, default 10 000).
     pub reconnect_grace_s: f64,
     /// Scenario pools: files (scenarios/FORMAT.md) or `embedded:hbs-paper` /
-    /// `embedded:hbs-general`; empty = both embedded pools. The first pool is the default.
-    pub pools: Vec<PathBuf>,
+    /// `embedded:hbs-general`, each as its path or as `{path, variations}` (the scene
+    /// variations of every env on that pool that sends none of its own); empty = both
+    /// embedded pools. The first pool is the default.
+    pub pools: Vec<PoolEntry>,
     /// World-parameter file (JSON5, docs/PARAMETERS.md); absent = defaults.
     pub params: Option<PathBuf>,
     /// Most threads one `BatchStep` of at least 64 envs is stepped on; 0 (default) = one per
@@ -74,6 +77,39 @@ impl Default for ServerConfig {
             batch_slots: 0,
             zenoh: Value::Object(Map::new()),
         }
+    }
+}
+
+/// One entry of `pools`: a path, or a path with the pool's default scene variations.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum PoolEntry {
+    Path(PathBuf),
+    WithVariations {
+        path: PathBuf,
+        #[serde(default)]
+        variations: Option<VariationSpec>,
+    },
+}
+
+impl PoolEntry {
+    pub fn path(&self) -> &PathBuf {
+        match self {
+            PoolEntry::Path(p) | PoolEntry::WithVariations { path: p, .. } => p,
+        }
+    }
+
+    pub fn variations(&self) -> Option<&VariationSpec> {
+        match self {
+            PoolEntry::Path(_) => None,
+            PoolEntry::WithVariations { variations, .. } => variations.as_ref(),
+        }
+    }
+}
+
+impl From<PathBuf> for PoolEntry {
+    fn from(p: PathBuf) -> Self {
+        PoolEntry::Path(p)
     }
 }
 

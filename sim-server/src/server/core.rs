@@ -644,6 +644,7 @@ impl ServerCore {
             max_agents: req.max_agents,
             autoreset: req.autoreset,
             realtime_factor: req.realtime_factor,
+            variations: req.variations.clone().or_else(|| pool.variations.clone()),
             keys: self.keys.clone(),
             fresh_worlds: EnvSpec::world_cache(&pool),
         });
@@ -718,7 +719,7 @@ impl ServerCore {
                 return Err(ErrorReply::new(ErrorCode::EnvClosed, "env is closed")
                     .with_env(env_id.to_string()));
             }
-            env.reset(req.seed, req.scenario.as_deref(), gates, &mut pubs)
+            env.reset(&req, gates, &mut pubs)
         })();
         Response::of(r, pubs)
     }

@@ -5,19 +5,25 @@ use std::sync::{Arc, OnceLock};
 
 use protocol::{
     encode, AgentDesc, AgentKind as WireKind, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply,
-    Event, EventKind, EventsMsg, F32Array, F64Array, KeySpace, Mode, ObsBatch, Outcome,
+    Event, EventKind, EventsMsg, F32Array, F64Array, KeySpace, Mode, ObsBatch, Outcome, Reset,
     ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StateRewards, StatesMsg, StepInfo,
     StepResult, U32Array, U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
 };
 use sim_core::geometry::Shape;
 use sim_core::metrics::EpisodeStatus;
 use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::rng::{derive_seed, SplitMix64};
 use sim_core::scenario::{AgentKind, Split};
+use sim_core::variation::{Variation, VariationSpec};
 use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World};
 
 use protocol::wire::{AgentDescRef, BatchArrays, BatchColumns, ObsRef, ResetResultRef};
 
 use super::pools::{ScenarioSequence, ServedPool, ServedScenario};
+
+/// The stream of an env's variation seeds, apart from its scenario sequence (an arbitrary
+/// constant: "variation" in ASCII).
+const VARIATION_STREAM: u64 = 0x7661_7269_6174_696f;
 
 /// Which publications somebody listens to (decided by the network layer from zenoh matching
 /// status); a topic nobody matches is neither encoded nor sent.
@@ -95,6 +101,8 @@ pub struct EnvSpec {
     pub max_agents: u32,
     pub autoreset: bool,
     pub realtime_factor: f64,
+    /// Scene variations drawn per episode (`CreateEnv.variations` or the pool entry's).
+    pub variations: Option<VariationSpec>,
     pub keys: KeySpace,
     /// The fresh world of each scenario of the pool for this configuration, built on first
     /// use (`World::new` is deterministic, so a reset clones it instead of building it again).
@@ -399,6 +407,11 @@ pub struct Env {
     pub id: String,
     pub spec: Arc<EnvSpec>,
     seq: ScenarioSequence,
+    /// The seeds of the env's variations, one per episode (seeded with the env's seed like
+    /// `seq`, on a stream of its own).
+    variation_seeds: SplitMix64,
+    /// The current episode's variation, if the env has variations.
+    variation: Option<Variation>,
     episode: u64,
     world: Option<World>,
     scenario: usize,
@@ -463,6 +476,8 @@ impl Env {
         Self {
             id,
             seq: ScenarioSequence::new(spec.candidates.clone(), seed),
+            variation_seeds: SplitMix64::new(derive_seed(seed, VARIATION_STREAM)),
+            variation: None,
             spec,
             episode: 0,
             world: None,
@@ -476,6 +491,17 @@ impl Env {
             clipped: vec![false; n],
             closed: false,
         }
+    }
+
+    /// Re-seeds the scenario sequence and the variation seeds (`Reset.seed`).
+    fn reseed(&mut self, seed: u64) {
+        self.seq.reseed(seed);
+        self.variation_seeds = SplitMix64::new(derive_seed(seed, VARIATION_STREAM));
+    }
+
+    /// The current episode's variation (`None` for an env without variations).
+    pub fn variation(&self) -> Option<&Variation> {
+        self.variation.as_ref()
     }
 
     pub fn episode(&self) -> u64 {
@@ -499,12 +525,11 @@ impl Env {
     /// Starts a new episode (`Reset`). Publications of the first state go to `pubs`.
     pub fn reset(
         &mut self,
-        seed: Option<u64>,
-        scenario: Option<&str>,
+        req: &Reset,
         gates: Gates,
         pubs: &mut Vec<Publication>,
     ) -> Result<ResetResult, ErrorReply> {
-        self.start_episode(seed, scenario)?;
+        self.start_episode(req.seed, req.scenario.as_deref(), req.variation)?;
         let result = self.reset_result()?;
         self.publish_episode_start(gates, pubs);
         Ok(result)
@@ -527,7 +552,15 @@ impl Env {
         &mut self,
         seed: Option<u64>,
         scenario: Option<&str>,
+        variation: Option<u64>,
     ) -> Result<(), ErrorReply> {
+        if variation.is_some() && self.spec.variations.is_none() {
+            return Err(ErrorReply::new(
+                ErrorCode::BadRequest,
+                "variation: this env has no variations (CreateEnv.variations)",
+            )
+            .with_env(self.id.clone()));
+        }
         let spec = self.spec.clone();
         let pool = &spec.pool;
         let idx = match scenario {
@@ -552,13 +585,13 @@ impl Env {
                     .with_env(self.id.clone()));
                 }
                 if let Some(seed) = seed {
-                    self.seq.reseed(seed);
+                    self.reseed(seed);
                 }
                 i
             }
             None => {
                 if let Some(seed) = seed {
-                    self.seq.reseed(seed);
+                    self.reseed(seed);
                 }
                 match spec.pinned {
                     Some(p) => p,
@@ -577,18 +610,34 @@ impl Env {
             model_overrides: Vec::new(),
             external: ext_ids.clone(),
         };
+        let variation = spec.variations.as_ref().map(|v| {
+            let seed = variation.unwrap_or_else(|| self.variation_seeds.next_u64());
+            v.draw(&served.scenario, &spec.params, seed)
+        });
         let cached = spec.fresh_worlds.get(idx).and_then(OnceLock::get);
-        let world = match cached {
+        let world = match (&variation, cached) {
+            (Some(v), _) => World::new(
+                Arc::new(v.apply(&served.scenario)),
+                v.apply_params(&spec.params),
+                config,
+            )
+            .map_err(|e| {
+                ErrorReply::new(
+                    ErrorCode::Internal,
+                    format!("cannot start episode (variation {}): {e}", v.seed),
+                )
+                .with_env(self.id.clone())
+            })?,
             // Into the finished episode's world, so that a `World::clone_from` reusing its
             // allocations pays off here (sim-core's derived one still clones and drops).
-            Some(w) => match self.world.take() {
+            (None, Some(w)) => match self.world.take() {
                 Some(mut old) => {
                     old.clone_from(w);
                     old
                 }
                 None => w.clone(),
             },
-            None => {
+            (None, None) => {
                 let w = World::new(served.scenario.clone(), spec.params, config).map_err(|e| {
                     ErrorReply::new(ErrorCode::Internal, format!("cannot start episode: {e}"))
                         .with_env(self.id.clone())
@@ -600,6 +649,7 @@ impl Env {
             }
         };
         self.world = Some(world);
+        self.variation = variation;
         self.scenario = idx;
         self.ext_ids = ext_ids;
         self.episode += 1;
@@ -649,6 +699,7 @@ impl Env {
             horizon_steps: world.horizon(),
             agents,
             obs: obs?,
+            variation: self.variation.clone(),
         })
     }
 
@@ -668,6 +719,7 @@ impl Env {
             horizon_steps: world.horizon(),
             agents: &agents,
             obs: self.reset_obs.obs_ref(),
+            variation: self.variation.as_ref().map(|v| v.seed),
         });
     }
 
@@ -809,7 +861,7 @@ impl Env {
         let scenario = self.scenario;
         let reset = over && self.spec.autoreset;
         if reset {
-            self.start_episode(None, None)?;
+            self.start_episode(None, None, None)?;
             self.publish_episode_start(gates, pubs);
         }
         Ok(StepMeta {

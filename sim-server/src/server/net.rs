@@ -9,6 +9,8 @@ use std::time::{Duration, Instant};
 
 use protocol::{EnvTopic, ErrorCode, ErrorReply, KeySpace};
 use sim_core::params::WorldParams;
+use sim_core::scenario::ScenarioPool;
+use sim_core::variation::VariationSpec;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use zenoh::bytes::Encoding;
@@ -319,18 +321,39 @@ pub struct Server {
 }
 
 fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool>, ServerError> {
-    let pools = if cfg.pools.is_empty() {
+    let pools: Vec<(ScenarioPool, Option<VariationSpec>, String)> = if cfg.pools.is_empty() {
         scenarios::embedded::EMBEDDED_POOLS
             .iter()
             .filter_map(|name| scenarios::embedded::pool(name))
+            .map(|p| {
+                let arg = format!("embedded:{}", p.name);
+                (p, None, arg)
+            })
             .collect()
     } else {
         cfg.pools
             .iter()
-            .map(|p| scenarios::embedded::pool_from_arg(p).map_err(ServerError::Pool))
-            .collect::<Result<Vec<_>, _>>()?
+            .map(|entry| {
+                let arg = entry.path().display().to_string();
+                let pool =
+                    scenarios::embedded::pool_from_arg(entry.path()).map_err(ServerError::Pool)?;
+                if let Some(v) = entry.variations() {
+                    v.validate()
+                        .map_err(|e| ServerError::Pool(format!("pool {arg}: {e}")))?;
+                }
+                Ok((pool, entry.variations().cloned(), arg))
+            })
+            .collect::<Result<Vec<_>, ServerError>>()?
     };
-    for pool in &pools {
+    for (i, (pool, _, arg)) in pools.iter().enumerate() {
+        if let Some((_, _, first)) = pools[..i].iter().find(|(p, _, _)| p.name == pool.name) {
+            return Err(ServerError::Pool(format!(
+                "pools {first} and {arg} are both named {:?}: a pool is chosen by name, so the second could never be reached",
+                pool.name
+            )));
+        }
+    }
+    for (pool, _, _) in &pools {
         if pool.scenarios.is_empty() {
             return Err(ServerError::Pool(format!(
                 "pool {:?} has no scenarios ({})",
@@ -348,7 +371,10 @@ fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool
             )));
         }
     }
-    Ok(pools.into_iter().map(ServedPool::new).collect())
+    Ok(pools
+        .into_iter()
+        .map(|(pool, variations, _)| ServedPool::new(pool).with_variations(variations))
+        .collect())
 }
 
 impl Server {

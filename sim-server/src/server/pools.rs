@@ -19,6 +19,7 @@ use std::sync::Arc;
 use protocol::{PoolSummary, ScenarioSummary};
 use scenarios::synthetic::SplitMix64;
 use sim_core::scenario::{AgentKind, Scenario, ScenarioPool, Split};
+use sim_core::variation::VariationSpec;
 use sim_core::world::AgentId;
 
 /// One scenario with the server's naming of its agents.
@@ -70,6 +71,8 @@ impl ServedScenario {
 pub struct ServedPool {
     pub name: String,
     pub scenarios: Vec<ServedScenario>,
+    /// Scene variations of the envs on this pool that send none of their own.
+    pub variations: Option<VariationSpec>,
     by_name: HashMap<String, usize>,
 }
 
@@ -88,8 +91,15 @@ impl ServedPool {
         Self {
             name: pool.name,
             scenarios,
+            variations: None,
             by_name,
         }
+    }
+
+    /// This pool with default scene variations.
+    pub fn with_variations(mut self, variations: Option<VariationSpec>) -> Self {
+        self.variations = variations;
+        self
     }
 
     /// Index of the scenario called `name`.

@@ -38,6 +38,9 @@ class TrainConfig:
     server_endpoint: str = ""  # Zenoh endpoint of the server; "" = start a local sim-server
     server_prefix: str = "sharedspace"  # Zenoh key prefix of the server
     zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
+    variations: dict[str, Any] = field(
+        default_factory=dict
+    )  # scene variations of the training envs (SPEC 5.2.1; JSON on --set); {} = none
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
@@ -74,6 +77,8 @@ class TrainConfig:
             )
         if self.env_backend != "remote":
             raise ValueError(f"env_backend must be remote, not {self.env_backend!r}")
+        if not isinstance(self.variations, dict):
+            raise ValueError(f"variations must be a mapping, not {self.variations!r}")
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
 
@@ -99,6 +104,11 @@ def _parse_value(text: str, like: Any) -> Any:
         return float(text)
     if isinstance(like, list):
         return [int(x) for x in text.strip("[]").split(",") if x.strip()]
+    if isinstance(like, dict):
+        value = json.loads(text) if text.strip() else {}
+        if not isinstance(value, dict):
+            raise ValueError(f"expected a JSON object, got {text!r}")
+        return value
     return text
 
 

@@ -3,11 +3,20 @@
     python -m sharedspace.train.evaluate --checkpoint runs/x/checkpoints/last.pt --split test
         [--json out.json] [--traces traces.json] [--set key=value ...]
     python -m sharedspace.train.evaluate --driver pursuit_3 ...   # a scripted reference driver
+    python -m sharedspace.train.evaluate --checkpoint ... --variations 32   # the powered test
 
 Every scenario of the split is played once with the deterministic policy (the TanhNormal's
 mode) in a batched env with one sub-env per scenario (``scenario_order="sequential"``). The human
 row scores the scenario's recorded ego speeds with the same metric definitions
 (``EpisodeMetrics::from_speeds``; every recorded episode counts as a success).
+
+With ``--variations M`` every scenario is played in M seeded scene variations instead (SPEC
+5.2.1; the spec is ``--variation-spec``, by default the benchmark's: pedestrians moved by
+N(0, 0.25 m), started up to a step earlier or later, desired speeds within +-10 %). Variation
+``j`` of every scene is the variation of seed ``j``, for every policy and driver, so results
+of two policies are paired episode by episode (:mod:`sharedspace.train.powered` compares them);
+any episode replays with ``sim-server rollout --scenario NAME --variation j``. The table then
+gives Wilson 95 % intervals.
 """
 
 from __future__ import annotations
@@ -24,14 +33,17 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sharedspace.pool import load_pool, recorded_headings, split_indices
+from sharedspace.stats import wilson
 from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.sac import make_actor, make_env
 
 __all__ = [
     "COLUMNS",
+    "BENCHMARK_VARIATIONS",
     "human_episodes",
     "run_episodes",
+    "play_variations",
     "summarize",
     "format_table",
     "load_checkpoint_actor",
@@ -48,6 +60,12 @@ COLUMNS = (
     ("max_abs_acc", "Avg max |acc| (m/s^2)"),
 )
 
+#: The powered test's scene variations (sim-core ``VariationSpec::benchmark``; docs/RESULTS.md).
+BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
+
+#: Most sub-envs of one evaluation env (the server's default ``max_batch`` is 1024).
+MAX_EVAL_ENVS = 512
+
 
 def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
     """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and
@@ -62,6 +80,8 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
         param = next(iter(policy.parameters()), None)
         device = param.device if param is not None and param.device != env.device else None
         scen = td["scenario_index"].reshape(-1).tolist()
+        seeds = getattr(env, "last_variation_seeds", None)
+        variation = [-1] * k if seeds is None else [int(s) for s in seeds]
         for i in range(k):
             traces[i]["speeds"].append(float(td["features"][i, 0, 4]))
         for _ in range(max_steps):
@@ -90,6 +110,7 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
                     )
                     records[i] = {
                         "scenario_index": int(scen[i]),
+                        "variation": variation[i],
                         "status": status,
                         "avg_speed": float(nxt["episode_avg_speed"][i]),
                         "avg_abs_jerk": float(nxt["episode_avg_abs_jerk"][i]),
@@ -151,6 +172,8 @@ def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
         row[s] = sum(e["status"] == s for e in episodes) / n
     for key in ("avg_speed", "avg_abs_jerk", "max_abs_acc"):
         row[key] = float(np.mean([e[key] for e in episodes]))
+    for s in ("success", "collision", "timeout"):
+        row[f"{s}_ci"] = wilson(sum(e["status"] == s for e in episodes), n)
     return row
 
 
@@ -181,8 +204,56 @@ def load_checkpoint_actor(path: str, overrides: Sequence[str] = (), device: str 
     return cfg, actor
 
 
-def evaluate_policy(cfg: TrainConfig, actor, split: str = "test") -> dict[str, Any]:
-    """Plays every scenario of ``split`` once; returns per-episode records and the summary."""
+def play_variations(
+    cfg: TrainConfig,
+    policy,
+    variations: int,
+    split: str = "test",
+    spec: dict[str, Any] | None = None,
+    first: int = 0,
+    fresh_policy=None,
+) -> list[dict[str, Any]]:
+    """Plays every scenario of ``split`` in the variations of seeds ``first .. first +
+    variations - 1`` of ``spec`` (default :data:`BENCHMARK_VARIATIONS`): one episode per
+    (scenario, variation), each record with its ``variation`` seed. Envs of at most
+    :data:`MAX_EVAL_ENVS` sub-envs, whole variations each. ``fresh_policy()``, if given, makes
+    the policy anew for each env (a driver that counts its steps)."""
+    pool = load_pool(cfg.scenario_pool or None)
+    n = len(split_indices(pool, split))
+    per_env = max(1, MAX_EVAL_ENVS // n)
+    episodes: list[dict[str, Any]] = []
+    for start in range(first, first + variations, per_env):
+        count = min(per_env, first + variations - start)
+        # Sub-env k plays the split's scenario k % n (sequential order) in variation k // n.
+        seeds = [start + k // n for k in range(n * count)]
+        env = make_env(
+            cfg,
+            split=split,
+            num_envs=n * count,
+            seed=cfg.seed,
+            scenario_order="sequential",
+            variations=dict(spec or BENCHMARK_VARIATIONS),
+            variation_seeds=seeds,
+        )
+        try:
+            episodes += run_episodes(env, fresh_policy() if fresh_policy else policy)
+        finally:
+            env.close()
+    return episodes
+
+
+def evaluate_policy(
+    cfg: TrainConfig,
+    actor,
+    split: str = "test",
+    variations: int = 0,
+    spec: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Plays every scenario of ``split`` once (or in ``variations`` seeded variations,
+    :func:`play_variations`); returns per-episode records and the summary."""
+    if variations > 0:
+        episodes = play_variations(cfg, actor, variations, split, spec)
+        return {"episodes": episodes, "summary": summarize(episodes)}
     pool = load_pool(cfg.scenario_pool or None)
     n = len(split_indices(pool, split))
     env = make_env(cfg, split=split, num_envs=n, seed=cfg.seed, scenario_order="sequential")
@@ -207,6 +278,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="a scripted reference driver instead of a checkpoint (sharedspace.train.drivers)",
     )
     ap.add_argument("--split", default="test", help="train | test | all")
+    ap.add_argument(
+        "--variations",
+        type=int,
+        default=0,
+        metavar="M",
+        help="play every scenario in M seeded variations (seeds 0..M-1) instead of once",
+    )
+    ap.add_argument(
+        "--variation-spec",
+        type=json.loads,
+        default=None,
+        metavar="JSON",
+        help="the variations to draw (SPEC 5.2.1 CreateEnv.variations); "
+        f"default {json.dumps(BENCHMARK_VARIATIONS)}",
+    )
     ap.add_argument("--json", default="", help="write the table and episodes to this JSON file")
     add_overrides_argument(ap, "config overrides (e.g. env_backend=remote)")
     ap.add_argument("--device", default="cpu")
@@ -218,11 +304,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
         actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver
-    result = evaluate_policy(cfg, actor, args.split)
+    result = evaluate_policy(cfg, actor, args.split, args.variations, args.variation_spec)
     pool = load_pool(cfg.scenario_pool or None)
     human = human_episodes(pool, split_indices(pool, args.split))
-    rows = {name: result["summary"], "human": summarize(human)}
+    rows = {name: result["summary"]}
+    if args.variations <= 0:  # the record is the recorded scene's, not a variation's
+        rows["human"] = summarize(human)
     print(format_table(rows))
+    if args.variations > 0:
+        row = result["summary"]
+        print(
+            "Wilson 95 %: "
+            + ", ".join(
+                f"{s} {row[s]:.3f} [{row[s + '_ci'][0]:.3f}, {row[s + '_ci'][1]:.3f}]"
+                for s in ("success", "collision", "timeout")
+            )
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(
@@ -230,6 +327,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "checkpoint": args.checkpoint,
                     "driver": args.driver,
                     "split": args.split,
+                    "variations": args.variations,
+                    "variation_spec": args.variation_spec or BENCHMARK_VARIATIONS,
                     "table": rows,
                     "episodes": result["episodes"],
                     "human": human,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +43,14 @@ def make_env(
     num_envs: int | None = None,
     seed: int | None = None,
     scenario_order: str = "random",
+    variations: dict[str, Any] | None = None,
+    variation_seeds: Sequence[int] | None = None,
 ) -> EnvBase:
     """The batched env (ENV_CONTRACT.md) on the Rust server: the one at ``cfg.server_endpoint``
     or reached through ``cfg.zenoh_config``, else a ``sim-server`` this process starts on a free
-    loopback port (:func:`sharedspace.local_server.shared_server`)."""
+    loopback port (:func:`sharedspace.local_server.shared_server`). ``variations`` (and fixed
+    ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1; the trainer passes
+    ``cfg.variations`` for its training env only."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
     kwargs = dict(
@@ -55,6 +60,8 @@ def make_env(
         seed=cfg.seed if seed is None else seed,
         scenario_order=scenario_order,
         pedestrian_model=cfg.pedestrian_model,
+        variations=variations or None,
+        variation_seeds=variation_seeds,
     )
     if cfg.scenario_pool:
         kwargs["pool"] = cfg.scenario_pool

@@ -146,7 +146,9 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         torch.set_num_threads(cfg.num_threads)
 
     # ---- env, networks, loss, optimisers, buffer
-    env = make_env(cfg, split="train", seed=cfg.seed + counters["frames"])
+    env = make_env(
+        cfg, split="train", seed=cfg.seed + counters["frames"], variations=cfg.variations
+    )
     actor = make_actor(cfg, env.action_spec_unbatched)
     with torch.no_grad():
         actor(env.fake_tensordict().to(cfg.device))

@@ -1,0 +1,254 @@
+"""The powered test (docs/RESULTS.md, "Table II on seeded variations"): policies and scripted
+drivers played on the same seeded variations of every test scene, with Wilson intervals and
+paired, scene-clustered comparisons.
+
+    python -m sharedspace.train.powered --policies results/table2/policies \\
+        --drivers pursuit_3 pursuit_5 hold stop --variations 32 \\
+        --json docs/table2_variations.json --markdown out/powered.md
+
+Every policy plays variation ``j`` (seed ``j``, :func:`sharedspace.train.evaluate.play_variations`)
+of every test scene, so two policies' outcomes pair up episode by episode. A variant's seeds pool:
+its outcome in an episode is the mean over its seeds. A comparison ``A - B`` is the mean paired
+difference with a 95 % bootstrap interval that resamples whole scenes
+(:func:`sharedspace.stats.paired_clustered`): the episodes of one scene are not independent.
+With no ``--set server_endpoint=...`` a local server is started with ``--params`` (the Table II
+world, ``params/table2.json5``, by default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sharedspace.stats import paired_clustered, wilson
+from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
+from sharedspace.train.drivers import DRIVERS, make_driver
+from sharedspace.train.evaluate import (
+    BENCHMARK_VARIATIONS,
+    load_checkpoint_actor,
+    play_variations,
+)
+
+__all__ = ["LABELS", "STATUSES", "group_table", "comparisons", "render", "main"]
+
+STATUSES = ("success", "collision", "timeout")
+
+#: Row labels of the variants and drivers.
+LABELS = {
+    "g_sac_cog": "G-SAC-Cog",
+    "g_sac_nocog": "G-SAC-NoCog",
+    "s_sac": "S-SAC",
+    "pursuit_3": "pursuit_3 (script)",
+    "pursuit_5": "pursuit_5 (script)",
+    "hold": "hold (script)",
+    "stop": "stop (script)",
+}
+
+
+def outcome_by_episode(
+    episodes: Sequence[dict[str, Any]], status: str
+) -> dict[tuple[int, int], float]:
+    """``{(scene, variation): 1.0 if the episode ended in status else 0.0}``."""
+    return {
+        (int(e["scenario_index"]), int(e["variation"])): float(e["status"] == status)
+        for e in episodes
+    }
+
+
+def pooled(runs: dict[str, list[dict[str, Any]]], status: str) -> dict[tuple[int, int], float]:
+    """A group's outcome per episode: the mean over its runs (seeds) that played it."""
+    sums: dict[tuple[int, int], list[float]] = {}
+    for episodes in runs.values():
+        for key, v in outcome_by_episode(episodes, status).items():
+            sums.setdefault(key, []).append(v)
+    return {k: sum(v) / len(v) for k, v in sums.items()}
+
+
+def group_table(groups: dict[str, dict[str, list[dict[str, Any]]]]) -> dict[str, dict[str, Any]]:
+    """Per group: episodes, each status's pooled rate with its Wilson interval, and each run's
+    (seed's) success."""
+    out = {}
+    for name, runs in groups.items():
+        eps = [e for episodes in runs.values() for e in episodes]
+        n = len(eps)
+        row: dict[str, Any] = {"episodes": n, "runs": {}}
+        for s in STATUSES:
+            k = sum(e["status"] == s for e in eps)
+            row[s] = k / n if n else 0.0
+            row[f"{s}_ci"] = wilson(k, n)
+        for run, episodes in runs.items():
+            m = len(episodes)
+            row["runs"][run] = {
+                s: (sum(e["status"] == s for e in episodes) / m if m else 0.0) for s in STATUSES
+            }
+        out[name] = row
+    return out
+
+
+def comparisons(
+    groups: dict[str, dict[str, list[dict[str, Any]]]], pairs: Sequence[tuple[str, str]]
+) -> list[dict[str, Any]]:
+    """``A - B`` for each pair: success and collision, paired by episode, clustered by
+    scene."""
+    out = []
+    for a, b in pairs:
+        row: dict[str, Any] = {"a": a, "b": b}
+        for s in ("success", "collision"):
+            row[s] = paired_clustered(pooled(groups[a], s), pooled(groups[b], s))
+        out.append(row)
+    return out
+
+
+def default_pairs(names: Sequence[str]) -> list[tuple[str, str]]:
+    """Every learned variant against each other, and each against every scripted driver."""
+    learned = [n for n in names if n not in DRIVERS]
+    scripted = [n for n in names if n in DRIVERS]
+    return list(itertools.combinations(learned, 2)) + [(a, b) for a in learned for b in scripted]
+
+
+def _ci(ci: Sequence[float]) -> str:
+    return f"[{ci[0]:.3f}, {ci[1]:.3f}]"
+
+
+def render(result: dict[str, Any]) -> str:
+    """The two markdown tables: rates with Wilson intervals, and the paired comparisons."""
+    table, meta = result["table"], result["meta"]
+    lines = [
+        f"{meta['variations']} variations of each of the {meta['scenes']} test scenes "
+        f"({meta['scenes'] * meta['variations']} episodes per run), variations "
+        f"`{json.dumps(meta['spec'])}`, seeds 0..{meta['variations'] - 1}.",
+        "",
+        "| policy | runs | episodes | success [Wilson 95 %] | collision | timeout | success per run |",
+        "|---|---:|---:|---|---|---|---|",
+    ]
+    for name, row in table.items():
+        runs = " / ".join(f"{r['success']:.3f}" for r in row["runs"].values())
+        lines.append(
+            f"| {LABELS.get(name, name)} | {len(row['runs'])} | {row['episodes']} "
+            f"| {row['success']:.3f} {_ci(row['success_ci'])} "
+            f"| {row['collision']:.3f} {_ci(row['collision_ci'])} "
+            f"| {row['timeout']:.3f} {_ci(row['timeout_ci'])} | {runs} |"
+        )
+    lines += [
+        "",
+        "| A − B | success diff [95 %, scenes resampled] | half-width | collision diff [95 %] |",
+        "|---|---|---:|---|",
+    ]
+    for c in result["comparisons"]:
+        s, col = c["success"], c["collision"]
+        lines.append(
+            f"| {LABELS.get(c['a'], c['a'])} − {LABELS.get(c['b'], c['b'])} "
+            f"| {s['diff']:+.3f} [{s['lo']:+.3f}, {s['hi']:+.3f}] | {s['half_width']:.3f} "
+            f"| {col['diff']:+.3f} [{col['lo']:+.3f}, {col['hi']:+.3f}] |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def checkpoints_of(paths: Sequence[str]) -> list[Path]:
+    """The ``.pt`` files named, or inside the folders named, sorted."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        out += sorted(p.glob("*.pt")) if p.is_dir() else [p]
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m sharedspace.train.powered",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--policies", nargs="*", default=[], help="checkpoints or folders of them")
+    ap.add_argument(
+        "--drivers", nargs="*", default=[], choices=sorted(DRIVERS), help="scripted drivers"
+    )
+    ap.add_argument("--variations", type=int, default=32, metavar="M")
+    ap.add_argument(
+        "--variation-spec",
+        type=json.loads,
+        default=None,
+        metavar="JSON",
+        help=f"SPEC 5.2.1 CreateEnv.variations; default {json.dumps(BENCHMARK_VARIATIONS)}",
+    )
+    ap.add_argument("--split", default="test")
+    ap.add_argument(
+        "--params",
+        default="params/table2.json5",
+        help="world parameters of the local server (when no server_endpoint is set)",
+    )
+    ap.add_argument("--json", default="", help="write every episode and the tables here")
+    ap.add_argument("--markdown", default="", help="write the two tables here")
+    add_overrides_argument(ap, "config overrides of every evaluation (e.g. server_endpoint=)")
+    args = ap.parse_args(argv)
+    if args.variations < 1:
+        ap.error("--variations must be at least 1")
+    spec = dict(args.variation_spec or BENCHMARK_VARIATIONS)
+
+    server = None
+    overrides = list(args.set)
+    if not any(o.startswith("server_endpoint=") and o.split("=", 1)[1] for o in overrides):
+        from sharedspace.local_server import LocalServer
+
+        server = LocalServer(cfg=[f"params:{json.dumps(args.params)}"])
+        overrides.append(f"server_endpoint={server.endpoint}")
+    groups: dict[str, dict[str, list[dict[str, Any]]]] = {}
+    started = time.perf_counter()
+    try:
+        for path in checkpoints_of(args.policies):
+            cfg, actor = load_checkpoint_actor(str(path), overrides)
+            t0 = time.perf_counter()
+            eps = play_variations(cfg, actor, args.variations, args.split, spec)
+            groups.setdefault(cfg.variant, {})[path.stem] = eps
+            ok = sum(e["status"] == "success" for e in eps) / len(eps)
+            print(f"{path.stem}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        cfg = apply_overrides(TrainConfig(), overrides)
+        for name in args.drivers:
+            eps = play_variations(
+                cfg, None, args.variations, args.split, spec, fresh_policy=lambda n=name: make_driver(n)
+            )
+            groups[name] = {name: eps}
+            ok = sum(e["status"] == "success" for e in eps) / len(eps)
+            print(f"{name}: success {ok:.3f}", flush=True)
+    finally:
+        if server is not None:
+            server.close()
+    scenes = len({e["scenario_index"] for runs in groups.values() for r in runs.values() for e in r})
+    result = {
+        "meta": {
+            "variations": args.variations,
+            "spec": spec,
+            "split": args.split,
+            "scenes": scenes,
+            "params": args.params if server is not None else None,
+            "wall_s": round(time.perf_counter() - started, 1),
+        },
+        "table": group_table(groups),
+        "comparisons": comparisons(groups, default_pairs(list(groups))),
+    }
+    text = render(result)
+    print(text)
+    if args.markdown:
+        Path(args.markdown).write_text(text)
+    if args.json:
+        slim = {
+            name: {
+                run: [
+                    {k: e[k] for k in ("scenario_index", "variation", "status", "steps")}
+                    for e in eps
+                ]
+                for run, eps in runs.items()
+            }
+            for name, runs in groups.items()
+        }
+        Path(args.json).write_text(json.dumps({**result, "episodes": slim}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
