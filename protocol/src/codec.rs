@@ -51,9 +51,11 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ProtocolError> {
     let mut rest: &[u8] = bytes;
     let value = {
         let mut de = rmp_serde::Deserializer::new(&mut rest);
-        T::deserialize(&mut de).map_err(|source| ProtocolError::Decode {
+        // The path names the field a wrong value sits in, which rmp-serde's error does not.
+        serde_path_to_error::deserialize(&mut de).map_err(|e| ProtocolError::Decode {
             expected: type_label::<T>(),
-            source,
+            path: e.path().to_string(),
+            source: e.into_inner(),
         })?
     };
     let rest = rest.len();

@@ -6,10 +6,12 @@ use crate::array::ArrayError;
 #[derive(Debug, thiserror::Error)]
 pub enum ProtocolError {
     /// The bytes are not a valid MessagePack encoding of the expected message type.
-    #[error("cannot decode {expected}: {source}")]
+    #[error("cannot decode {expected}: {}{source}", if path.is_empty() || path == "." { String::new() } else { format!("{path}: ") })]
     Decode {
         /// The message type that was expected (short Rust type name).
         expected: String,
+        /// Where in the message the error is (`variations.start_offset_steps`; `.` at the top).
+        path: String,
         /// The MessagePack / serde error text.
         #[source]
         source: rmp_serde::decode::Error,

@@ -1195,6 +1195,10 @@ impl BatchStepResult {
                     .map(|r| r.1.variation.as_ref().map(|v| v.seed))
                     .collect(),
             };
+            if no_variation(&out.resets.variation) {
+                // As decoded: a column the encoding leaves out comes back empty.
+                out.resets.variation.clear();
+            }
         }
         Ok(out)
     }

@@ -398,6 +398,21 @@ pub fn validate_pool(
                     }
                 }
             }
+            if let Some(v) = ag.desired_speed {
+                let problem = if !v.is_finite() {
+                    Some(Problem::NotFinite(v))
+                } else if !(0.0..=MAX_ABS_VELOCITY).contains(&v) {
+                    Some(Problem::TooLarge {
+                        value: v,
+                        limit: MAX_ABS_VELOCITY,
+                    })
+                } else {
+                    None
+                };
+                if let Some(problem) = problem {
+                    return err(sref(), aref(), "desired_speed", problem);
+                }
+            }
         }
         let found = match overlap {
             OverlapCheck::Spawn => first_spawn_overlap(&sc.agents),

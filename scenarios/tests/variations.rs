@@ -6,7 +6,7 @@ use std::sync::Arc;
 use scenarios::embedded::{pool, EMBEDDED_POOLS};
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::scenario::Scenario;
-use sim_core::variation::{VariationSpec, REDRAWS};
+use sim_core::variation::{Variation, VariationSpec, REDRAWS};
 use sim_core::world::{EpisodeConfig, World};
 
 /// The first pair of agents in contact when one of them appears, as the world sees it: every
@@ -57,7 +57,7 @@ fn no_variation_of_an_hbs_scene_starts_in_an_overlap() {
         for scene in &pool.scenarios {
             let recorded = first_spawn_contact(scene, &params);
             for spec in specs() {
-                for seed in 0..8 {
+                for seed in 0..4 {
                     let v = spec.draw(scene, &params, seed);
                     let varied = v.apply(scene);
                     let params = v.apply_params(&params);
@@ -112,5 +112,83 @@ fn the_default_spec_plays_the_recorded_scene_to_the_bit() {
             assert_eq!(a.desired_speed().to_bits(), b.desired_speed().to_bits());
         }
         assert_eq!(v.apply_params(&params), params);
+    }
+}
+
+/// Every ego-frame observation of an episode with the ego holding `action`, `steps` steps long.
+fn observations(scene: &Scenario, params: &WorldParams, action: [f64; 2], steps: u32) -> Vec<f32> {
+    const M: usize = 8;
+    let f = sim_core::observation::NODE_FEATURES;
+    let config = EpisodeConfig::ego_external(scene, PedestrianModel::CrSfm);
+    let mut world = World::new(Arc::new(scene.clone()), *params, config).expect("world");
+    let ego = scene.ego as u32;
+    let mut out = Vec::new();
+    for _ in 0..steps {
+        let (mut feats, mut adj, mut mask) = (vec![0.0; M * f], vec![0.0; M * M], vec![0u8; M]);
+        world
+            .fill_observation(ego, M, &mut feats, &mut adj, &mut mask)
+            .expect("observation");
+        out.extend(feats);
+        out.extend(adj);
+        out.extend(mask.iter().map(|&m| f32::from(m)));
+        if world.is_over() || world.active_externals().next().is_none() {
+            break;
+        }
+        world.step(&[(ego, action)]).expect("step");
+    }
+    out
+}
+
+#[test]
+fn a_rotated_scene_gives_the_ego_the_same_observations() {
+    let params = WorldParams::default();
+    let paper = pool("hbs-paper").expect("embedded pool");
+    let mut compared = 0usize;
+    for scene in &paper.scenarios {
+        let base = observations(scene, &params, [0.3, 0.1], 20);
+        for degrees in [-150.0, -37.5, 90.0, 180.0] {
+            let rotated = Variation {
+                seed: 0,
+                mirrored: false,
+                rotation_deg: degrees,
+                param_scales: Default::default(),
+                pedestrians: Vec::new(),
+            };
+            let seen = observations(&rotated.apply(scene), &params, [0.3, 0.1], 20);
+            assert_eq!(seen.len(), base.len(), "{}: episode length", scene.name);
+            for (k, (a, b)) in base.iter().zip(&seen).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-4 * (1.0 + a.abs()),
+                    "{} rotated by {degrees}: value {k} is {b}, unrotated {a}",
+                    scene.name
+                );
+            }
+            compared += seen.len();
+        }
+    }
+    assert!(compared > 10_000);
+}
+
+#[test]
+fn a_mirrored_scene_mirrors_the_ego_frame() {
+    // The mirror is about the ego's first heading, so in the ego's frame it flips lateral
+    // offsets: at the first step every node's lateral position changes sign.
+    let params = WorldParams::default();
+    let paper = pool("hbs-paper").expect("embedded pool");
+    let scene = &paper.scenarios[0];
+    let mirrored = Variation {
+        seed: 0,
+        mirrored: true,
+        rotation_deg: 0.0,
+        param_scales: Default::default(),
+        pedestrians: Vec::new(),
+    };
+    let f = sim_core::observation::NODE_FEATURES;
+    let base = observations(scene, &params, [0.0, 0.0], 1);
+    let seen = observations(&mirrored.apply(scene), &params, [0.0, 0.0], 1);
+    for node in 0..8 {
+        let (x, y) = (base[node * f], base[node * f + 1]);
+        assert!((seen[node * f] - x).abs() < 1e-4, "node {node} x");
+        assert!((seen[node * f + 1] + y).abs() < 1e-4, "node {node} y");
     }
 }

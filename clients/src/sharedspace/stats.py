@@ -8,7 +8,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["wilson", "sign_test", "paired_bootstrap", "cluster_bootstrap", "paired_clustered"]
+__all__ = [
+    "wilson",
+    "sign_test",
+    "paired_bootstrap",
+    "cluster_bootstrap",
+    "stratified_bootstrap",
+    "paired_clustered",
+]
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -61,6 +68,25 @@ def cluster_bootstrap(
     return (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
 
 
+def stratified_bootstrap(
+    clusters: Sequence[Sequence[float]], resamples: int = 10_000, seed: int = 0
+) -> tuple[float, float]:
+    """95 % percentile interval of the mean over every value, resampling within each cluster
+    and keeping the clusters: inference about these scenes only (how sure the mean over their
+    variations is), not about scenes not in the test set (:func:`cluster_bootstrap`)."""
+    sizes = [len(c) for c in clusters if len(c)]
+    if not sizes:
+        return (0.0, 0.0)
+    rng = np.random.default_rng(seed)
+    total = np.zeros(resamples)
+    for c in clusters:
+        if len(c):
+            v = np.asarray(c, dtype=float)
+            total += v[rng.integers(0, len(v), (resamples, len(v)))].sum(1)
+    means = total / sum(sizes)
+    return (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
+
+
 def paired_clustered(
     a: dict[tuple[int, int], float],
     b: dict[tuple[int, int], float],
@@ -70,19 +96,24 @@ def paired_clustered(
     """The paired difference ``a - b`` over the episodes both played, keyed ``(scene,
     variation)``: its mean, and its 95 % interval by :func:`cluster_bootstrap` with the scene
     as cluster; ``pairs`` and ``scenes`` say what it rests on, ``half_width`` how tight it
-    is."""
+    is. ``lo_fixed`` / ``hi_fixed`` / ``half_width_fixed``: the interval with the scenes held
+    fixed (:func:`stratified_bootstrap`), which more variations narrow without bound."""
     keys = sorted(set(a) & set(b))
     by_scene: dict[int, list[float]] = {}
     for key in keys:
         by_scene.setdefault(key[0], []).append(a[key] - b[key])
     clusters = list(by_scene.values())
     lo, hi = cluster_bootstrap(clusters, resamples, seed)
+    lo_f, hi_f = stratified_bootstrap(clusters, resamples, seed)
     diffs = [d for c in clusters for d in c]
     return {
         "diff": float(np.mean(diffs)) if diffs else 0.0,
         "lo": lo,
         "hi": hi,
         "half_width": (hi - lo) / 2,
+        "lo_fixed": lo_f,
+        "hi_fixed": hi_f,
+        "half_width_fixed": (hi_f - lo_f) / 2,
         "pairs": len(diffs),
         "scenes": len(clusters),
     }

@@ -171,8 +171,9 @@ class RemoteBatchedEnv(_ServerEnvs):
             (``Reset.variation``; needs ``variations``): a fixed, replayable set of variations,
             as the evaluator uses. None: each episode draws its own.
 
-    ``last_variation_seeds`` (``[K]``, -1 without variations) is each sub-env's current
-    episode's variation seed: a side channel, like ``last_reward_terms``.
+    ``last_variation_seeds`` (K ints, None without variations; seeds are unsigned 64-bit) is
+    each sub-env's current episode's variation seed: a side channel, like
+    ``last_reward_terms``.
     """
 
     batch_locked = True
@@ -274,7 +275,7 @@ class RemoteBatchedEnv(_ServerEnvs):
         self._reseed_pending = False
         self._cursor = [0] * k
         self._variation_seeds = variation_seeds
-        self.last_variation_seeds = np.full(k, -1, dtype=np.int64)
+        self.last_variation_seeds: list[int | None] = [None] * k
         create = dict(
             seed=self._seed,
             split=split,
@@ -365,7 +366,7 @@ class RemoteBatchedEnv(_ServerEnvs):
         variation = result.get("variation")
         if isinstance(variation, Mapping):
             variation = variation.get("seed")
-        self.last_variation_seeds[k] = -1 if variation is None else int(variation)
+        self.last_variation_seeds[k] = None if variation is None else int(variation)
 
     def _blank(self) -> dict[str, np.ndarray]:
         k = self.num_envs

@@ -81,7 +81,7 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
         device = param.device if param is not None and param.device != env.device else None
         scen = td["scenario_index"].reshape(-1).tolist()
         seeds = getattr(env, "last_variation_seeds", None)
-        variation = [-1] * k if seeds is None else [int(s) for s in seeds]
+        variation = [-1 if s is None else int(s) for s in (seeds or [None] * k)]
         for i in range(k):
             traces[i]["speeds"].append(float(td["features"][i, 0, 4]))
         for _ in range(max_steps):

@@ -6,13 +6,18 @@ paired, scene-clustered comparisons.
         --drivers pursuit_3 pursuit_5 hold stop --variations 32 \\
         --json docs/table2_variations.json --markdown out/powered.md
 
+    python -m sharedspace.train.powered --from-json docs/table2_variations.json --by-m 8,16,32
+
 Every policy plays variation ``j`` (seed ``j``, :func:`sharedspace.train.evaluate.play_variations`)
 of every test scene, so two policies' outcomes pair up episode by episode. A variant's seeds pool:
 its outcome in an episode is the mean over its seeds. A comparison ``A - B`` is the mean paired
-difference with a 95 % bootstrap interval that resamples whole scenes
-(:func:`sharedspace.stats.paired_clustered`): the episodes of one scene are not independent.
-With no ``--set server_endpoint=...`` a local server is started with ``--params`` (the Table II
-world, ``params/table2.json5``, by default).
+difference with two 95 % bootstrap intervals (:func:`sharedspace.stats.paired_clustered`): one
+that resamples whole scenes (the episodes of one scene are not independent; this is the interval
+for scenes like these, and more variations cannot narrow it below what the scenes disagree by),
+and one that holds the test scenes fixed (how sure the mean over these scenes' variations is).
+``--by-m`` gives both half-widths for the first M variations of a run, to choose M. With no
+``--set server_endpoint=...`` a local server is started with ``--params`` (the Table II world,
+``params/table2.json5``, by default).
 """
 
 from __future__ import annotations
@@ -135,18 +140,52 @@ def render(result: dict[str, Any]) -> str:
             f"| {row['collision']:.3f} {_ci(row['collision_ci'])} "
             f"| {row['timeout']:.3f} {_ci(row['timeout_ci'])} | {runs} |"
         )
+    planner = result.get("planner")
+    if planner:
+        lines.append(
+            f"| planner bound (open-loop search, variations 0..{planner['variations'] - 1}) "
+            f"| – | {planner['cells']} | {planner['bound']:.3f} {_ci(planner['bound_ci'])} "
+            "| – | – | – |"
+        )
     lines += [
         "",
-        "| A − B | success diff [95 %, scenes resampled] | half-width | collision diff [95 %] |",
-        "|---|---|---:|---|",
+        "| A − B | success diff | 95 %, scenes resampled (half-width) "
+        "| 95 %, scenes fixed (half-width) | collision diff [95 %, scenes resampled] |",
+        "|---|---:|---|---|---|",
     ]
     for c in result["comparisons"]:
         s, col = c["success"], c["collision"]
         lines.append(
             f"| {LABELS.get(c['a'], c['a'])} − {LABELS.get(c['b'], c['b'])} "
-            f"| {s['diff']:+.3f} [{s['lo']:+.3f}, {s['hi']:+.3f}] | {s['half_width']:.3f} "
+            f"| {s['diff']:+.3f} | [{s['lo']:+.3f}, {s['hi']:+.3f}] ({s['half_width']:.3f}) "
+            f"| [{s['lo_fixed']:+.3f}, {s['hi_fixed']:+.3f}] ({s['half_width_fixed']:.3f}) "
             f"| {col['diff']:+.3f} [{col['lo']:+.3f}, {col['hi']:+.3f}] |"
         )
+    return "\n".join(lines) + "\n"
+
+
+def by_m(
+    groups: dict[str, dict[str, list[dict[str, Any]]]],
+    pairs: Sequence[tuple[str, str]],
+    ms: Sequence[int],
+) -> str:
+    """A markdown table of each pair's success half-widths (scenes resampled / fixed) on the
+    first M variations, for each M."""
+    lines = [
+        "| A − B | " + " | ".join(f"M = {m}" for m in ms) + " |",
+        "|---|" + "---:|" * len(ms),
+    ]
+    for a, b in pairs:
+        cells = []
+        for m in ms:
+            sub = {
+                g: {r: [e for e in eps if int(e["variation"]) < m] for r, eps in runs.items()}
+                for g, runs in groups.items()
+                if g in (a, b)
+            }
+            c = paired_clustered(pooled(sub[a], "success"), pooled(sub[b], "success"))
+            cells.append(f"{c['diff']:+.3f} ± {c['half_width']:.3f} / {c['half_width_fixed']:.3f}")
+        lines.append(f"| {LABELS.get(a, a)} − {LABELS.get(b, b)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -182,13 +221,48 @@ def main(argv: Sequence[str] | None = None) -> int:
         default="params/table2.json5",
         help="world parameters of the local server (when no server_endpoint is set)",
     )
+    ap.add_argument(
+        "--planner",
+        type=int,
+        default=0,
+        metavar="MP",
+        help="also run the open-loop planner search (table2.open_loop_search) on the first MP "
+        "variations of every scene: the share it solves bounds what any driver can reach",
+    )
+    ap.add_argument("--planner-rounds", type=int, default=6)
+    ap.add_argument("--planner-per-round", type=int, default=24)
     ap.add_argument("--json", default="", help="write every episode and the tables here")
+    ap.add_argument(
+        "--from-json",
+        default="",
+        help="analyse the episodes of an earlier --json instead of playing (no server)",
+    )
+    ap.add_argument(
+        "--by-m",
+        default="",
+        metavar="M1,M2,...",
+        help="also tabulate each comparison's half-widths on the first M variations",
+    )
     ap.add_argument("--markdown", default="", help="write the two tables here")
     add_overrides_argument(ap, "config overrides of every evaluation (e.g. server_endpoint=)")
     args = ap.parse_args(argv)
     if args.variations < 1:
         ap.error("--variations must be at least 1")
     spec = dict(args.variation_spec or BENCHMARK_VARIATIONS)
+    ms = [int(m) for m in args.by_m.split(",") if m.strip()]
+    if args.from_json:
+        saved = json.loads(Path(args.from_json).read_text())
+        groups = saved["episodes"]
+        result = {
+            **saved,
+            "table": group_table(groups),
+            "comparisons": comparisons(groups, default_pairs(list(groups))),
+        }
+        result.pop("episodes")
+        print(render(result))
+        if ms:
+            print(by_m(groups, default_pairs(list(groups)), ms))
+        return 0
 
     server = None
     overrides = list(args.set)
@@ -215,6 +289,31 @@ def main(argv: Sequence[str] | None = None) -> int:
             groups[name] = {name: eps}
             ok = sum(e["status"] == "success" for e in eps) / len(eps)
             print(f"{name}: success {ok:.3f}", flush=True)
+        planner = None
+        if args.planner > 0:
+            from sharedspace.train.table2 import open_loop_search
+
+            t0 = time.perf_counter()
+            found = open_loop_search(
+                cfg,
+                rounds=args.planner_rounds,
+                per_round=args.planner_per_round,
+                variations=args.planner,
+                spec=spec,
+            )
+            solved = sum(r.get("replayed") == "success" for r in found.values())
+            planner = {
+                "variations": args.planner,
+                "rounds": args.planner_rounds,
+                "per_round": args.planner_per_round,
+                "cells": len(found),
+                "solved": solved,
+                "bound": solved / len(found) if found else 0.0,
+                "bound_ci": wilson(solved, len(found)),
+                "unsolved": sorted(n for n, r in found.items() if r.get("replayed") != "success"),
+                "wall_s": round(time.perf_counter() - t0, 1),
+            }
+            print(f"planner bound: {solved} of {len(found)} solved", flush=True)
     finally:
         if server is not None:
             server.close()
@@ -230,8 +329,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         "table": group_table(groups),
         "comparisons": comparisons(groups, default_pairs(list(groups))),
+        "planner": planner,
     }
     text = render(result)
+    if ms:
+        text += "\n" + by_m(groups, default_pairs(list(groups)), ms)
     print(text)
     if args.markdown:
         Path(args.markdown).write_text(text)

@@ -50,6 +50,8 @@ from sharedspace.stats import paired_bootstrap, sign_test, wilson
 from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver, reachability
 from sharedspace.train.evaluate import (
+    BENCHMARK_VARIATIONS,
+    MAX_EVAL_ENVS,
     COLUMNS,
     evaluate_policy,
     human_episodes,
@@ -139,6 +141,8 @@ def open_loop_search(
     elites: int = 8,
     seed: int = 0,
     max_steps: int = 200,
+    variations: int = 0,
+    spec: dict[str, Any] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """A planner's answer to "can any driver succeed here?": for every test scenario, a
     cross-entropy search over open-loop action sequences. Round 0 plays the 9 constant actions
@@ -150,10 +154,14 @@ def open_loop_search(
     arrival exists; a scenario without one is where a failure may be unavoidable (not proven:
     the search is finite). Keyed by scenario name: counts of ``success`` / ``collision`` /
     ``timeout`` over the ``candidates`` played and ``best_steps`` (the fewest steps of a
-    successful sequence, or None)."""
+    successful sequence, or None).
+
+    With ``variations`` = M > 0 the search runs on each of the M seeded variations of every test
+    scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.train.evaluate.play_variations`
+    plays them), keyed ``"{name}#{seed}"``: the bound of the powered test."""
     pool = load_pool(cfg.scenario_pool or None)
     test = split_indices(pool, "test")
-    n = len(test)
+    n = len(test) * max(1, variations)  # search cells: (scenario, variation)
     rng = np.random.default_rng(seed)
     levels = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
     constants = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=2)), dtype=np.float32)
@@ -178,7 +186,7 @@ def open_loop_search(
                 stack = np.stack([a for _, a in best])
                 mean, std = stack.mean(0), np.maximum(stack.std(0), 0.15)
                 actions[k] = np.clip(mean + std * rng.standard_normal(mean.shape), -1.0, 1.0)
-        names, outcome = _play_open_loop(cfg, pool, actions)
+        names, outcome = _play_open_loop(cfg, pool, actions, variations, spec)
         for k, name in enumerate(names):
             rec = found.setdefault(
                 name,
@@ -202,7 +210,7 @@ def open_loop_search(
         best = found.get(name, {}).get("best_actions")
         if best:
             replay[j, : len(best)] = best
-    names, outcome = _play_open_loop(cfg, pool, replay)
+    names, outcome = _play_open_loop(cfg, pool, replay, variations, spec)
     for name, result in zip(names, outcome, strict=True):
         if found.get(name, {}).get("best_actions"):
             found[name]["replayed"] = result[0] if result else "timeout"
@@ -210,14 +218,48 @@ def open_loop_search(
 
 
 def _play_open_loop(
-    cfg: TrainConfig, pool: Sequence[dict[str, Any]], actions: np.ndarray
+    cfg: TrainConfig,
+    pool: Sequence[dict[str, Any]],
+    actions: np.ndarray,
+    variations: int = 0,
+    spec: dict[str, Any] | None = None,
 ) -> tuple[list[str], list[tuple[str, int, float] | None]]:
-    """Plays ``actions[k]`` (``[K, T, 2]``) open loop in sub-env ``k`` of a test-split env in
-    sequential order (sub-env ``k`` on the split's scenario ``k % n``) until every sub-env's
-    first episode has ended; per sub-env its scenario name and ``(status, steps, goal
-    distance)``."""
+    """Plays ``actions[k]`` (``[K, T, 2]``) open loop in sub-env ``k`` of test-split envs in
+    sequential order (sub-env ``k`` on the split's scenario ``k % n``; with ``variations`` = M,
+    in variation ``(k // n) % M``, named ``"{name}#{variation}"``) until every sub-env's first
+    episode has ended; per sub-env its name and ``(status, steps, goal distance)``. Envs of at
+    most :data:`MAX_EVAL_ENVS` sub-envs."""
+    n = len(split_indices(pool, "test"))
+    per_env = max(1, MAX_EVAL_ENVS // n) * n
+    names: list[str] = []
+    outcome: list[tuple[str, int, float] | None] = []
+    for start in range(0, actions.shape[0], per_env):
+        part = actions[start : start + per_env]
+        seeds = [((start + k) // n) % variations for k in range(len(part))] if variations else None
+        got_names, got = _play_open_loop_env(cfg, pool, part, seeds, spec)
+        if seeds is not None:
+            got_names = [f"{name}#{v}" for name, v in zip(got_names, seeds, strict=True)]
+        names += got_names
+        outcome += got
+    return names, outcome
+
+
+def _play_open_loop_env(
+    cfg: TrainConfig,
+    pool: Sequence[dict[str, Any]],
+    actions: np.ndarray,
+    variation_seeds: list[int] | None,
+    spec: dict[str, Any] | None,
+) -> tuple[list[str], list[tuple[str, int, float] | None]]:
     k_envs, max_steps = actions.shape[:2]
-    env = make_env(cfg, split="test", num_envs=k_envs, scenario_order="sequential")
+    env = make_env(
+        cfg,
+        split="test",
+        num_envs=k_envs,
+        scenario_order="sequential",
+        variations=dict(spec or BENCHMARK_VARIATIONS) if variation_seeds else None,
+        variation_seeds=variation_seeds,
+    )
     try:
         td = env.reset()
         names = [pool[int(i)]["name"] for i in td["scenario_index"].reshape(-1).tolist()]
