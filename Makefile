@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router view browser test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 train eval lint-py venv clean
+.PHONY: help run build serve router view browser test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v train eval lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -124,6 +124,13 @@ eval: $(SERVER) $(VENV)/.installed ## evaluate CKPT on the test split (Table II 
 
 table2: $(SERVER) $(VENV)/.installed ## paper Table II: three variants trained at once against one server, evaluated (docs/RESULTS.md)
 	./scripts/table2.sh
+
+POWERED_ARGS ?= --variations 128 --planner 32 --by-m 8,16,32,64,128
+table2v: $(SERVER) $(VENV)/.installed ## Table II on seeded variations: the shipped policies, scripts and planner bound, paired (docs/RESULTS.md)
+	mkdir -p results/variations
+	$(PY) -m sharedspace.train.powered --policies results/table2/policies \
+		--drivers pursuit_3 pursuit_5 hold stop $(POWERED_ARGS) \
+		--json results/variations/baseline.json --markdown results/variations/baseline.md
 
 clean:
 	$(CARGO) clean

@@ -260,6 +260,16 @@ def decode_batch_result(
     if b is None:
         return decode_result(payload)
     r = b.resets
+    resets = {
+        "index": _view(r.index),
+        "episode": _view(r.episode),
+        "scenario": r.scenario,
+        "horizon_steps": _view(r.horizon_steps),
+        "agents": r.agents,
+        "obs": _obs_views(r.obs),
+    }
+    if r.variation:  # absent on the wire when no reset env has variations
+        resets["variation"] = r.variation
     return {
         "env_ids": env_ids,
         "obs": _obs_views(b.obs),
@@ -274,15 +284,7 @@ def decode_batch_result(
         "action_clipped": _view(b.action_clipped),
         "events": b.events,
         "metrics": b.metrics,
-        "resets": {
-            "index": _view(r.index),
-            "episode": _view(r.episode),
-            "scenario": r.scenario,
-            "horizon_steps": _view(r.horizon_steps),
-            "agents": r.agents,
-            "obs": _obs_views(r.obs),
-            "variation": r.variation,
-        },
+        "resets": resets,
     }
 
 

@@ -172,8 +172,6 @@ def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
         row[s] = sum(e["status"] == s for e in episodes) / n
     for key in ("avg_speed", "avg_abs_jerk", "max_abs_acc"):
         row[key] = float(np.mean([e[key] for e in episodes]))
-    for s in ("success", "collision", "timeout"):
-        row[f"{s}_ci"] = wilson(sum(e["status"] == s for e in episodes), n)
     return row
 
 
@@ -312,14 +310,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows["human"] = summarize(human)
     print(format_table(rows))
     if args.variations > 0:
-        row = result["summary"]
-        print(
-            "Wilson 95 %: "
-            + ", ".join(
-                f"{s} {row[s]:.3f} [{row[s + '_ci'][0]:.3f}, {row[s + '_ci'][1]:.3f}]"
-                for s in ("success", "collision", "timeout")
-            )
-        )
+        eps = result["episodes"]
+        cells = []
+        for s in ("success", "collision", "timeout"):
+            k = sum(e["status"] == s for e in eps)
+            lo, hi = wilson(k, len(eps))
+            cells.append(f"{s} {k}/{len(eps)} = {k / len(eps):.3f} [{lo:.3f}, {hi:.3f}]")
+        print("Wilson 95 %: " + ", ".join(cells))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(
