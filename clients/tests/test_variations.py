@@ -12,6 +12,7 @@ import gymnasium as gym
 import msgspec
 import numpy as np
 import pytest
+from conftest import sim_server_binary, unique_prefix
 
 import sharedspace
 from sharedspace import codec
@@ -21,8 +22,6 @@ from sharedspace.stats import cluster_bootstrap, paired_clustered
 from sharedspace.torchrl_env import RemoteBatchedEnv
 from sharedspace.train.config import TrainConfig, apply_overrides
 from sharedspace.train.evaluate import BENCHMARK_VARIATIONS
-
-from conftest import sim_server_binary, unique_prefix
 
 STRONG = {
     "position_sigma": 0.5,
@@ -60,9 +59,10 @@ def test_the_same_variation_seed_plays_bit_identically_on_two_server_processes(s
     prefix = unique_prefix()
     a = server_factory(prefix + "a", "va")
     b = server_factory(prefix + "b", "vb")
-    with SimClient(a.endpoint, a.prefix, timeout=10) as ca, SimClient(
-        b.endpoint, b.prefix, timeout=10
-    ) as cb:
+    with (
+        SimClient(a.endpoint, a.prefix, timeout=10) as ca,
+        SimClient(b.endpoint, b.prefix, timeout=10) as cb,
+    ):
         test_scene = ca.scenarios(None, "va")[1]
         name = next(n for n, split in test_scene if split == "test")
         first, second = _episode(ca, 17, name), _episode(cb, 17, name)

@@ -129,7 +129,8 @@ def render(result: dict[str, Any]) -> str:
         f"({meta['scenes'] * meta['variations']} episodes per run), variations "
         f"`{json.dumps(meta['spec'])}`, seeds 0..{meta['variations'] - 1}.",
         "",
-        "| policy | runs | episodes | success [Wilson 95 %] | collision | timeout | success per run |",
+        "| policy | runs | episodes | success [Wilson 95 %] | collision | timeout "
+        "| success per run |",
         "|---|---:|---:|---|---|---|---|",
     ]
     for name, row in table.items():
@@ -284,7 +285,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = apply_overrides(TrainConfig(), overrides)
         for name in args.drivers:
             eps = play_variations(
-                cfg, None, args.variations, args.split, spec, fresh_policy=lambda n=name: make_driver(n)
+                cfg,
+                None,
+                args.variations,
+                args.split,
+                spec,
+                fresh_policy=lambda n=name: make_driver(n),
             )
             groups[name] = {name: eps}
             ok = sum(e["status"] == "success" for e in eps) / len(eps)
@@ -317,7 +323,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if server is not None:
             server.close()
-    scenes = len({e["scenario_index"] for runs in groups.values() for r in runs.values() for e in r})
+    scenes = len(
+        {e["scenario_index"] for runs in groups.values() for r in runs.values() for e in r}
+    )
     result = {
         "meta": {
             "variations": args.variations,

@@ -51,8 +51,8 @@ from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argume
 from sharedspace.train.drivers import DRIVERS, make_driver, reachability
 from sharedspace.train.evaluate import (
     BENCHMARK_VARIATIONS,
-    MAX_EVAL_ENVS,
     COLUMNS,
+    MAX_EVAL_ENVS,
     evaluate_policy,
     human_episodes,
     load_checkpoint_actor,
