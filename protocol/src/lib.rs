@@ -10,7 +10,8 @@
 //!   [`U8Array`],
 //!   [`FloatArray`]).
 //! * [`codec`]: [`encode`] / [`decode`] (named-map MessagePack).
-//! * [`samples`]: the fixed example values behind the golden files in `tests/golden/`.
+//! * `samples` (feature `samples`, on in this crate's tests): the fixed example values behind
+//!   the golden files in `tests/golden/`.
 //! * [`wire`]: direct writing of the batch-step reply from borrowed slices (same bytes as
 //!   [`encode`]).
 
@@ -19,6 +20,7 @@ pub mod codec;
 pub mod error;
 pub mod keys;
 pub mod messages;
+#[cfg(any(test, feature = "samples"))]
 pub mod samples;
 pub mod wire;
 

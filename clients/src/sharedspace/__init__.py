@@ -9,7 +9,7 @@
 - :mod:`sharedspace.client`: :class:`SimClient` and the batched :class:`VectorClient` (failover);
 - :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``;
 - :mod:`sharedspace.gym_env`: ``SharedSpaceEnv``, registered with Gymnasium as
-  ``sharedspace/SharedSpace-v0`` on import (when gymnasium is installed);
+  ``sharedspace/SharedSpace-v0`` on import;
 - :mod:`sharedspace.torchrl_env`: ``RemoteBatchedEnv`` (imported lazily: needs torch/torchrl);
 - :mod:`sharedspace.observer`: :class:`Observer` of the envs' publications.
 """
@@ -38,14 +38,11 @@ _LAZY = {
     "SharedSpaceEnv": ("gym_env", "SharedSpaceEnv"),
 }
 
-try:  # `gymnasium.make("sharedspace/SharedSpace-v0")` after `import sharedspace`
-    import gymnasium as _gymnasium  # noqa: F401 - only to know it is there
-except ImportError:  # the codec-only install has no gymnasium
-    pass
-else:
-    from .gym_env import register as _register_gym
+# `gymnasium.make("sharedspace/SharedSpace-v0")` after `import sharedspace` (gymnasium is a
+# dependency of the package).
+from .gym_env import register as _register_gym  # noqa: E402
 
-    _register_gym()
+_register_gym()
 
 
 def __getattr__(name: str):

@@ -151,7 +151,7 @@ class RemoteBatchedEnv(_ServerEnvs):
 
     Args:
         num_envs, max_agents, split, seed, scenario_order, pedestrian_model: K, M, the split
-            (``train``/``test``/``all``), the base seed, ``random``/``cycle``, the crowd's model
+            (``train``/``test``), the base seed, ``random``/``sequential``, the crowd's model
             (ENV_CONTRACT.md).
         pool: the server pool: its name (``"hbs-paper"``, ``"hbs-general"``, see
             ``SimClient.pools()``), or the path of the scenario file the server serves (or its

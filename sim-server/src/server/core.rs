@@ -6,8 +6,8 @@
 //! that already holds another env (batches lock their envs in id order), and no env lock is held
 //! while taking the registry lock, so there is no lock-order cycle.
 
+use rustc_hash::FxBuildHasher;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
@@ -228,44 +228,11 @@ struct Client {
     deadline: Option<Instant>,
 }
 
-/// A multiplicative (FxHash-style) hasher for the env registry, which is looked up once per env
-/// of every batch: SipHash of the ids showed in profiles. The keys are ids this server issued,
-/// so clients cannot choose colliding keys; a lookup of any string costs at most the probes
-/// the issued keys cause.
-#[derive(Debug, Default, Clone, Copy)]
-struct IdHasher(u64);
-
-impl IdHasher {
-    fn add(&mut self, word: u64) {
-        self.0 = (self.0.rotate_left(5) ^ word).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    }
-}
-
-impl Hasher for IdHasher {
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut w = [0u8; 8];
-            w[..chunk.len()].copy_from_slice(chunk);
-            self.add(u64::from_le_bytes(w));
-        }
-    }
-
-    fn write_u8(&mut self, i: u8) {
-        self.add(u64::from(i));
-    }
-
-    fn write_usize(&mut self, i: usize) {
-        self.add(i as u64);
-    }
-
-    fn finish(&self) -> u64 {
-        self.0
-    }
-}
-
 #[derive(Debug, Default)]
 struct Registry {
-    envs: HashMap<String, Arc<Mutex<Env>>, BuildHasherDefault<IdHasher>>,
+    // FxHash: the registry is looked up once per env of every batch, and SipHash of the ids showed
+    // in profiles. The keys are ids this server issued, so clients cannot choose colliding keys.
+    envs: HashMap<String, Arc<Mutex<Env>>, FxBuildHasher>,
     /// Client id of every open env.
     owner: HashMap<String, String>,
     counter: u64,

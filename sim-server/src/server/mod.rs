@@ -16,9 +16,9 @@
 //!   plus the publications to send. Unit-testable without zenoh.
 //! * [`net`]: the tokio/zenoh layer — one queryable per request kind (an info query, and a
 //!   single-env step while no served scenario has more than 64 agents, answered on the zenoh
-//!   thread that delivered it; every other query in its own
-//!   tokio task, so steps of different envs run concurrently, serialised per env by the env's
-//!   mutex), the server's liveliness token, the trainers' liveliness subscriber, the realtime
+//!   thread that delivered it; batches on tokio's blocking threads (`spawn_blocking`), where
+//!   they may wait for a fair turn; every other query in its own tokio task, so steps of
+//!   different envs run concurrently, serialised per env by the env's mutex), the server's liveliness token, the trainers' liveliness subscriber, the realtime
 //!   action subscriber and one clock task per realtime env; [`run`] is the entry point.
 //! * [`fair`]: [`fair::FairTurns`], the fair order of batches waiting to be stepped.
 //! * [`config`]: the JSON5 configuration with `--cfg KEY:VALUE` overrides.
@@ -36,8 +36,13 @@
 //! * **Publications cost nothing unobserved.** For each topic (`states`, `uncertainty`,
 //!   `risk_graph`, `events`, `result`) the server declares one publisher on `{p}/env/*/{topic}` and
 //!   keeps its zenoh matching status in an atomic flag; a topic without any matching subscriber
-//!   is neither encoded nor put. When somebody subscribes to a topic of any env, that topic is
-//!   published for every env.
+//!   is neither encoded nor put. While somebody matches a topic, each open env gets a publisher
+//!   of its own on it (`net::EnvWatch`), whose matching status gates that env: a subscriber of
+//!   one env's topic costs the other envs nothing.
+//! * **Scene variations.** An env with variations (`CreateEnv.variations`, else its pool
+//!   entry's) draws one variation seed per episode from a stream seeded by its seed
+//!   (`Reset.seed` re-seeds it, `Reset.variation` plays a given seed) and builds that
+//!   episode's world from `sim_core::variation`; the reset reports the seed and the values.
 //! * **Reaping.** The trainers' liveliness tokens `{p}/trainer/{client_id}` are watched with
 //!   history; when one disappears its envs are closed at once, or after `reconnect_grace_s`
 //!   (default 0) unless the token comes back first (a trainer that reconnects keeps its envs).
