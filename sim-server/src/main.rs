@@ -286,32 +286,24 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     };
     let scenario = Arc::new(scenario.clone());
     let threads = usize::from(args.threads);
-    let result = match &args.out {
-        Some(path) => {
-            let file = std::fs::File::create(path)
-                .map_err(|e| format!("creating {}: {e}", path.display()))?;
-            let mut w = std::io::BufWriter::new(file);
-            rollout(
-                scenario,
-                params,
-                model,
-                ego,
-                variation.as_ref(),
-                threads,
-                &mut w,
-            )
-        }
-        None => rollout(
-            scenario,
-            params,
-            model,
-            ego,
-            variation.as_ref(),
-            threads,
-            &mut std::io::stdout().lock(),
-        ),
+    let mut out: Box<dyn std::io::Write> = match &args.out {
+        Some(path) => Box::new(std::io::BufWriter::new(
+            std::fs::File::create(path)
+                .map_err(|e| format!("creating {}: {e}", path.display()))?,
+        )),
+        None => Box::new(std::io::stdout().lock()),
     };
-    result.map(|_| ()).map_err(|e| e.to_string())
+    rollout(
+        scenario,
+        params,
+        model,
+        ego,
+        variation.as_ref(),
+        threads,
+        &mut out,
+    )
+    .map(|_| ())
+    .map_err(|e| e.to_string())
 }
 
 fn main() -> ExitCode {
