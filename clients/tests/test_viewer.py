@@ -11,10 +11,15 @@ docs/figures/viewer.png was made).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import signal
+import subprocess
+import sys
 import threading
 import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +27,7 @@ import pytest
 from conftest import unique_prefix
 
 from sharedspace.client import SimClient
+from sharedspace.local_server import free_port
 from sharedspace.observer import Observer
 from sharedspace.viewer import VIEWER_DIST, Viewer
 
@@ -144,10 +150,15 @@ def test_the_viewer_follows_a_live_env_with_its_agents_and_risk_edges(
                 callback=keep,
             ),
         ):
-            browser.get(viewer.url())  # no env given: the page picks the open one
+            # The root URL, no query: the page learns the WebSocket (a free port, not the
+            # default 10000) and the prefix from the viewer that serves it; no env given: it
+            # picks the open one.
+            browser.get(f"http://127.0.0.1:{viewer.http_port}/index.html")
             _wait(browser, lambda s: s["env"] == env_id, 30, f"env {env_id}")
             assert env_id in browser.find_element("id", "envs").text
-            assert "ws://" in browser.find_element("id", "connection").text
+            assert (
+                f"ws://127.0.0.1:{viewer.ws_port}" in browser.find_element("id", "connection").text
+            )
 
             # It follows the env step by step.
             stepper.running.set()
@@ -272,3 +283,58 @@ def test_the_viewer_names_an_unreachable_websocket(browser):
                 break
             time.sleep(0.1)
         assert "cannot reach ws://127.0.0.1:9" in text
+
+
+def _require_page():
+    if not (VIEWER_DIST / "index.html").is_file():
+        if os.environ.get("SHAREDSPACE_REQUIRE_BROWSER") == "1":
+            pytest.fail("viewer/dist is missing (make test builds it)")
+        pytest.skip("viewer/dist is missing (npm ci && npm run build in viewer/)")
+
+
+def test_the_viewer_serves_the_websocket_and_prefix_it_chose():
+    _require_page()
+    with Viewer("tcp/127.0.0.1:9", "somewhere", max_hz=0) as viewer:
+        url = f"http://127.0.0.1:{viewer.http_port}/viewer-config.json"
+        with urllib.request.urlopen(url, timeout=10) as reply:
+            served = json.loads(reply.read())
+    assert served == {"ws": f"ws://127.0.0.1:{viewer.ws_port}", "prefix": "somewhere"}
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(c) for c in path.read_text().split()] if path.exists() else []
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"  # a zombie has ended
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_the_viewers_router_dies_with_it(sig):
+    _require_page()
+    if not Path("/proc/self/task").exists():
+        pytest.skip("needs /proc")
+    viewer = subprocess.Popen(
+        [sys.executable, "-m", "sharedspace.viewer", "--connect", "tcp/127.0.0.1:9"]
+        + ["--http", "0", "--ws", str(free_port()), "--prefix", unique_prefix()],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert "viewer: open" in viewer.stdout.readline()  # the router and the page are up
+        routers = _children(viewer.pid)
+        assert routers, "the viewer started its router"
+        viewer.send_signal(sig)
+        viewer.wait(timeout=20)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and any(_alive(p) for p in routers):
+            time.sleep(0.1)
+        assert not any(_alive(p) for p in routers), f"router {routers} outlived the viewer"
+    finally:
+        if viewer.poll() is None:
+            viewer.kill()

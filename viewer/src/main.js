@@ -4,15 +4,31 @@
 // resets, and draws them. It subscribes to the one env it shows, so a server steps every other
 // env without encoding anything for it (the server publishes only what somebody listens to).
 //
-// URL parameters: ws (the plugin's WebSocket, default ws://<this host>:10000), prefix (default
+// URL parameters: ws (the plugin's WebSocket; default: what viewer-config.json of the server
+// that serves the page says, else ws://<this host>:10000), prefix (default likewise, else
 // sharedspace), env (an env id to follow at once), k (strongest edges drawn per agent, default 2).
 import { Config, Session } from "@eclipse-zenoh/zenoh-ts";
 import { decodePayload, readRiskGraph, readStates, strongestEdges } from "./wire.js";
 import { drawFrame, fitView, toWorld } from "./draw.js";
 
 const params = new URLSearchParams(location.search);
-const WS = params.get("ws") || `ws://${location.hostname || "127.0.0.1"}:10000`;
-const PREFIX = params.get("prefix") || "sharedspace";
+let WS = params.get("ws") || `ws://${location.hostname || "127.0.0.1"}:10000`;
+let PREFIX = params.get("prefix") || "sharedspace";
+
+// `python -m sharedspace.viewer` serves the WebSocket and prefix it chose beside the page, so the
+// page opened at its root URL connects to the right port; a page served by anything else keeps
+// the defaults above.
+async function loadServedConfig() {
+  try {
+    const reply = await fetch("viewer-config.json", { cache: "no-store" });
+    if (!reply.ok) return;
+    const served = await reply.json();
+    if (!params.get("ws") && served.ws) WS = served.ws;
+    if (!params.get("prefix") && served.prefix) PREFIX = served.prefix;
+  } catch (e) {
+    console.info("no viewer-config.json beside the page; defaults", e);
+  }
+}
 const TRAIL = 40; // points of a vehicle's trail kept (20 s at 2 Hz)
 
 const $ = (id) => document.getElementById(id);
@@ -308,6 +324,7 @@ function setupInteraction() {
 }
 
 async function main() {
+  await loadServedConfig();
   resize();
   setupInteraction();
   window.viewer = state; // for tests and the console

@@ -73,7 +73,7 @@ def wait_port(port: int, proc: subprocess.Popen, timeout: float, what: str = "si
     raise RuntimeError(f"{what} did not listen on 127.0.0.1:{port} within {timeout} s")
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child
+def die_with_parent() -> None:  # pragma: no cover - runs in the child
     """Linux: the server gets SIGTERM when the process that started it dies, even by SIGKILL."""
     if sys.platform.startswith("linux"):
         import ctypes
@@ -116,7 +116,7 @@ class LocalServer:
             stdout=self._log,
             stderr=subprocess.STDOUT,
             env={**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")},
-            preexec_fn=_die_with_parent,
+            preexec_fn=die_with_parent,
         )
         try:
             wait_port(self.port, self.proc, timeout)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import functools
 import http.server
+import json
 import signal
 import subprocess
 import threading
@@ -23,7 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import urlencode
 
-from .local_server import free_port, sim_server_binary, wait_port
+from .local_server import die_with_parent, free_port, sim_server_binary, wait_port
 
 __all__ = ["VIEWER_DIST", "Viewer"]
 
@@ -32,7 +33,25 @@ REPO_ROOT = Path(__file__).resolve().parents[3]
 VIEWER_DIST = REPO_ROOT / "viewer" / "dist"
 
 
-class _Quiet(http.server.SimpleHTTPRequestHandler):
+class _Page(http.server.SimpleHTTPRequestHandler):
+    """The page's files, and ``viewer-config.json``: the WebSocket and prefix this viewer chose
+    (the page reads it, so its root URL needs no query)."""
+
+    def __init__(self, *args, config: bytes, **kwargs):
+        self._config = config
+        super().__init__(*args, **kwargs)
+
+    def do_GET(self):  # noqa: N802 - the base class's name
+        if self.path.split("?", 1)[0] == "/viewer-config.json":
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(self._config)))
+            self.send_header("Cache-Control", "no-store")
+            self.end_headers()
+            self.wfile.write(self._config)
+            return
+        super().do_GET()
+
     def log_message(self, format, *args):  # noqa: A002 - the base class's name
         pass
 
@@ -94,12 +113,19 @@ class Viewer:
                 "--cfg",
                 f'downsampling:[{{id:"viewer",messages:["put"],flows:["ingress"],rules:[{rules}]}}]',
             ]
+        # Its own session (a Ctrl-C in the terminal reaches the viewer, which stops it), and it
+        # dies with the viewer however the viewer ends (SIGTERM, SIGKILL).
         self._router = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+            cmd,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+            preexec_fn=die_with_parent,
         )
         try:
             wait_port(self.ws_port, self._router, 20.0, "the viewer's router")
-            handler = functools.partial(_Quiet, directory=str(dist))
+            config = json.dumps({"ws": f"ws://{host}:{self.ws_port}", "prefix": prefix}).encode()
+            handler = functools.partial(_Page, directory=str(dist), config=config)
             self._http = http.server.ThreadingHTTPServer((host, http_port), handler)
         except BaseException:
             self._stop_router()
@@ -138,6 +164,10 @@ class Viewer:
         self.close()
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
@@ -154,6 +184,8 @@ def main(argv: list[str] | None = None) -> None:
         "--max-hz", type=float, default=4.0, help="most frames per second and env (0 = all)"
     )
     args = ap.parse_args(argv)
+    # SIGTERM ends the viewer like Ctrl-C: the `with` below stops the router and the page.
+    signal.signal(signal.SIGTERM, _interrupt)
     with Viewer(
         args.connect, args.prefix, args.http, args.ws, args.host, max_hz=args.max_hz
     ) as viewer:
