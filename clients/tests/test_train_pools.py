@@ -2,8 +2,10 @@
 
 import json
 
+import pytest
+
 from sharedspace.pool import DEFAULT_POOL_PATH
-from sharedspace.train.pools import main, paper_plus_general, record_ids
+from sharedspace.train.pools import main, paper_plus_general, record_ids, validation_pool
 
 
 def _paper():
@@ -54,3 +56,20 @@ def test_the_command_writes_a_pool_file(tmp_path):
     pool = json.loads(out.read_text())
     assert pool["name"] == "hbs-paper-plus-general"
     assert "share no recorded agent" in pool["provenance"]
+
+
+def test_the_validation_pool_holds_out_train_scenes_and_never_the_test_split(tmp_path):
+    paper = _paper()
+    pool = validation_pool(paper, 12, seed=0)
+    train = {s["name"] for s in paper["scenarios"] if s["split"] == "train"}
+    val = [s["name"] for s in pool["scenarios"] if s["split"] == "test"]
+    kept = [s["name"] for s in pool["scenarios"] if s["split"] == "train"]
+    assert len(val) == 12 and len(kept) == len(train) - 12
+    assert set(val) | set(kept) == train, "exactly the paper's train scenes, none of its test"
+    assert validation_pool(paper, 12, seed=0) == pool, "a fixed seed, a fixed split"
+    assert validation_pool(paper, 12, seed=1) != pool
+    out = tmp_path / "val.json"
+    main(["--validation", "12", "--out", str(out)])
+    assert json.loads(out.read_text()) == pool
+    with pytest.raises(ValueError, match="between 1 and"):
+        validation_pool(paper, len(train))

@@ -146,15 +146,20 @@ _shared: dict[tuple[str, ...], LocalServer] = {}
 _shared_lock = threading.Lock()
 
 
-def shared_server(pools: Sequence[str | Path] = ()) -> LocalServer:
+def shared_server(
+    pools: Sequence[str | Path] = (), params: str | Path | None = None
+) -> LocalServer:
     """This process's local server for ``pools`` (scenario files or ``embedded:NAME``; the
-    server's defaults, both embedded pools, when empty), started on first use and stopped at
-    exit: what a trainer uses when no endpoint is given."""
-    key = tuple(str(p) for p in pools)
+    server's defaults, both embedded pools, when empty) and world ``params`` (a JSON5 parameter
+    file, docs/PARAMETERS.md; the server's defaults when None), started on first use and
+    stopped at exit: what a trainer uses when no endpoint is given."""
+    key = (*(str(p) for p in pools), f"params={params or ''}")
     with _shared_lock:
         server = _shared.get(key)
         if server is None or server.proc.poll() is not None:
-            cfg = [f"pools:{json.dumps(list(key))}"] if key else []
+            cfg = [f"pools:{json.dumps([str(p) for p in pools])}"] if pools else []
+            if params:
+                cfg.append(f"params:{json.dumps(str(params))}")
             server = LocalServer(cfg=cfg)
             atexit.register(server.close)
             _shared[key] = server

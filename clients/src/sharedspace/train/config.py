@@ -36,6 +36,7 @@ class TrainConfig:
     pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
     server_endpoint: str = ""  # Zenoh endpoint of the server; "" = start a local sim-server
+    server_params: str = ""  # world-parameter file of that local server; "" = its defaults
     server_prefix: str = "sharedspace"  # Zenoh key prefix of the server
     zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
     variations: dict[str, Any] = field(

@@ -1,6 +1,8 @@
-"""Training pools beyond the paper's 59 scenes, with the paper's test split kept unseen.
+"""Training pools beyond the paper's 59 scenes, with the paper's test split kept unseen, and a
+validation pool carved from the training scenes.
 
     python -m sharedspace.train.pools --general general.json --out paper-plus-general.json
+    python -m sharedspace.train.pools --validation 12 --out paper-validation.json
 
 Table II's learners reach 0.99 success on their 59 training scenes and 0.83 on the 18 test
 scenes (docs/RESULTS.md, "Reading Table II"): they overfit. :func:`paper_plus_general` builds a
@@ -9,18 +11,26 @@ the general pool (every pedestrian of a car's window, scenarios/EXTRACTION.md) t
 recorded agent** with any paper test scene, so no test pedestrian's or car's track is ever
 trained on. Its test split is exactly the paper's test split, so test figures stay comparable
 with Table II. ``scripts/table2.sh`` builds it when ``TABLE2_POOL=paper+general``.
+
+:func:`validation_pool` is for choosing what to keep (a checkpoint, a setting) without looking
+at the test split: ``n`` of the paper's train scenes, drawn by a fixed seed, become its ``test``
+split (the validation scenes) and the paper's test scenes leave the pool. Trained on its train
+split and scored on its test split, a run never sees the paper's test scenes. Like the paper's
+own split, a validation scene may share a recorded pedestrian with a train scene (13 of the 59
+train scenes share one with a test scene).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import random
 from pathlib import Path
 from typing import Any
 
 from sharedspace.pool import DEFAULT_POOL_PATH
 
-__all__ = ["paper_plus_general", "record_ids"]
+__all__ = ["paper_plus_general", "record_ids", "validation_pool"]
 
 
 def record_ids(scenario: dict[str, Any]) -> set[int]:
@@ -53,17 +63,44 @@ def paper_plus_general(
     }
 
 
+def validation_pool(
+    paper: dict[str, Any], n: int, seed: int = 0, name: str = "hbs-paper-validation"
+) -> dict[str, Any]:
+    """A pool file: ``paper``'s train scenes, of which ``n`` (chosen by ``seed``, in pool order)
+    are in the ``test`` split as validation scenes; ``paper``'s test scenes are left out."""
+    train = [s for s in paper["scenarios"] if s["split"] == "train"]
+    if not 0 < n < len(train):
+        raise ValueError(f"--validation: between 1 and {len(train) - 1} scenes, not {n}")
+    held = {s["name"] for s in random.Random(seed).sample(train, n)}
+    scenes = [{**s, "split": "test" if s["name"] in held else "train"} for s in train]
+    return {
+        "version": paper["version"],
+        "name": name,
+        "provenance": (
+            f"{paper['name']}'s {len(train)} train scenes, {n} of them (random.Random({seed})"
+            ".sample) as the validation split `test`; its test scenes left out "
+            "(sharedspace.train.pools.validation_pool)"
+        ),
+        "scenarios": scenes,
+    }
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument(
-        "--general", required=True, help="the general pool file (extract-hbs --pool general)"
+    what = ap.add_mutually_exclusive_group(required=True)
+    what.add_argument("--general", help="the general pool file (extract-hbs --pool general)")
+    what.add_argument(
+        "--validation", type=int, metavar="N", help="N train scenes as the validation split"
     )
+    ap.add_argument("--seed", type=int, default=0, help="seed of the validation scenes' draw")
     ap.add_argument("--paper", default=str(DEFAULT_POOL_PATH), help="the paper pool file")
-    ap.add_argument("--out", required=True, help="where to write the combined pool")
+    ap.add_argument("--out", required=True, help="where to write the pool")
     args = ap.parse_args(argv)
-    pool = paper_plus_general(
-        json.loads(Path(args.paper).read_text()), json.loads(Path(args.general).read_text())
-    )
+    paper = json.loads(Path(args.paper).read_text())
+    if args.validation is not None:
+        pool = validation_pool(paper, args.validation, args.seed)
+    else:
+        pool = paper_plus_general(paper, json.loads(Path(args.general).read_text()))
     Path(args.out).write_text(json.dumps(pool))
     splits = [s["split"] for s in pool["scenarios"]]
     print(

@@ -218,6 +218,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--split", default="test")
     ap.add_argument(
+        "--pool",
+        default="",
+        help="a scenario file to play (served by the local server; e.g. a validation pool of "
+        "sharedspace.train.pools) instead of the checkpoints' own pool",
+    )
+    ap.add_argument(
         "--params",
         default="params/table2.json5",
         help="world parameters of the local server (when no server_endpoint is set)",
@@ -270,8 +276,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not any(o.startswith("server_endpoint=") and o.split("=", 1)[1] for o in overrides):
         from sharedspace.local_server import LocalServer
 
-        server = LocalServer(cfg=[f"params:{json.dumps(args.params)}"])
+        cfg_lines = [f"params:{json.dumps(args.params)}"]
+        if args.pool:
+            cfg_lines.append(f"pools:{json.dumps([args.pool])}")
+        server = LocalServer(cfg=cfg_lines)
         overrides.append(f"server_endpoint={server.endpoint}")
+    if args.pool:
+        overrides.append(f"scenario_pool={args.pool}")
     groups: dict[str, dict[str, list[dict[str, Any]]]] = {}
     started = time.perf_counter()
     try:

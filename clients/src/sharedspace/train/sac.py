@@ -80,7 +80,9 @@ def make_env(
         return RemoteBatchedEnv(endpoint=cfg.server_endpoint, prefix=cfg.server_prefix, **kwargs)
     from sharedspace.local_server import shared_server
 
-    server = shared_server([cfg.scenario_pool] if cfg.scenario_pool else [])
+    server = shared_server(
+        [cfg.scenario_pool] if cfg.scenario_pool else [], cfg.server_params or None
+    )
     return RemoteBatchedEnv(endpoint=server.endpoint, prefix=server.prefix, **kwargs)
 
 
