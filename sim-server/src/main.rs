@@ -288,8 +288,7 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     let threads = usize::from(args.threads);
     let mut out: Box<dyn std::io::Write> = match &args.out {
         Some(path) => Box::new(std::io::BufWriter::new(
-            std::fs::File::create(path)
-                .map_err(|e| format!("creating {}: {e}", path.display()))?,
+            std::fs::File::create(path).map_err(|e| format!("creating {}: {e}", path.display()))?,
         )),
         None => Box::new(std::io::stdout().lock()),
     };

@@ -190,11 +190,14 @@ def by_m(
     return "\n".join(lines) + "\n"
 
 
-def checkpoints_of(paths: Sequence[str]) -> list[Path]:
-    """The ``.pt`` files named, or inside the folders named, sorted."""
-    out: list[Path] = []
-    for p in map(Path, paths):
-        out += sorted(p.glob("*.pt")) if p.is_dir() else [p]
+def checkpoints_of(paths: Sequence[str]) -> list[tuple[str | None, Path]]:
+    """``(group, checkpoint)`` for the ``.pt`` files named, or inside the folders named, sorted;
+    an entry ``GROUP=PATH`` puts its checkpoints in that group (default: their variant)."""
+    out: list[tuple[str | None, Path]] = []
+    for entry in paths:
+        group, _, path = entry.rpartition("=") if "=" in entry else (None, "", entry)
+        p = Path(path)
+        out += [(group or None, c) for c in (sorted(p.glob("*.pt")) if p.is_dir() else [p])]
     return out
 
 
@@ -204,7 +207,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--policies", nargs="*", default=[], help="checkpoints or folders of them")
+    ap.add_argument(
+        "--policies",
+        nargs="*",
+        default=[],
+        help="checkpoints or folders of them, each optionally as GROUP=PATH (default group: "
+        "the checkpoint's variant; a group's runs pool)",
+    )
     ap.add_argument(
         "--drivers", nargs="*", default=[], choices=sorted(DRIVERS), help="scripted drivers"
     )
@@ -286,13 +295,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     groups: dict[str, dict[str, list[dict[str, Any]]]] = {}
     started = time.perf_counter()
     try:
-        for path in checkpoints_of(args.policies):
+        for group, path in checkpoints_of(args.policies):
             cfg, actor = load_checkpoint_actor(str(path), overrides)
             t0 = time.perf_counter()
             eps = play_variations(cfg, actor, args.variations, args.split, spec)
-            groups.setdefault(cfg.variant, {})[path.stem] = eps
+            run = f"{path.parent.parent.name}/{path.stem}" if group else path.stem
+            groups.setdefault(group or cfg.variant, {})[run] = eps
             ok = sum(e["status"] == "success" for e in eps) / len(eps)
-            print(f"{path.stem}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(f"{run}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
         cfg = apply_overrides(TrainConfig(), overrides)
         for name in args.drivers:
             eps = play_variations(
