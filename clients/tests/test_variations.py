@@ -250,3 +250,29 @@ def test_the_clustered_interval_is_as_wide_as_the_scenes_warrant():
     d = paired_clustered(a, b)
     assert d["diff"] == 0.5 and d["pairs"] == 32 and d["scenes"] == 4
     assert 0.0 <= d["lo"] <= 0.5 <= d["hi"] <= 1.0
+
+
+def test_two_pools_of_one_name_are_refused_naming_both(tmp_path):
+    """A pool is chosen by name, so a second pool of the same name could never be reached: the
+    server refuses to start and names both entries."""
+    from sharedspace.pool import DEFAULT_POOL_PATH
+
+    first, second = tmp_path / "a.json", tmp_path / "b.json"
+    first.write_text(DEFAULT_POOL_PATH.read_text())
+    second.write_text(DEFAULT_POOL_PATH.read_text())
+    out = subprocess.run(
+        [
+            str(sim_server_binary()),
+            "serve",
+            "--cfg",
+            'zenoh/listen/endpoints:["tcp/127.0.0.1:0"]',
+            "--cfg",
+            f"pools:{json.dumps([str(first), {'path': str(second)}])}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode != 0
+    assert str(first) in out.stderr and str(second) in out.stderr, out.stderr
+    assert "hbs-paper" in out.stderr
