@@ -39,3 +39,23 @@ def test_client_defaults_are_the_tables_default():
     for fn in (codec.create_env, SharedSpaceParallelEnv.__init__):
         default = inspect.signature(fn).parameters["pedestrian_model"].default
         assert default == models.DEFAULT_MODEL, fn
+
+
+def test_feature_and_reward_term_names_are_the_servers(sim_client):
+    """names.json (kept equal to the protocol crate by protocol/tests/golden.rs) is what a live
+    server sends: the observation layout's feature names and the reward terms, in order."""
+    import numpy as np
+
+    from sharedspace.names import FEATURE_NAMES, NODE_FEATURES, REWARD_TERMS, Feature
+
+    created = sim_client.create(1)
+    env = created["env_ids"][0]
+    try:
+        assert tuple(created["observation"]["feature_names"]) == FEATURE_NAMES
+        sim_client.reset(env)
+        step = sim_client.step(env, np.zeros((1, 2), dtype=np.float32))
+        assert tuple(step["reward_terms"]) == REWARD_TERMS
+        assert step["obs"]["features"].shape[-1] == NODE_FEATURES
+        assert FEATURE_NAMES[Feature.GOAL_DIST] == "goal_dist"
+    finally:
+        sim_client.close(env)

@@ -18,20 +18,11 @@ use crate::PROTOCOL_VERSION;
 // Constants
 // ---------------------------------------------------------------------------------------------
 
-/// Observation node features, in order (model.md section 7; ego frame, x forward).
-pub const FEATURE_NAMES: [&str; 11] = [
-    "rel_x",
-    "rel_y",
-    "rel_vx",
-    "rel_vy",
-    "speed",
-    "heading_diff",
-    "radius",
-    "is_vehicle",
-    "goal_dx",
-    "goal_dy",
-    "goal_dist",
-];
+/// Observation node features, in order (model.md section 7; ego frame, x forward): sim-core's
+/// list, the one definition.
+pub use sim_core::observation::FEATURE_NAMES;
+/// The reward terms, in order: sim-core's list.
+pub use sim_core::world::REWARD_TERM_NAMES;
 /// Number of node features `F`.
 pub const N_FEATURES: u32 = FEATURE_NAMES.len() as u32;
 /// Default observation padding `max_agents` (nodes per observation, ego included).

@@ -198,10 +198,7 @@ pub fn write_batch_step_ok(
     write_array(out, &[k, n], a.reward)?;
     write_str(out, "reward_terms");
     write_map_len(out, 5);
-    for (name, t) in ["progress", "success", "collision", "danger", "comfort"]
-        .iter()
-        .zip(a.terms)
-    {
+    for (name, t) in crate::messages::REWARD_TERM_NAMES.iter().zip(a.terms) {
         write_str(out, name);
         write_array(out, &[k, n], t)?;
     }

@@ -256,3 +256,34 @@ fn every_sample_is_a_named_map() {
         smp.verify(&smp.bytes).unwrap();
     }
 }
+
+/// The names the Python side reads instead of restating them: the observation's node features
+/// and the reward terms, as `clients/src/sharedspace/names.json`.
+fn names_json() -> String {
+    let list = |names: &[&str]| {
+        let quoted: Vec<String> = names.iter().map(|n| format!("\"{n}\"")).collect();
+        format!("[{}]", quoted.join(", "))
+    };
+    format!(
+        "{{\n  \"feature_names\": {},\n  \"reward_terms\": {}\n}}\n",
+        list(&protocol::FEATURE_NAMES),
+        list(&protocol::REWARD_TERM_NAMES)
+    )
+}
+
+#[test]
+fn the_python_side_reads_the_protocols_names() {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../clients/src/sharedspace/names.json");
+    let want = names_json();
+    if update_requested() {
+        std::fs::write(&path, &want).expect("write names.json");
+    }
+    let got = std::fs::read_to_string(&path).unwrap_or_default();
+    assert_eq!(
+        got,
+        want,
+        "{} is out of step with protocol's FEATURE_NAMES / REWARD_TERM_NAMES: {REGEN}",
+        path.display()
+    );
+}

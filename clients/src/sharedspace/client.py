@@ -34,7 +34,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 import numpy as np
 
-from . import codec
+from . import codec, names
 from .errors import EnvClosed, NoServer, ProtocolError, SharedspaceError, WrongShape
 from .transport import (
     CREATE_TIMEOUT,
@@ -50,7 +50,7 @@ __all__ = ["SimClient", "VectorClient", "REWARD_TERMS"]
 
 log = logging.getLogger("sharedspace")
 
-REWARD_TERMS = ("progress", "success", "collision", "danger", "comfort")
+REWARD_TERMS = names.REWARD_TERMS
 
 #: Seconds a request's liveliness pre-check may rely on the last read of the server watch.
 _ALIVE_MAX_AGE = 0.05

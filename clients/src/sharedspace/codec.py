@@ -19,6 +19,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from . import names as _names
 from .errors import (
     ProtocolError,
     ServerError,
@@ -70,20 +71,8 @@ ARRAY_DTYPES: dict[str, int] = {"<f4": 4, "<f8": 8, "<u4": 4, "<u8": 8, "|u1": 1
 #: ``node_ids`` value of padding nodes.
 PADDING_ID = 0xFFFFFFFF
 
-#: Node features of an observation, in order (SPEC.md section 7).
-FEATURE_NAMES = (
-    "rel_x",
-    "rel_y",
-    "rel_vx",
-    "rel_vy",
-    "speed",
-    "heading_diff",
-    "radius",
-    "is_vehicle",
-    "goal_dx",
-    "goal_dy",
-    "goal_dist",
-)
+#: Node features of an observation, in order (SPEC.md section 7; :mod:`sharedspace.names`).
+FEATURE_NAMES = _names.FEATURE_NAMES
 
 _ARRAY_KEYS = frozenset(("dtype", "shape", "data"))
 

@@ -45,6 +45,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from . import names
 from .client import SimClient, VectorClient
 from .errors import EnvClosed, WrongShape
 from .models import DEFAULT_MODEL
@@ -54,8 +55,8 @@ from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 __all__ = ["SharedSpaceParallelEnv", "parallel_env", "ENV_NAME", "INFO_KEYS"]
 
 ENV_NAME = "sharedspace_v1"
-NODE_FEATURES = 11
-_REWARD_TERMS = ("progress", "success", "collision", "danger", "comfort")
+NODE_FEATURES = names.NODE_FEATURES
+_REWARD_TERMS = names.REWARD_TERMS
 _METRICS = ("episode_steps", "episode_return", "avg_speed", "avg_abs_jerk", "max_abs_acc")
 #: The keys of every agent's info dict, at reset and at every step (all numbers).
 INFO_KEYS = (

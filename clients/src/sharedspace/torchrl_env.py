@@ -41,8 +41,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from . import names
 from .client import SimClient, VectorClient
-from .codec import FEATURE_NAMES
 from .errors import SharedspaceError
 from .models import DEFAULT_MODEL
 from .pool import DEFAULT_POOL_PATH
@@ -57,7 +57,7 @@ __all__ = [
     "set_contract_specs",
 ]
 
-NODE_FEATURES = len(FEATURE_NAMES)
+NODE_FEATURES = names.NODE_FEATURES
 EPISODE_FLAG_KEYS = ("episode_success", "episode_collision", "episode_timeout")
 EPISODE_FLOAT_KEYS = ("episode_avg_speed", "episode_avg_abs_jerk", "episode_max_abs_acc")
 

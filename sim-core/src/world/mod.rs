@@ -130,6 +130,10 @@ pub enum StepError {
     },
 }
 
+/// The names of the reward terms, in the order of [`RewardTerms`]' fields (and of every list
+/// of terms: the wire's `reward_terms`, `names.json` for the Python side).
+pub const REWARD_TERM_NAMES: [&str; 5] = ["progress", "success", "collision", "danger", "comfort"];
+
 /// Every reward term of one transition (model.md 7), already multiplied by its weight.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RewardTerms {
@@ -146,6 +150,17 @@ pub struct RewardTerms {
 }
 
 impl RewardTerms {
+    /// The terms in [`REWARD_TERM_NAMES`] order.
+    pub fn values(&self) -> [f64; 5] {
+        [
+            self.progress,
+            self.success,
+            self.collision,
+            self.danger,
+            self.comfort,
+        ]
+    }
+
     pub fn total(&self) -> f64 {
         self.progress + self.success + self.collision + self.danger + self.comfort
     }

@@ -128,7 +128,7 @@ pub struct Slots<'a> {
     pub mask: &'a mut [u8],
     pub node_ids: &'a mut [u32],
     pub reward: &'a mut [f32],
-    /// progress, success, collision, danger, comfort.
+    /// In `REWARD_TERM_NAMES` order.
     pub terms: [&'a mut [f32]; 5],
     pub terminated: &'a mut [u8],
     pub truncated: &'a mut [u8],
@@ -821,11 +821,9 @@ impl Env {
             let r = &o.reward;
             let total = r.total();
             slots.reward[k] = total as f32;
-            slots.terms[0][k] = r.progress as f32;
-            slots.terms[1][k] = r.success as f32;
-            slots.terms[2][k] = r.collision as f32;
-            slots.terms[3][k] = r.danger as f32;
-            slots.terms[4][k] = r.comfort as f32;
+            for (column, value) in slots.terms.iter_mut().zip(r.values()) {
+                column[k] = value as f32;
+            }
             slots.terminated[k] = u8::from(o.terminated);
             slots.truncated[k] = u8::from(o.truncated);
             self.returns[k] += total;

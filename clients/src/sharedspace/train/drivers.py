@@ -31,6 +31,8 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
+from sharedspace.names import Feature
+
 __all__ = [
     "DRIVERS",
     "VehicleLimits",
@@ -43,7 +45,8 @@ __all__ = [
 ]
 
 # Node feature columns (protocol/SPEC.md section 7).
-_REL_X, _REL_Y, _SPEED, _GOAL_DX, _GOAL_DY, _GOAL_DIST = 0, 1, 4, 8, 9, 10
+_REL_X, _REL_Y, _SPEED = Feature.REL_X, Feature.REL_Y, Feature.SPEED
+_GOAL_DX, _GOAL_DY, _GOAL_DIST = Feature.GOAL_DX, Feature.GOAL_DY, Feature.GOAL_DIST
 
 
 @dataclass(frozen=True)
@@ -127,7 +130,7 @@ class PursuitDriver(nn.Module):
         ego = f[..., 0, :]
         heading_error = np.arctan2(ego[..., _GOAL_DY], ego[..., _GOAL_DX])
         others = f[..., 1:, :]
-        is_ped = others[..., 7] < 0.5
+        is_ped = others[..., Feature.IS_VEHICLE] < 0.5
         ahead = (others[..., _REL_X] > 0.0) & (others[..., _REL_X] < self.brake_ahead)
         beside = np.abs(others[..., _REL_Y]) < self.brake_side
         brake = (present[..., 1:] & is_ped & ahead & beside).any(-1)

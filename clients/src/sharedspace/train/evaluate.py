@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
+from sharedspace.names import Feature
 from sharedspace.pool import load_pool, recorded_headings, split_indices
 from sharedspace.stats import wilson
 from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
@@ -83,7 +84,7 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
         seeds = getattr(env, "last_variation_seeds", None)
         variation = [-1 if s is None else int(s) for s in (seeds or [None] * k)]
         for i in range(k):
-            traces[i]["speeds"].append(float(td["features"][i, 0, 4]))
+            traces[i]["speeds"].append(float(td["features"][i, 0, Feature.SPEED]))
         for _ in range(max_steps):
             td = policy(td.to(device)).to(env.device) if device is not None else policy(td)
             td = env.step(td)
@@ -93,7 +94,7 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
             for i in range(k):
                 if records[i] is not None:
                     continue
-                traces[i]["speeds"].append(float(nxt["features"][i, 0, 4]))
+                traces[i]["speeds"].append(float(nxt["features"][i, 0, Feature.SPEED]))
                 traces[i]["actions"].append(td["action"][i].tolist())
                 traces[i]["return"] += float(nxt["reward"][i])
                 for term, values in terms.items():

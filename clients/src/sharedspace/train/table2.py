@@ -45,6 +45,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
+from sharedspace.names import Feature
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
 from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argument, apply_overrides
@@ -72,7 +73,7 @@ PAPER_ROWS = {
 }
 VARIANT_NAMES = {"g_sac_cog": "G-SAC-Cog", "g_sac_nocog": "G-SAC-NoCog", "s_sac": "S-SAC"}
 STATUSES = ("success", "collision", "timeout")
-_GOAL_DIST = 10  # ego node feature: distance to the goal (protocol/SPEC.md section 7)
+_GOAL_DIST = Feature.GOAL_DIST  # ego node feature: distance to the goal
 
 
 def find_runs(runs: Path) -> dict[str, dict[int, Path]]:

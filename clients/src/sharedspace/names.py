@@ -1,0 +1,27 @@
+"""Names the protocol defines once: the observation's node features and the reward terms.
+
+``names.json`` next to this file is written from the protocol crate (``FEATURE_NAMES``, sim-core's
+``REWARD_TERM_NAMES``), and a Rust test (``protocol/tests/golden.rs``) fails when the two differ
+(regenerate with ``UPDATE_GOLDEN=1 cargo test -p protocol``). Index features by name with
+:class:`Feature` (``features[..., Feature.SPEED]``) rather than by number.
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+from importlib import resources
+
+_DOC = json.loads(resources.files(__package__).joinpath("names.json").read_text())
+
+__all__ = ["FEATURE_NAMES", "NODE_FEATURES", "REWARD_TERMS", "Feature"]
+
+#: Node features of an observation, in order (protocol/SPEC.md section 7).
+FEATURE_NAMES: tuple[str, ...] = tuple(_DOC["feature_names"])
+#: Features per node, ``F``.
+NODE_FEATURES: int = len(FEATURE_NAMES)
+#: The reward terms, in order (``reward`` is their sum; SPEC section 8.2).
+REWARD_TERMS: tuple[str, ...] = tuple(_DOC["reward_terms"])
+
+#: Each feature's column: ``Feature.SPEED == 4``, ``Feature.GOAL_DIST == 10``.
+Feature = enum.IntEnum("Feature", [(name.upper(), i) for i, name in enumerate(FEATURE_NAMES)])
