@@ -209,3 +209,24 @@ def test_supersuit_vector_env_trains_stable_baselines3_sac(sim_server):
     finally:
         venv.close()
         penv.close()
+
+
+def test_the_aec_env_passes_pettingzoos_api_and_max_cycles_tests(sim_server, sim_client):
+    from pettingzoo.test import api_test, max_cycles_test
+
+    aec = sharedspace.env(client=sim_client, max_agents=6, seed=2)
+    try:
+        api_test(aec, num_cycles=200)
+    finally:
+        aec.close()
+
+    class _Module:  # max_cycles_test builds its envs from a module with both constructors
+        @staticmethod
+        def env(max_cycles):
+            return sharedspace.env(client=sim_client, max_agents=6, max_cycles=max_cycles)
+
+        @staticmethod
+        def parallel_env(max_cycles):
+            return sharedspace.parallel_env(client=sim_client, max_agents=6, max_cycles=max_cycles)
+
+    max_cycles_test(_Module)

@@ -7,7 +7,8 @@
 - :mod:`sharedspace.local_server`: ``sim-server`` on this machine (a local server, a rollout);
 - :mod:`sharedspace.transport`: the zenoh session, server discovery, liveliness;
 - :mod:`sharedspace.client`: :class:`SimClient` and the batched :class:`VectorClient` (failover);
-- :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``;
+- :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``, and
+  :func:`env`, the same as an AEC env;
 - :mod:`sharedspace.gym_env`: ``SharedSpaceEnv``, registered with Gymnasium as
   ``sharedspace/SharedSpace-v0`` on import;
 - :mod:`sharedspace.torchrl_env`: ``RemoteBatchedEnv`` (imported lazily: needs torch/torchrl);
@@ -33,6 +34,7 @@ _LAZY = {
     "VectorClient": ("client", "VectorClient"),
     "Observer": ("observer", "Observer"),
     "parallel_env": ("pettingzoo_env", "parallel_env"),
+    "env": ("pettingzoo_env", "env"),
     "SharedSpaceParallelEnv": ("pettingzoo_env", "SharedSpaceParallelEnv"),
     "RemoteBatchedEnv": ("torchrl_env", "RemoteBatchedEnv"),
     "SharedSpaceEnv": ("gym_env", "SharedSpaceEnv"),
@@ -68,6 +70,7 @@ __all__ = [
     "VectorClient",
     "Observer",
     "parallel_env",
+    "env",
     "SharedSpaceParallelEnv",
     "RemoteBatchedEnv",
     "SharedSpaceEnv",

@@ -52,7 +52,7 @@ from .models import DEFAULT_MODEL
 from .render import render_observation
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 
-__all__ = ["SharedSpaceParallelEnv", "parallel_env", "ENV_NAME", "INFO_KEYS"]
+__all__ = ["SharedSpaceParallelEnv", "env", "parallel_env", "ENV_NAME", "INFO_KEYS"]
 
 ENV_NAME = "sharedspace_v1"
 NODE_FEATURES = names.NODE_FEATURES
@@ -586,3 +586,11 @@ class SharedSpaceParallelEnv(ParallelEnv):
 def parallel_env(**kwargs: Any) -> SharedSpaceParallelEnv:
     """A :class:`SharedSpaceParallelEnv` (PettingZoo's ``parallel_env`` convention)."""
     return SharedSpaceParallelEnv(**kwargs)
+
+
+def env(**kwargs: Any):
+    """The same env as an AEC env (PettingZoo's ``env()`` convention, through PettingZoo's own
+    ``parallel_to_aec``): agents act in turn and the server steps once all have."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(SharedSpaceParallelEnv(**kwargs))
