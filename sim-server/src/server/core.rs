@@ -19,7 +19,7 @@ use protocol::{
     OpenEnv, Reply, Reset, ServerInfo, Split as WireSplit, Step, SyntheticScenes, PROTOCOL_VERSION,
 };
 use serde::Serialize;
-use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::params::{PedestrianModel, SocialForceParams, WorldParams};
 
 use crate::params_file::ModelParams;
 use sim_core::scenario::Split;
@@ -73,26 +73,20 @@ impl Default for Limits {
     }
 }
 
-/// Names accepted in `CreateEnv.pedestrian_params` (model.md names). The social-force ones apply
-/// to the parameter sets of `sfm`, `ra_sfm` and `cr_sfm` alike.
-pub const PEDESTRIAN_PARAM_NAMES: [&str; 17] = [
-    "tau",
-    "a_ped",
-    "b_ped",
-    "a_veh",
-    "b_veh",
-    "lambda1",
-    "lambda2",
-    "lambda3",
-    "gamma1",
-    "gamma2",
-    "lambda",
-    "s0",
-    "q",
-    "s_o",
-    "v_ped_max",
-    "ped_radius",
-    "ped_goal_radius",
+/// The names accepted in `CreateEnv.pedestrian_params` (model.md names) besides the social-force
+/// ones (`SocialForceParams::NAMES`, which apply to the parameter sets of `sfm`, `ra_sfm` and
+/// `cr_sfm` alike), each with the field it sets.
+type ParamField = fn(&mut WorldParams) -> &mut f64;
+const OTHER_PEDESTRIAN_PARAMS: [(&str, ParamField); 9] = [
+    ("gamma1", |p| &mut p.risk.gamma1),
+    ("gamma2", |p| &mut p.risk.gamma2),
+    ("lambda", |p| &mut p.risk.lambda),
+    ("s0", |p| &mut p.cognition.s0),
+    ("q", |p| &mut p.cognition.q),
+    ("s_o", |p| &mut p.cognition.s_o),
+    ("v_ped_max", |p| &mut p.ped_speed_max),
+    ("ped_radius", |p| &mut p.ped_radius),
+    ("ped_goal_radius", |p| &mut p.ped_goal_radius),
 ];
 
 fn apply_pedestrian_params(
@@ -101,44 +95,25 @@ fn apply_pedestrian_params(
 ) -> Result<WorldParams, ErrorReply> {
     let mut p = base;
     for (name, &v) in overrides {
-        let sets = [
-            &mut p.pedestrians.sfm,
-            &mut p.pedestrians.ra_sfm,
-            &mut p.pedestrians.cr_sfm,
-        ];
-        match name.as_str() {
-            "tau" | "a_ped" | "b_ped" | "a_veh" | "b_veh" | "lambda1" | "lambda2" | "lambda3" => {
-                for s in sets {
-                    match name.as_str() {
-                        "tau" => s.tau = v,
-                        "a_ped" => s.a_ped = v,
-                        "b_ped" => s.b_ped = v,
-                        "a_veh" => s.a_veh = v,
-                        "b_veh" => s.b_veh = v,
-                        "lambda1" => s.lambda1 = v,
-                        "lambda2" => s.lambda2 = v,
-                        _ => s.lambda3 = v,
-                    }
-                }
+        if SocialForceParams::NAMES.contains(&name.as_str()) {
+            for set in p.pedestrians.social_force_sets_mut() {
+                *set.get_mut(name).expect("one of NAMES") = v;
             }
-            "gamma1" => p.risk.gamma1 = v,
-            "gamma2" => p.risk.gamma2 = v,
-            "lambda" => p.risk.lambda = v,
-            "s0" => p.cognition.s0 = v,
-            "q" => p.cognition.q = v,
-            "s_o" => p.cognition.s_o = v,
-            "v_ped_max" => p.ped_speed_max = v,
-            "ped_radius" => p.ped_radius = v,
-            "ped_goal_radius" => p.ped_goal_radius = v,
-            _ => {
-                return Err(ErrorReply::new(
-                    ErrorCode::BadRequest,
-                    format!(
-                        "unknown pedestrian parameter {name:?}; known: {}",
-                        PEDESTRIAN_PARAM_NAMES.join(", ")
-                    ),
-                ))
-            }
+        } else if let Some((_, field)) = OTHER_PEDESTRIAN_PARAMS.iter().find(|(n, _)| n == name) {
+            *field(&mut p) = v;
+        } else {
+            let known: Vec<&str> = SocialForceParams::NAMES
+                .iter()
+                .copied()
+                .chain(OTHER_PEDESTRIAN_PARAMS.iter().map(|(n, _)| *n))
+                .collect();
+            return Err(ErrorReply::new(
+                ErrorCode::BadRequest,
+                format!(
+                    "unknown pedestrian parameter {name:?}; known: {}",
+                    known.join(", ")
+                ),
+            ));
         }
     }
     p.validate()
@@ -1094,6 +1069,42 @@ mod tests {
             vec![ServedPool::new(scenarios::embedded::default_pool())],
             WorldParams::default(),
         )
+    }
+
+    #[test]
+    fn every_pedestrian_param_name_sets_its_field_and_nothing_else() {
+        let base = WorldParams::default();
+        let names = SocialForceParams::NAMES
+            .iter()
+            .copied()
+            .chain(OTHER_PEDESTRIAN_PARAMS.iter().map(|(n, _)| *n));
+        for name in names {
+            let set = apply_pedestrian_params(base, &[(name.to_string(), 0.123)].into())
+                .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+            assert_ne!(set, base, "{name} changed nothing");
+            let mut back = set;
+            if SocialForceParams::NAMES.contains(&name) {
+                for (s, b) in back.pedestrians.social_force_sets_mut().into_iter().zip([
+                    base.pedestrians.sfm,
+                    base.pedestrians.ra_sfm,
+                    base.pedestrians.cr_sfm,
+                ]) {
+                    assert_eq!(*s.get_mut(name).unwrap(), 0.123, "{name}");
+                    *s.get_mut(name).unwrap() = *b.clone().get_mut(name).unwrap();
+                }
+            } else {
+                let field = OTHER_PEDESTRIAN_PARAMS
+                    .iter()
+                    .find(|(n, _)| *n == name)
+                    .unwrap()
+                    .1;
+                assert_eq!(*field(&mut back), 0.123, "{name}");
+                *field(&mut back) = *field(&mut base.clone());
+            }
+            assert_eq!(back, base, "{name} changed another field too");
+        }
+        let e = apply_pedestrian_params(base, &[("nope".to_string(), 1.0)].into()).unwrap_err();
+        assert!(e.message.contains("ped_goal_radius") && e.message.contains("lambda3"));
     }
 
     fn err_of(bytes: &[u8]) -> ErrorReply {
