@@ -42,6 +42,7 @@ from sharedspace.train.sac import make_actor, make_env
 __all__ = [
     "COLUMNS",
     "BENCHMARK_VARIATIONS",
+    "STATUSES",
     "human_episodes",
     "run_episodes",
     "play_variations",
@@ -60,6 +61,9 @@ COLUMNS = (
     ("avg_abs_jerk", "Avg |jerk| (m/s^3)"),
     ("max_abs_acc", "Avg max |acc| (m/s^2)"),
 )
+
+#: How an episode ends.
+STATUSES = ("success", "collision", "timeout")
 
 #: The powered test's scene variations (sim-core ``VariationSpec::benchmark``; docs/RESULTS.md).
 BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
@@ -104,7 +108,7 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
                     status = next(
                         (
                             s
-                            for s in ("success", "collision", "timeout")
+                            for s in STATUSES
                             if bool(nxt[f"episode_{s}"][i])
                         ),
                         "timeout",
@@ -169,7 +173,7 @@ def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
     if n == 0:
         return {"episodes": 0, **{c: 0.0 for c, _ in COLUMNS}}
     row: dict[str, float] = {"episodes": n}
-    for s in ("success", "collision", "timeout"):
+    for s in STATUSES:
         row[s] = sum(e["status"] == s for e in episodes) / n
     for key in ("avg_speed", "avg_abs_jerk", "max_abs_acc"):
         row[key] = float(np.mean([e[key] for e in episodes]))
@@ -313,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.variations > 0:
         eps = result["episodes"]
         cells = []
-        for s in ("success", "collision", "timeout"):
+        for s in STATUSES:
             k = sum(e["status"] == s for e in eps)
             lo, hi = wilson(k, len(eps))
             cells.append(f"{s} {k}/{len(eps)} = {k / len(eps):.3f} [{lo:.3f}, {hi:.3f}]")

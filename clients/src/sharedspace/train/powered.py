@@ -36,13 +36,12 @@ from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_
 from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.evaluate import (
     BENCHMARK_VARIATIONS,
+    STATUSES,
     load_checkpoint_actor,
     play_variations,
 )
 
-__all__ = ["LABELS", "STATUSES", "group_table", "comparisons", "render", "main"]
-
-STATUSES = ("success", "collision", "timeout")
+__all__ = ["LABELS", "group_table", "comparisons", "render", "main"]
 
 #: Row labels of the variants and drivers.
 LABELS = {
@@ -242,7 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         type=int,
         default=0,
         metavar="MP",
-        help="also run the open-loop planner search (table2.open_loop_search) on the first MP "
+        help="also run the open-loop planner search (planner.open_loop_search) on the first MP "
         "variations of every scene: the share it solves bounds what any driver can reach",
     )
     ap.add_argument("--planner-rounds", type=int, default=6)
@@ -318,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{name}: success {ok:.3f}", flush=True)
         planner = None
         if args.planner > 0:
-            from sharedspace.train.table2 import open_loop_search
+            from sharedspace.train.planner import open_loop_search
 
             t0 = time.perf_counter()
             found = open_loop_search(

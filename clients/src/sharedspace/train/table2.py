@@ -15,8 +15,8 @@ the same server, scores the human driver, and writes:
 - the scripted drivers, the human driver, the paper's rows;
 - the scenarios whose goal is kinematically reachable (:func:`drivers.reachability`) and those
   where every extreme action collides on the first step (unavoidable collisions);
-- a planner's bound (:func:`open_loop_search`): the test scenarios in which a cross-entropy
-  search over open-loop action sequences finds a collision-free arrival;
+- a planner's bound (:func:`sharedspace.train.planner.open_loop_search`): the test scenarios in
+  which a cross-entropy search over open-loop action sequences finds a collision-free arrival;
 - generalisation: the final checkpoints' success on the train split beside the test split;
 - the learning curves (test-split evaluations logged while training, mean over seeds).
 
@@ -42,24 +42,20 @@ from typing import Any
 
 import numpy as np
 import torch
-from tensordict.nn import TensorDictModule
-from torch import nn
 
-from sharedspace.names import Feature
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
 from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argument, apply_overrides
 from sharedspace.train.drivers import DRIVERS, make_driver, reachability
 from sharedspace.train.evaluate import (
-    BENCHMARK_VARIATIONS,
     COLUMNS,
-    MAX_EVAL_ENVS,
+    STATUSES,
     evaluate_policy,
     human_episodes,
     load_checkpoint_actor,
     summarize,
 )
-from sharedspace.train.sac import make_env
+from sharedspace.train.planner import open_loop_search, unavoidable_first_step
 
 __all__ = ["main", "render", "ship"]
 
@@ -72,8 +68,6 @@ PAPER_ROWS = {
     "Human (paper)": (1.0, 0.0, 0.0, 2.924, 0.609, 4.240),
 }
 VARIANT_NAMES = {"g_sac_cog": "G-SAC-Cog", "g_sac_nocog": "G-SAC-NoCog", "s_sac": "S-SAC"}
-STATUSES = ("success", "collision", "timeout")
-_GOAL_DIST = Feature.GOAL_DIST  # ego node feature: distance to the goal
 
 
 def find_runs(runs: Path) -> dict[str, dict[int, Path]]:
@@ -104,180 +98,6 @@ def evaluate_run(run: Path, overrides: Sequence[str], split: str = "test") -> di
     return out
 
 
-class _ConstantAction(nn.Module):
-    def __init__(self, action: Sequence[float]):
-        super().__init__()
-        self.register_buffer("action", torch.tensor(action, dtype=torch.float32))
-
-    def forward(self, features: torch.Tensor) -> torch.Tensor:
-        return self.action.expand(*features.shape[:-2], 2)
-
-
-def unavoidable_first_step(cfg: TrainConfig) -> list[int]:
-    """Test scenarios (pool indices) in which each of the 9 actions of ``{-1, 0, 1}^2`` ends
-    the first step in a collision: no action avoids it."""
-    pool = load_pool(cfg.scenario_pool or None)
-    indices = split_indices(pool, "test")
-    collided = {i: 0 for i in indices}
-    for action in itertools.product((-1.0, 0.0, 1.0), repeat=2):
-        env = make_env(cfg, split="test", num_envs=len(indices), scenario_order="sequential")
-        try:
-            policy = TensorDictModule(
-                _ConstantAction(action), in_keys=["features"], out_keys=["action"]
-            )
-            td = policy(env.reset())
-            nxt = env.step(td)["next"]
-            scen = td["scenario_index"].reshape(-1).tolist()
-            for k, idx in enumerate(scen):
-                collided[int(idx)] += int(bool(nxt["episode_collision"][k]))
-        finally:
-            env.close()
-    return sorted(i for i, c in collided.items() if c == 9)
-
-
-def open_loop_search(
-    cfg: TrainConfig,
-    rounds: int = 8,
-    per_round: int = 48,
-    elites: int = 8,
-    seed: int = 0,
-    max_steps: int = 200,
-    variations: int = 0,
-    spec: dict[str, Any] | None = None,
-) -> dict[str, dict[str, Any]]:
-    """A planner's answer to "can any driver succeed here?": for every test scenario, a
-    cross-entropy search over open-loop action sequences. Round 0 plays the 9 constant actions
-    of ``{-1, 0, 1}^2`` and random piecewise-constant sequences; every later round samples
-    ``per_round`` sequences from a per-step Gaussian fitted to that scenario's ``elites`` best
-    sequences so far (success first and sooner, then a timeout closer to the goal, then a later
-    collision). The world is deterministic given the actions (the pedestrians react to the
-    vehicle the same way every time), so one successful sequence proves that a collision-free
-    arrival exists; a scenario without one is where a failure may be unavoidable (not proven:
-    the search is finite). Keyed by scenario name: counts of ``success`` / ``collision`` /
-    ``timeout`` over the ``candidates`` played and ``best_steps`` (the fewest steps of a
-    successful sequence, or None).
-
-    With ``variations`` = M > 0 the search runs on each of the M seeded variations of every test
-    scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.train.evaluate.play_variations`
-    plays them), keyed ``"{name}#{seed}"``: the bound of the powered test."""
-    pool = load_pool(cfg.scenario_pool or None)
-    test = split_indices(pool, "test")
-    n = len(test) * max(1, variations)  # search cells: (scenario, variation)
-    rng = np.random.default_rng(seed)
-    levels = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
-    constants = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=2)), dtype=np.float32)
-    played: dict[str, list[tuple[float, np.ndarray]]] = {}  # name -> (score, actions)
-    found: dict[str, dict[str, Any]] = {}
-    names: list[str] = []
-    for round_ in range(rounds):
-        k_envs = n * per_round
-        actions = np.empty((k_envs, max_steps, 2), dtype=np.float32)
-        for k in range(k_envs):
-            c = k // n  # sub-env k plays the split's scenario k % n (sequential order)
-            if round_ == 0 and c < len(constants):
-                actions[k] = constants[c]
-            elif round_ == 0:
-                t = 0
-                while t < max_steps:
-                    length = int(rng.integers(1, 7))
-                    actions[k, t : t + length] = rng.choice(levels, size=2)
-                    t += length
-            else:
-                best = sorted(played[names[k % n]], key=lambda e: -e[0])[:elites]
-                stack = np.stack([a for _, a in best])
-                mean, std = stack.mean(0), np.maximum(stack.std(0), 0.15)
-                actions[k] = np.clip(mean + std * rng.standard_normal(mean.shape), -1.0, 1.0)
-        names, outcome = _play_open_loop(cfg, pool, actions, variations, spec)
-        for k, name in enumerate(names):
-            rec = found.setdefault(
-                name,
-                {"candidates": 0, "success": 0, "collision": 0, "timeout": 0, "best_steps": None},
-            )
-            status, steps, goal_dist = outcome[k] or ("timeout", max_steps, float("inf"))
-            rec["candidates"] += 1
-            rec[status] += 1
-            if status == "success" and (rec["best_steps"] is None or steps < rec["best_steps"]):
-                rec["best_steps"] = steps
-                rec["best_actions"] = actions[k, :steps].tolist()  # float32 values, exact
-            score = {
-                "success": 1e4 - steps,
-                "timeout": -goal_dist,
-                "collision": -1e4 + steps,
-            }[status]
-            played.setdefault(name, []).append((score, actions[k]))
-    # Replayed in fresh envs, every best sequence must arrive again: the bound rests on it.
-    replay = np.zeros((n, max_steps, 2), dtype=np.float32)
-    for j, name in enumerate(names[:n]):
-        best = found.get(name, {}).get("best_actions")
-        if best:
-            replay[j, : len(best)] = best
-    names, outcome = _play_open_loop(cfg, pool, replay, variations, spec)
-    for name, result in zip(names, outcome, strict=True):
-        if found.get(name, {}).get("best_actions"):
-            found[name]["replayed"] = result[0] if result else "timeout"
-    return found
-
-
-def _play_open_loop(
-    cfg: TrainConfig,
-    pool: Sequence[dict[str, Any]],
-    actions: np.ndarray,
-    variations: int = 0,
-    spec: dict[str, Any] | None = None,
-) -> tuple[list[str], list[tuple[str, int, float] | None]]:
-    """Plays ``actions[k]`` (``[K, T, 2]``) open loop in sub-env ``k`` of test-split envs in
-    sequential order (sub-env ``k`` on the split's scenario ``k % n``; with ``variations`` = M,
-    in variation ``(k // n) % M``, named ``"{name}#{variation}"``) until every sub-env's first
-    episode has ended; per sub-env its name and ``(status, steps, goal distance)``. Envs of at
-    most :data:`MAX_EVAL_ENVS` sub-envs."""
-    n = len(split_indices(pool, "test"))
-    per_env = max(1, MAX_EVAL_ENVS // n) * n
-    names: list[str] = []
-    outcome: list[tuple[str, int, float] | None] = []
-    for start in range(0, actions.shape[0], per_env):
-        part = actions[start : start + per_env]
-        seeds = [((start + k) // n) % variations for k in range(len(part))] if variations else None
-        got_names, got = _play_open_loop_env(cfg, pool, part, seeds, spec)
-        if seeds is not None:
-            got_names = [f"{name}#{v}" for name, v in zip(got_names, seeds, strict=True)]
-        names += got_names
-        outcome += got
-    return names, outcome
-
-
-def _play_open_loop_env(
-    cfg: TrainConfig,
-    pool: Sequence[dict[str, Any]],
-    actions: np.ndarray,
-    variation_seeds: list[int] | None,
-    spec: dict[str, Any] | None,
-) -> tuple[list[str], list[tuple[str, int, float] | None]]:
-    k_envs, max_steps = actions.shape[:2]
-    env = make_env(
-        cfg,
-        split="test",
-        num_envs=k_envs,
-        scenario_order="sequential",
-        variations=dict(spec or BENCHMARK_VARIATIONS) if variation_seeds else None,
-        variation_seeds=variation_seeds,
-    )
-    try:
-        td = env.reset()
-        names = [pool[int(i)]["name"] for i in td["scenario_index"].reshape(-1).tolist()]
-        outcome: list[tuple[str, int, float] | None] = [None] * k_envs
-        for t in range(max_steps):
-            td["action"] = torch.from_numpy(np.ascontiguousarray(actions[:, t]))
-            stepped, td = env.step_and_maybe_reset(td)
-            nxt = stepped["next"]
-            for k in range(k_envs):
-                if outcome[k] is None and bool(nxt["done"][k]):
-                    status = next((s for s in STATUSES if bool(nxt[f"episode_{s}"][k])), "timeout")
-                    outcome[k] = (status, t + 1, float(nxt["features"][k, 0, _GOAL_DIST]))
-            if all(o is not None for o in outcome):
-                break
-    finally:
-        env.close()
-    return names, outcome
 
 
 def variant_stats(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
