@@ -49,14 +49,23 @@ pub fn encode<T: Serialize + ?Sized>(value: &T) -> Vec<u8> {
 /// Never panics: malformed input gives a [`ProtocolError`] naming the expected type.
 pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ProtocolError> {
     let mut rest: &[u8] = bytes;
-    let value = {
-        let mut de = rmp_serde::Deserializer::new(&mut rest);
-        // The path names the field a wrong value sits in, which rmp-serde's error does not.
-        serde_path_to_error::deserialize(&mut de).map_err(|e| ProtocolError::Decode {
-            expected: type_label::<T>(),
-            path: e.path().to_string(),
-            source: e.into_inner(),
-        })?
+    let value = match T::deserialize(&mut rmp_serde::Deserializer::new(&mut rest)) {
+        Ok(v) => v,
+        // Decoded again, only on the error path, to learn where: the path names the field a
+        // wrong value sits in, which rmp-serde's error does not.
+        Err(first) => {
+            let mut again: &[u8] = bytes;
+            let mut de = rmp_serde::Deserializer::new(&mut again);
+            let (path, source) = match serde_path_to_error::deserialize::<_, T>(&mut de) {
+                Err(e) => (e.path().to_string(), e.into_inner()),
+                Ok(_) => (String::new(), first), // decoding is deterministic: not reached
+            };
+            return Err(ProtocolError::Decode {
+                expected: type_label::<T>(),
+                path,
+                source,
+            });
+        }
     };
     let rest = rest.len();
     if rest != 0 {
