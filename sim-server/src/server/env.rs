@@ -499,11 +499,6 @@ impl Env {
         self.variation_seeds = SplitMix64::new(derive_seed(seed, VARIATION_STREAM));
     }
 
-    /// The current episode's variation (`None` for an env without variations).
-    pub fn variation(&self) -> Option<&Variation> {
-        self.variation.as_ref()
-    }
-
     pub fn episode(&self) -> u64 {
         self.episode
     }
