@@ -276,3 +276,47 @@ def test_two_pools_of_one_name_are_refused_naming_both(tmp_path):
     assert out.returncode != 0
     assert str(first) in out.stderr and str(second) in out.stderr, out.stderr
     assert "hbs-paper" in out.stderr
+
+
+def test_a_pool_entry_with_bad_variations_stops_the_server_naming_the_entry_and_field():
+    entry = json.dumps([{"path": "embedded:hbs-paper", "variations": {"rotation_deg": 400}}])
+    out = subprocess.run(
+        [
+            str(sim_server_binary()),
+            "serve",
+            "--cfg",
+            'zenoh/listen/endpoints:["tcp/127.0.0.1:0"]',
+            "--cfg",
+            f"pools:{entry}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode != 0
+    assert "embedded:hbs-paper" in out.stderr and "variations.rotation_deg" in out.stderr
+
+
+@pytest.mark.parametrize(
+    "spec,message",
+    [
+        ('{"rotation_deg": 500}', "variations.rotation_deg"),
+        ('{"rotate": 5}', "rotate"),
+        ("not json", "--variations"),
+    ],
+)
+def test_rollout_refuses_bad_variations_naming_them(spec, message):
+    out = subprocess.run(
+        [str(sim_server_binary()), "rollout", "--av", "0,0", "--variation", "1"]
+        + ["--variations", spec],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode != 0 and message in out.stderr, out.stderr
+    assert out.stdout == "", "nothing is written for a refused spec"
+
+
+def test_variation_seeds_must_match_the_sub_envs(sim_client):
+    with pytest.raises(ValueError, match="2 seeds for 3 sub-envs"):
+        RemoteBatchedEnv(num_envs=3, client=sim_client, variations={}, variation_seeds=[1, 2])

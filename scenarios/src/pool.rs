@@ -79,6 +79,8 @@ pub enum Problem {
     NotFinite(f64),
     #[error("|{value:e}| exceeds the plausibility limit {limit:e}")]
     TooLarge { value: f64, limit: f64 },
+    #[error("{0} is negative (a speed)")]
+    Negative(f64),
     #[error("empty track (at least one sample is required)")]
     EmptyTrack,
     #[error("{velocities} velocities for {positions} positions (lengths must match)")]
@@ -401,7 +403,9 @@ pub fn validate_pool(
             if let Some(v) = ag.desired_speed {
                 let problem = if !v.is_finite() {
                     Some(Problem::NotFinite(v))
-                } else if !(0.0..=MAX_ABS_VELOCITY).contains(&v) {
+                } else if v < 0.0 {
+                    Some(Problem::Negative(v))
+                } else if v > MAX_ABS_VELOCITY {
                     Some(Problem::TooLarge {
                         value: v,
                         limit: MAX_ABS_VELOCITY,

@@ -225,6 +225,32 @@ fn huge_finite_value_is_rejected() {
 }
 
 #[test]
+fn a_bad_desired_speed_is_named() {
+    for (bad, problem) in [
+        (f64::NAN, "not a finite number"),
+        (-0.5, "is negative"),
+        (2e3, "plausibility"),
+    ] {
+        let mut pool = valid_pool();
+        pool.scenarios[0].agents[2].desired_speed = Some(bad);
+        let e = validate_pool(&pool, ORIGIN, OverlapCheck::Spawn).unwrap_err();
+        names(
+            &e.to_string(),
+            &[
+                ORIGIN,
+                "scenario #0 `s0`",
+                "agent #2 (record_id 8)",
+                "field `desired_speed`",
+                problem,
+            ],
+        );
+    }
+    let mut pool = valid_pool();
+    pool.scenarios[0].agents[2].desired_speed = Some(1.3);
+    assert!(validate_pool(&pool, ORIGIN, OverlapCheck::Spawn).is_ok());
+}
+
+#[test]
 fn non_finite_in_memory_is_rejected() {
     for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
         let mut pool = valid_pool();
