@@ -260,41 +260,14 @@ def test_two_pools_of_one_name_are_refused_naming_both(tmp_path):
     first, second = tmp_path / "a.json", tmp_path / "b.json"
     first.write_text(DEFAULT_POOL_PATH.read_text())
     second.write_text(DEFAULT_POOL_PATH.read_text())
-    out = subprocess.run(
-        [
-            str(sim_server_binary()),
-            "serve",
-            "--cfg",
-            'zenoh/listen/endpoints:["tcp/127.0.0.1:0"]',
-            "--cfg",
-            f"pools:{json.dumps([str(first), {'path': str(second)}])}",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert out.returncode != 0
-    assert str(first) in out.stderr and str(second) in out.stderr, out.stderr
-    assert "hbs-paper" in out.stderr
+    err = _serve_refused([str(first), {"path": str(second)}])
+    assert str(first) in err and str(second) in err, err
+    assert "hbs-paper" in err
 
 
 def test_a_pool_entry_with_bad_variations_stops_the_server_naming_the_entry_and_field():
-    entry = json.dumps([{"path": "embedded:hbs-paper", "variations": {"rotation_deg": 400}}])
-    out = subprocess.run(
-        [
-            str(sim_server_binary()),
-            "serve",
-            "--cfg",
-            'zenoh/listen/endpoints:["tcp/127.0.0.1:0"]',
-            "--cfg",
-            f"pools:{entry}",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert out.returncode != 0
-    assert "embedded:hbs-paper" in out.stderr and "variations.rotation_deg" in out.stderr
+    err = _serve_refused([{"path": "embedded:hbs-paper", "variations": {"rotation_deg": 400}}])
+    assert "embedded:hbs-paper" in err and "variations.rotation_deg" in err, err
 
 
 @pytest.mark.parametrize(
@@ -320,3 +293,22 @@ def test_rollout_refuses_bad_variations_naming_them(spec, message):
 def test_variation_seeds_must_match_the_sub_envs(sim_client):
     with pytest.raises(ValueError, match="2 seeds for 3 sub-envs"):
         RemoteBatchedEnv(num_envs=3, client=sim_client, variations={}, variation_seeds=[1, 2])
+
+
+def _serve_refused(pools) -> str:
+    """Starts ``sim-server serve`` with ``pools``, expects it to refuse; its error output."""
+    out = subprocess.run(
+        [
+            str(sim_server_binary()),
+            "serve",
+            "--cfg",
+            'zenoh/listen/endpoints:["tcp/127.0.0.1:0"]',
+            "--cfg",
+            f"pools:{json.dumps(pools)}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode != 0
+    return out.stderr
