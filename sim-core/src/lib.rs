@@ -20,11 +20,12 @@ pub mod pedeval;
 pub mod risk;
 pub mod rng;
 pub mod scenario;
+pub mod traffic;
 pub mod variation;
 pub mod vehicle;
 pub mod world;
 
 pub use geometry::{Shape, Vec2};
-pub use params::{PedestrianModel, WorldParams};
+pub use params::{PedestrianModel, VehicleModel, WorldParams};
 pub use scenario::{AgentKind, Scenario, ScenarioPool, Split};
 pub use world::{AgentId, EpisodeConfig, StepError, StepOutcome, StepScratch, World, WorldError};

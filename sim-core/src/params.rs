@@ -194,7 +194,8 @@ impl PedestrianModel {
 
 /// [`MODELS`] as the JSON document `clients/src/sharedspace/models.json` holds (the Python side's
 /// list of models): `{"models": [{"name", "label", "social_force", "risk", "cognitive"}, ...],
-/// "default": name}`.
+/// "default": name, "vehicle_models": [{"name", "label", "reactive"}, ...], "vehicle_default":
+/// name}`.
 pub fn models_json() -> String {
     let rows: Vec<serde_json::Value> = MODELS
         .iter()
@@ -209,11 +210,89 @@ pub fn models_json() -> String {
             })
         })
         .collect();
+    let vehicle_rows: Vec<serde_json::Value> = VEHICLE_MODELS
+        .iter()
+        .map(|m| serde_json::json!({"name": m.name, "label": m.label, "reactive": m.reactive}))
+        .collect();
     let doc = serde_json::json!({
         "models": rows,
         "default": PedestrianModel::default().name(),
+        "vehicle_models": vehicle_rows,
+        "vehicle_default": VehicleModel::default().name(),
     });
     serde_json::to_string_pretty(&doc).expect("plain JSON") + "\n"
+}
+
+/// Which model moves a vehicle nobody controls (docs/MODEL.md, "Traffic").
+///
+/// **The one list of vehicle models**, as [`PedestrianModel`] is of pedestrian models: a model
+/// is a variant here and a row of [`VEHICLE_MODELS`]; the wire, the pool files and the command
+/// line parse [`VehicleModel::from_name`], and the Python side reads the list from
+/// `clients/src/sharedspace/models.json` ([`models_json`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VehicleModel {
+    /// Follows its recorded track, whatever is in its way (the paper's evaluation set-up).
+    #[default]
+    Replay,
+    /// Follows its recorded path and controls its speed along it with the intelligent driver
+    /// model: it keeps its record's timing while the road is free, keeps a gap to whatever is in
+    /// the corridor ahead, and never drives into it ([`crate::traffic`]).
+    Idm,
+}
+
+/// One row of [`VEHICLE_MODELS`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VehicleModelInfo {
+    pub model: VehicleModel,
+    /// The name in configs, on the wire and on the command line.
+    pub name: &'static str,
+    /// The label in tables and figures.
+    pub label: &'static str,
+    /// Whether the model reacts to the agents around it.
+    pub reactive: bool,
+}
+
+/// Every vehicle model, in [`VehicleModel::ALL`] order.
+pub const VEHICLE_MODELS: [VehicleModelInfo; 2] = [
+    VehicleModelInfo {
+        model: VehicleModel::Replay,
+        name: "replay",
+        label: "Replay",
+        reactive: false,
+    },
+    VehicleModelInfo {
+        model: VehicleModel::Idm,
+        name: "idm",
+        label: "IDM",
+        reactive: true,
+    },
+];
+
+impl VehicleModel {
+    pub const ALL: [VehicleModel; 2] = [VEHICLE_MODELS[0].model, VEHICLE_MODELS[1].model];
+
+    /// This model's row of [`VEHICLE_MODELS`].
+    pub fn info(self) -> &'static VehicleModelInfo {
+        &VEHICLE_MODELS[self as usize]
+    }
+
+    /// The model's name in configs and on the wire (`replay`, `idm`).
+    pub fn name(self) -> &'static str {
+        self.info().name
+    }
+
+    /// Parses a model name; `None` when it is not one of [`Self::name`]'s values.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+
+    /// Every model's name, `", "`-separated and the last after `or` (for messages).
+    pub fn names() -> String {
+        let names: Vec<&str> = Self::ALL.iter().map(|m| m.name()).collect();
+        let (last, rest) = names.split_last().expect("at least one model");
+        format!("{} or {last}", rest.join(", "))
+    }
 }
 
 /// Social-force parameters of one pedestrian model (model.md section 5; unit mass, forces in m/s²).
@@ -334,6 +413,43 @@ impl Default for VehicleParams {
     }
 }
 
+/// Parameters of the reactive vehicle model ([`VehicleModel::Idm`], docs/MODEL.md "Traffic").
+/// The IDM values are the city-traffic set of Treiber & Kesting, *Traffic Flow Dynamics*
+/// (Springer 2013), Table 11.2; the corridor and the look-ahead are ours.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrafficParams {
+    /// IDM maximum acceleration `a`, m/s² (capped by `vehicle.acc_max`). Default 1.0.
+    pub acc: f64,
+    /// IDM comfortable deceleration `b`, m/s². Default 1.5.
+    pub comfortable_decel: f64,
+    /// IDM time headway `T`, s. Default 1.0.
+    pub time_headway: f64,
+    /// IDM minimum gap `s0`, m: the gap kept to a standing leader. Default 2.0.
+    pub min_gap: f64,
+    /// IDM acceleration exponent `delta`, dimensionless. Default 4.0.
+    pub exponent: f64,
+    /// Lateral margin of the corridor, m: an agent is in the way when the car's footprint, swept
+    /// along its path, comes this close to it. Default 0.3.
+    pub corridor_margin: f64,
+    /// Farthest the corridor reaches ahead along the path, m. Default 40.0.
+    pub lookahead_max: f64,
+}
+
+impl Default for TrafficParams {
+    fn default() -> Self {
+        Self {
+            acc: 1.0,
+            comfortable_decel: 1.5,
+            time_headway: 1.0,
+            min_gap: 2.0,
+            exponent: 4.0,
+            corridor_margin: 0.3,
+            lookahead_max: 40.0,
+        }
+    }
+}
+
 /// Reward weights (model.md section 7; the paper is silent, these are UAW-PCG-style).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -391,6 +507,8 @@ pub struct WorldParams {
     /// Time added to the recorded duration to get the episode horizon, s. Default 15.0.
     pub horizon_extra: f64,
     pub vehicle: VehicleParams,
+    /// The reactive vehicle model's parameters (vehicles nobody controls, [`VehicleModel::Idm`]).
+    pub traffic: TrafficParams,
     pub cognition: CognitionParams,
     pub risk: RiskParams,
     pub pedestrians: PedestrianParams,
@@ -408,6 +526,7 @@ impl Default for WorldParams {
             perception_radius: 15.0,
             horizon_extra: 15.0,
             vehicle: VehicleParams::default(),
+            traffic: TrafficParams::default(),
             cognition: CognitionParams::default(),
             risk: RiskParams::default(),
             pedestrians: PedestrianParams::default(),
@@ -462,6 +581,14 @@ impl WorldParams {
         non_negative("vehicle.omega_max", self.vehicle.omega_max)?;
         positive("vehicle.speed_max", self.vehicle.speed_max)?;
         non_negative("vehicle.goal_radius", self.vehicle.goal_radius)?;
+        let t = &self.traffic;
+        positive("traffic.acc", t.acc)?;
+        positive("traffic.comfortable_decel", t.comfortable_decel)?;
+        non_negative("traffic.time_headway", t.time_headway)?;
+        non_negative("traffic.min_gap", t.min_gap)?;
+        positive("traffic.exponent", t.exponent)?;
+        non_negative("traffic.corridor_margin", t.corridor_margin)?;
+        positive("traffic.lookahead_max", t.lookahead_max)?;
         positive("cognition.s0", self.cognition.s0)?;
         non_negative("cognition.q", self.cognition.q)?;
         positive("cognition.s_o", self.cognition.s_o)?;

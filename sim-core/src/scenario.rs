@@ -37,7 +37,9 @@ pub struct AgentRecord {
     pub positions: Vec<[f64; 2]>,
     /// Recorded velocities `[vx, vy]` in m/s, same length as `positions`.
     pub velocities: Vec<[f64; 2]>,
-    /// A non-reactive agent always replays its record, whatever model the world assigns.
+    /// A non-reactive pedestrian always replays its record, whatever model the world assigns.
+    /// Vehicles nobody controls follow the episode's vehicle model (`replay` by default) whatever
+    /// this says: the HBS extraction marks every other car non-reactive.
     #[serde(default)]
     pub non_reactive: bool,
     /// Desired speed `v0` of a simulated pedestrian in m/s; absent: the mean recorded speed

@@ -49,6 +49,8 @@ fn crowd(seed: u64) -> (Arc<Scenario>, EpisodeConfig) {
         pedestrian_model: PedestrianModel::CrSfm,
         model_overrides: overrides,
         external: vec![0],
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     };
     (sc, config)
 }

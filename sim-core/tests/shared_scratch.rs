@@ -39,6 +39,8 @@ fn world(seed: u64, n: usize, side: f64) -> World {
         pedestrian_model: PedestrianModel::CrSfm,
         model_overrides: overrides,
         external: vec![0],
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     };
     World::new(scenario(0, agents), WorldParams::default(), config).unwrap()
 }

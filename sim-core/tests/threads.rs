@@ -42,6 +42,8 @@ fn world_with(threads: usize, params: WorldParams) -> World {
         pedestrian_model: PedestrianModel::CrSfm,
         model_overrides: overrides,
         external: vec![0],
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     };
     let mut w = World::new(scenario(0, agents), params, config).unwrap();
     w.set_threads(threads);

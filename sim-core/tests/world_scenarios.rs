@@ -629,6 +629,8 @@ fn external_pedestrian_actions_are_clipped_and_reported() {
         pedestrian_model: PedestrianModel::CrSfm,
         model_overrides: Vec::new(),
         external: vec![1],
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     };
     let mut w = world(&sc, config);
     assert_eq!(w.control(0), Some(Control::Replay));
@@ -651,6 +653,8 @@ fn world_new_rejects_bad_configs() {
         pedestrian_model: PedestrianModel::CrSfm,
         model_overrides: Vec::new(),
         external,
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     };
     assert!(matches!(
         World::new(sc.clone(), params, ext(vec![3])),
@@ -699,6 +703,8 @@ fn outcome_lists_active_externals_in_config_order() {
         pedestrian_model: PedestrianModel::CrSfm,
         model_overrides: Vec::new(),
         external: vec![1, 0],
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     };
     let mut w = world(&sc, config);
     let out: StepOutcome = w.step(&[(0, [0.0, 0.0]), (1, [0.0, 0.0])]).unwrap();

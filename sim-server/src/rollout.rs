@@ -41,6 +41,7 @@ fn control_name(c: Control) -> String {
         Control::External => "external".into(),
         Control::Replay => "replay".into(),
         Control::Model(m) => m.name().into(),
+        Control::Vehicle(m) => m.name().into(),
     }
 }
 

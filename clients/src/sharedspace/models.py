@@ -1,4 +1,5 @@
-"""The pedestrian models, from the one list in sim-core (``sim_core::params::MODELS``).
+"""The pedestrian and vehicle models, from the lists in sim-core (``sim_core::params::MODELS``,
+``VEHICLE_MODELS``).
 
 ``models.json`` next to this file is written from that table and a Rust test
 (``sim-core/tests/models.rs``) fails when the two differ, so every Python list of models (the
@@ -24,3 +25,10 @@ EVALUATED_MODELS: tuple[str, ...] = tuple(n for n in PEDESTRIAN_MODELS if n != "
 LABELS: dict[str, str] = {m["name"]: m["label"] for m in MODELS}
 #: The default model (the paper's).
 DEFAULT_MODEL: str = _DOC["default"]
+
+#: Every vehicle model of the cars nobody controls: ``{"name", "label", "reactive"}``.
+VEHICLE_MODEL_TABLE: tuple[dict, ...] = tuple(_DOC["vehicle_models"])
+#: Every vehicle model's name (``replay``, ``idm``), as on the wire and in configs.
+VEHICLE_MODELS: tuple[str, ...] = tuple(m["name"] for m in VEHICLE_MODEL_TABLE)
+#: The default vehicle model (``replay``: the paper's set-up).
+DEFAULT_VEHICLE_MODEL: str = _DOC["vehicle_default"]

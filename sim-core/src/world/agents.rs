@@ -40,6 +40,8 @@ pub(super) struct Agents {
     pub(super) edge_start: Vec<u32>,
     pub(super) edge_len: Vec<u32>,
     pub(super) leaving: Vec<bool>,
+    /// Arc length along its recorded path of a reactive vehicle, m (0 for every other agent).
+    pub(super) path_s: Vec<f64>,
 }
 
 impl Agents {
@@ -71,6 +73,7 @@ impl Agents {
         r(&mut self.edge_start, keep);
         r(&mut self.edge_len, keep);
         r(&mut self.leaving, keep);
+        r(&mut self.path_s, keep);
     }
 }
 

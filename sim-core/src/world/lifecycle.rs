@@ -4,8 +4,8 @@
 
 use super::agents::v2;
 use super::Edge;
-use super::{Control, Event, StepScratch, World, NO_SLOT};
-use crate::geometry::{Shape, Vec2};
+use super::{AgentId, Control, Event, StepScratch, World, NO_SLOT};
+use crate::geometry::{clearance, Placed, Shape, Vec2};
 use crate::scenario::AgentKind;
 
 impl World {
@@ -23,7 +23,12 @@ impl World {
         }
     }
 
+    /// Agents recorded from the current step enter (after the reactive vehicles still waiting
+    /// for their entry to clear, which enter first, in id order). A reactive vehicle whose
+    /// entry footprint overlaps a vehicle present waits (docs/MODEL.md, "Traffic").
     pub(super) fn enter_pending(&mut self, events: &mut Vec<Event>) {
+        let mut due = std::mem::take(&mut self.deferred);
+        let late = due.len();
         while let Some(&id) = self.pending.last() {
             let rec = &self.scenario.agents[id as usize];
             if rec.start_step > self.step {
@@ -33,45 +38,94 @@ impl World {
             if rec.end_step() < self.step {
                 continue; // entirely in the past: never present.
             }
-            let k = (self.step - rec.start_step) as usize;
-            let pos = v2(rec.positions[k]);
-            let vel = v2(rec.velocities[k]);
-            let heading = rec.heading_at(k);
-            let control = self.control_of[id as usize];
-            let (shape, speed) = match rec.kind {
-                AgentKind::Vehicle => (self.params.vehicle.shape, vel.norm()),
-                AgentKind::Pedestrian => (
-                    Shape::Disc {
-                        radius: self.params.ped_radius,
+            due.push(id);
+        }
+        for (n, id) in due.into_iter().enumerate() {
+            let reactive = matches!(self.control_of[id as usize], Control::Vehicle(_));
+            if reactive && self.entry_blocked(id) {
+                self.deferred.push(id);
+            } else {
+                self.enter(id, n < late, events);
+            }
+        }
+    }
+
+    /// Whether the record's first footprint of vehicle `id` overlaps a vehicle present.
+    fn entry_blocked(&self, id: AgentId) -> bool {
+        let rec = &self.scenario.agents[id as usize];
+        let me = Placed {
+            shape: self.params.vehicle.shape,
+            position: v2(rec.positions[0]),
+            heading: rec.heading_at(0),
+        };
+        let a = &self.agents;
+        (0..a.len()).any(|j| {
+            a.kind[j] == AgentKind::Vehicle
+                && clearance(
+                    &me,
+                    &Placed {
+                        shape: a.shape[j],
+                        position: a.pos[j],
+                        heading: a.heading[j],
                     },
-                    vel.norm(),
-                ),
-            };
-            let a = &mut self.agents;
-            a.id.push(id);
-            a.kind.push(rec.kind);
-            a.control.push(control);
-            a.shape.push(shape);
-            a.pos.push(pos);
-            a.vel.push(vel);
-            a.acc.push(Vec2::zeros());
-            a.prev_acc.push(Vec2::zeros());
-            a.speed.push(speed);
-            a.heading.push(heading);
-            a.goal.push(v2(rec.goal()));
-            a.v0.push(rec.desired_speed());
-            a.initial_vel.push(vel);
-            a.edge_start.push(0);
-            a.edge_len.push(0);
-            a.leaving.push(false);
-            if self.step > 0 {
-                events.push(Event::Entered { agent: id });
-            }
-            if let Some(e) = self.externals.iter_mut().find(|e| e.id == id) {
-                e.active = true;
-                e.speeds.push(speed);
-                e.goal_distance = (pos - v2(rec.goal())).norm();
-            }
+                ) <= 0.0
+        })
+    }
+
+    /// Agent `id` enters at its recorded state at the current step; a reactive vehicle whose
+    /// entry was held up (`late`) enters standing at the start of its path.
+    fn enter(&mut self, id: AgentId, late: bool, events: &mut Vec<Event>) {
+        let rec = &self.scenario.agents[id as usize];
+        let k = if late {
+            0
+        } else {
+            (self.step - rec.start_step) as usize
+        };
+        let pos = v2(rec.positions[k]);
+        let vel = if late {
+            Vec2::zeros()
+        } else {
+            v2(rec.velocities[k])
+        };
+        let heading = rec.heading_at(k);
+        let path_s = self.paths[id as usize]
+            .as_ref()
+            .map_or(0.0, |p| p.scheduled(k));
+        let control = self.control_of[id as usize];
+        let (shape, speed) = match rec.kind {
+            AgentKind::Vehicle => (self.params.vehicle.shape, vel.norm()),
+            AgentKind::Pedestrian => (
+                Shape::Disc {
+                    radius: self.params.ped_radius,
+                },
+                vel.norm(),
+            ),
+        };
+        let a = &mut self.agents;
+        a.id.push(id);
+        a.kind.push(rec.kind);
+        a.control.push(control);
+        a.shape.push(shape);
+        a.pos.push(pos);
+        a.vel.push(vel);
+        a.acc.push(Vec2::zeros());
+        a.prev_acc.push(Vec2::zeros());
+        a.speed.push(speed);
+        a.heading.push(heading);
+        a.goal.push(v2(rec.goal()));
+        a.v0.push(rec.desired_speed());
+        a.initial_vel.push(vel);
+        a.edge_start.push(0);
+        a.edge_len.push(0);
+        a.leaving.push(false);
+        a.path_s.push(path_s);
+        if self.step > 0 {
+            events.push(Event::Entered { agent: id });
+        }
+        if let Some(e) = self.externals.iter_mut().find(|e| e.id == id) {
+            e.active = true;
+            e.speeds.push(speed);
+            e.goal_distance = (pos - v2(rec.goal())).norm();
         }
     }
 

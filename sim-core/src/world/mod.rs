@@ -30,9 +30,10 @@ use crate::geometry::{Shape, Vec2};
 use crate::grid::Grid;
 use crate::helpers::Helpers;
 use crate::metrics::EpisodeMetrics;
-use crate::params::{ParamError, PedestrianModel, WorldParams};
+use crate::params::{ParamError, PedestrianModel, VehicleModel, WorldParams};
 use crate::risk;
 use crate::scenario::{AgentKind, Scenario};
+use crate::traffic::RecordedPath;
 
 mod agents;
 mod lifecycle;
@@ -40,6 +41,7 @@ mod motion;
 mod observe;
 mod outcome;
 mod store;
+mod traffic;
 
 use agents::{Agents, ExternalTrack};
 pub use observe::{Kernels, KernelsUnavailable, PARALLEL_MIN_AGENTS};
@@ -59,6 +61,9 @@ pub enum Control {
     Replay,
     /// A simulated pedestrian.
     Model(PedestrianModel),
+    /// A vehicle nobody controls, moved by a reactive vehicle model (never
+    /// [`VehicleModel::Replay`], which is [`Control::Replay`]).
+    Vehicle(VehicleModel),
 }
 
 /// Which agents are external and which model moves the others.
@@ -68,8 +73,12 @@ pub struct EpisodeConfig {
     pub pedestrian_model: PedestrianModel,
     /// Per-agent model overrides.
     pub model_overrides: Vec<(AgentId, PedestrianModel)>,
-    /// Agents driven by actions. Vehicles not listed replay their record.
+    /// Agents driven by actions.
     pub external: Vec<AgentId>,
+    /// Model of every vehicle that is neither external, non-reactive nor overridden.
+    pub vehicle_model: VehicleModel,
+    /// Per-agent vehicle model overrides.
+    pub vehicle_overrides: Vec<(AgentId, VehicleModel)>,
 }
 
 impl EpisodeConfig {
@@ -79,6 +88,8 @@ impl EpisodeConfig {
             pedestrian_model: model,
             model_overrides: Vec::new(),
             external: vec![scenario.ego as AgentId],
+            vehicle_model: VehicleModel::Replay,
+            vehicle_overrides: Vec::new(),
         }
     }
 
@@ -88,6 +99,8 @@ impl EpisodeConfig {
             pedestrian_model: model,
             model_overrides: Vec::new(),
             external: Vec::new(),
+            vehicle_model: VehicleModel::Replay,
+            vehicle_overrides: Vec::new(),
         }
     }
 }
@@ -249,6 +262,11 @@ pub struct World {
     edges: EdgeStore,
     /// Agents not yet entered, by descending start step (the next to enter is last).
     pending: Vec<AgentId>,
+    /// Reactive vehicles due to enter whose entry was occupied by another vehicle: they enter,
+    /// in id order, as soon as it is free.
+    deferred: Vec<AgentId>,
+    /// Per agent of the scenario, the recorded path of a reactive vehicle (shared by clones).
+    paths: Arc<[Option<RecordedPath>]>,
     externals: Vec<ExternalTrack>,
     /// Agents removed during the last step, with their position when they left.
     departed: Vec<(AgentId, Vec2)>,
@@ -361,8 +379,19 @@ impl World {
                 .iter()
                 .rev()
                 .find(|(id, _)| *id as usize == k);
+            let vehicle_model = config
+                .vehicle_overrides
+                .iter()
+                .rev()
+                .find(|(id, _)| *id as usize == k)
+                .map_or(config.vehicle_model, |&(_, m)| m);
             let c = match (a.kind, a.non_reactive, overridden) {
-                (AgentKind::Vehicle, _, _) => Control::Replay,
+                // A vehicle's model is the episode's: `non_reactive` is a pedestrian's mark (the
+                // HBS extraction marks every other car with it, as replayed by default).
+                (AgentKind::Vehicle, _, _) => match vehicle_model {
+                    VehicleModel::Replay => Control::Replay,
+                    m => Control::Vehicle(m),
+                },
                 (AgentKind::Pedestrian, true, _) => Control::Replay,
                 (AgentKind::Pedestrian, false, Some((_, m))) => Control::Model(*m),
                 (AgentKind::Pedestrian, false, None) => Control::Model(config.pedestrian_model),
@@ -393,6 +422,12 @@ impl World {
                 status: None,
             });
         }
+        let paths: Arc<[Option<RecordedPath>]> = scenario
+            .agents
+            .iter()
+            .zip(&control_of)
+            .map(|(rec, c)| matches!(c, Control::Vehicle(_)).then(|| RecordedPath::new(rec)))
+            .collect();
         let recorded = scenario.recorded_steps();
         let ego_len = scenario
             .agents
@@ -420,6 +455,8 @@ impl World {
             agents: Agents::default(),
             edges: EdgeStore::default(),
             pending,
+            deferred: Vec::new(),
+            paths,
             externals,
             departed: Vec::new(),
             scratch: StepScratch::default(),

@@ -1,6 +1,7 @@
 //! Stage 2 of a step: every agent moves from `t` to `t + 1` at once (model.md 1, 2, 5): external
 //! agents by their action ([`crate::vehicle`], [`crate::pedestrian::integrate`]), replayed agents
-//! by their record, simulated pedestrians by their social forces ([`crate::pedestrian`]).
+//! by their record, simulated pedestrians by their social forces ([`crate::pedestrian`]), and
+//! then the reactive vehicles, one after the other (`traffic.rs`).
 
 use super::agents::v2;
 use super::AgentId;
@@ -52,9 +53,17 @@ impl World {
                     }
                 },
                 Control::Model(m) => self.move_pedestrian(i, m),
+                // Reactive vehicles move last (`move_traffic`); until then, their state at t.
+                Control::Vehicle(_) => (
+                    self.agents.pos[i],
+                    self.agents.vel[i],
+                    self.agents.speed[i],
+                    self.agents.heading[i],
+                ),
             };
             moved.push((pos, vel, speed, heading));
         }
+        self.move_traffic(&mut moved);
         let a = &mut self.agents;
         for (i, &(pos, vel, speed, heading)) in moved.iter().enumerate() {
             a.prev_acc[i] = a.acc[i];

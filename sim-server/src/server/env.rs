@@ -604,6 +604,8 @@ impl Env {
             pedestrian_model: spec.model,
             model_overrides: Vec::new(),
             external: ext_ids.clone(),
+            vehicle_model: Default::default(),
+            vehicle_overrides: Vec::new(),
         };
         let variation = spec.variations.as_ref().map(|v| {
             let seed = variation.unwrap_or_else(|| self.variation_seeds.next_u64());
