@@ -23,7 +23,11 @@
 #   TABLE2_TRAIN     0 = skip training, only evaluate and tabulate what is there (default 1)
 #   TABLE2_POOL      training pool: "" = the paper pool (default); "paper+general" = the paper's train
 #                    scenes plus every general-pool scene sharing no agent with a test scene
-#                    (sharedspace.train.pools), tested on the paper's test split
+#                    (sharedspace.train.pools), tested on the paper's test split; "general" = the
+#                    crowded benchmark, Table II-G: `hbs-general`'s train split, tested on its 76
+#                    test scenes, its other cars reactive (the pool's `idm`; `make table2g`)
+#   TABLE2_SET       more TrainConfig overrides for new runs, space-separated KEY=VALUE (no spaces
+#                    inside a value), e.g. "max_agents=10 variations={\"position_sigma\":0.5}"
 #   TABLE2_JSON      where the table's JSON goes (default docs/table2.json)
 #   TABLE2_SHIP      folder for the trained policies (actor + config; default results/table2/policies;
 #                    "" = none): `make run` evaluates results/table2/policies/g_sac_cog-s0.pt
@@ -61,7 +65,19 @@ case "${TABLE2_POOL:-}" in
         pools=(--cfg "pools:[\"embedded:hbs-paper\",\"$pool_file\"]")
         train_pool=("scenario_pool=$pool_file")
         ;;
-    *) echo "TABLE2_POOL must be empty or paper+general, not ${TABLE2_POOL}" >&2; exit 2 ;;
+    general)
+        pool_file="$out/pool-general.json"
+        if [ ! -f "$pool_file" ]; then
+            csv=$(mktemp)
+            gunzip -c scenarios/data/hbs.csv.gz > "$csv"
+            cargo run --quiet --release -p scenarios --bin extract-hbs -- \
+                --csv "$csv" --pool general --out "$pool_file"
+            rm -f "$csv"
+        fi
+        pools=(--cfg "pools:[\"$pool_file\"]")
+        train_pool=("scenario_pool=$pool_file")
+        ;;
+    *) echo "TABLE2_POOL must be empty, paper+general or general, not ${TABLE2_POOL}" >&2; exit 2 ;;
 esac
 
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
@@ -98,6 +114,8 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
                 args+=("variant=$variant" "seed=$seed" init_random_frames=2000 num_envs=8 "${train_pool[@]}"
                     "eval_interval=$eval_every" "checkpoint_interval=$ckpt_every" save_buffer=true
                     progress=false "log_dir=$run")
+                # shellcheck disable=SC2206 # word splitting is the format of TABLE2_SET
+                args+=(${TABLE2_SET:-})
             fi
             "$py" -m sharedspace.train "${args[@]}" >> "$out/$variant-s$seed.log" 2>&1 &
             pids+=($!)

@@ -68,7 +68,7 @@ pub enum Split {
 
 /// Pedestrian model (model.md section 5): sim-core's one list of models, on the wire by name
 /// (`"cv"`, `"sfm"`, `"ra_sfm"`, `"cr_sfm"`, `"replay"`; default `cr_sfm`).
-pub use sim_core::params::PedestrianModel;
+pub use sim_core::params::{PedestrianModel, VehicleModel};
 pub use sim_core::variation::{PedestrianVariation, Variation, VariationSpec};
 
 /// How an env advances.
@@ -416,6 +416,10 @@ pub struct CreateEnv {
     /// one, else none; SPEC 5.3).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub variations: Option<VariationSpec>,
+    /// How the vehicles nobody controls move: `replay` or `idm` (docs/MODEL.md "Traffic"; nil:
+    /// the pool's, `replay` unless the pool says otherwise; `hbs-general` says `idm`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vehicle_model: Option<VehicleModel>,
 }
 
 /// `CreateEnv.synthetic`: the envs play `scenes` generated scenes (seeds `seed`,
@@ -474,6 +478,7 @@ impl CreateEnv {
             realtime_factor: default_realtime_factor(),
             synthetic: None,
             variations: None,
+            vehicle_model: None,
         }
     }
 
@@ -1328,6 +1333,10 @@ pub struct StatesMsg {
     /// The reward of the step that led to this state, per external agent (nil after a reset).
     #[serde(default)]
     pub rewards: Option<StateRewards>,
+    /// `[n]` `|u1`: 1 for a vehicle that a reactive vehicle model moves (docs/MODEL.md
+    /// "Traffic"), else 0; nil when the episode has none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reactive: Option<U8Array>,
 }
 
 /// [`StatesMsg::rewards`]: the last step's reward of each external agent, for watching.

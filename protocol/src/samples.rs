@@ -118,6 +118,7 @@ pub fn create_env() -> CreateEnv {
         realtime_factor: 1.0,
         synthetic: None,
         variations: None,
+        vehicle_model: None,
     }
 }
 
@@ -385,6 +386,7 @@ pub fn states() -> StatesMsg {
             },
             returns: f64a(&[1], &[2.25]),
         }),
+        reactive: None,
     }
 }
 

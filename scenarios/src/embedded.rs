@@ -63,6 +63,7 @@ pub fn general_pool() -> ScenarioPool {
     POOL.get_or_init(|| {
         let failed = |e: String| ScenarioPool {
             version: SCENARIO_FORMAT_VERSION,
+            vehicle_model: sim_core::params::VehicleModel::Idm,
             name: "hbs-general".to_string(),
             provenance: format!("embedded pool failed to load: {e}"),
             scenarios: Vec::new(),
@@ -91,6 +92,7 @@ pub fn default_pool() -> ScenarioPool {
         load_pool(HBS_PAPER_JSON.as_bytes(), "embedded hbs-paper.json").unwrap_or_else(|e| {
             ScenarioPool {
                 version: SCENARIO_FORMAT_VERSION,
+                vehicle_model: sim_core::params::VehicleModel::Replay,
                 name: "hbs-paper".to_string(),
                 provenance: format!("embedded pool failed to load: {e}"),
                 scenarios: Vec::new(),

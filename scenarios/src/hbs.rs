@@ -42,8 +42,12 @@
 //! loader's spawn check. Agents are stored as: ego, then pedestrians, then other cars, each group
 //! in ascending `agent_id` order.
 //!
-//! **Split.** Scenarios are numbered `i = 0, 1, ...` in pool order (ascending car id); scenario
-//! `i` is `test` when `i mod 13` is 2, 6 or 10 and `train` otherwise (3/13 = 23 % test).
+//! **Split.** Scenarios are numbered `i = 0, 1, ...` in pool order (ascending car id). In the
+//! paper pool scenario `i` is `test` when `i mod 13` is 2, 6 or 10 and `train` otherwise
+//! (3/13 = 23 % test): its scenes hold three pedestrians each and share none. The general pool's
+//! windows overlap in time (every car recorded at once has one), so an interleaved split would
+//! put the same pedestrians in train and test scenes: its first 3/13 of windows are test, and a
+//! later window sharing a recorded agent with a test window is left out ([`split_by_block`]).
 //!
 //! **Fields.** `dt = 0.5`; positions and velocities are the CSV's values unchanged; names are
 //! `hbs-car<agent_id>` (`hbs-scene<scene_id>-car<agent_id>` outside scene 0). The pool's
@@ -53,6 +57,7 @@ use std::collections::BTreeMap;
 
 use sha2::{Digest, Sha256};
 use sim_core::geometry::clearance;
+use sim_core::params::VehicleModel;
 use sim_core::scenario::{
     AgentKind, AgentRecord, Scenario, ScenarioPool, Split, SCENARIO_FORMAT_VERSION,
 };
@@ -473,8 +478,7 @@ fn provenance(data: &HbsData, pool: &str, params: &str) -> String {
          Golchoubian et al. with UAW-PCG (github.com/Golchoubian/UncertaintyAware_DRL_CrowdNav, \
          MIT licence, ped_pred/Data/HBS/hbs.csv, commit 08534e34e75a2a75324c5dea3d77fc78d7276ece). \
          Input: sha256 {sha}, {bytes} bytes, {rows} rows. \
-         Extraction: scenarios crate {ver}, pool {pool}, {params}; split: scenario i (in pool \
-         order, ascending car id) is test when i mod 13 is 2, 6 or 10, else train; \
+         Extraction: scenarios crate {ver}, pool {pool}, {params}; \
          see scenarios/EXTRACTION.md. \
          Cite Pascucci et al. (HBS dataset) and Golchoubian et al. (UAW-PCG) wherever results \
          on this pool are shown.",
@@ -555,15 +559,42 @@ pub fn extract_paper(data: &HbsData, params: &PaperParams) -> ScenarioPool {
         });
     }
     let p = format!(
-        "moving_speed {} m/s, min_window {} steps, max_path_distance {} m, {} pedestrians",
+        "moving_speed {} m/s, min_window {} steps, max_path_distance {} m, {} pedestrians; \
+         split: scenario i (in pool order, ascending car id) is test when i mod 13 is 2, 6 or \
+         10, else train",
         params.moving_speed, params.min_window, params.max_path_distance, params.pedestrians
     );
     ScenarioPool {
         version: SCENARIO_FORMAT_VERSION,
+        vehicle_model: VehicleModel::Replay,
         name: "hbs-paper".to_string(),
         provenance: provenance(data, "hbs-paper", &p),
         scenarios,
     }
+}
+
+/// The general pool's split: the first `round(3 n / 13)` windows (pool order, ascending car id:
+/// the start of the recording) are test; a later window that shares a recorded agent with any
+/// test window is left out, so that no train scene holds an agent of a test scene (the windows of
+/// cars recorded at the same time overlap); the rest are train. Returns the scenes kept and how
+/// many were left out.
+fn split_by_block(mut scenarios: Vec<Scenario>) -> (Vec<Scenario>, usize) {
+    let n_test = (3 * scenarios.len() + 6) / 13;
+    let mut test_agents = std::collections::HashSet::new();
+    for s in &mut scenarios[..n_test] {
+        s.split = Split::Test;
+        test_agents.extend(s.agents.iter().map(|a| (a.kind, a.record_id)));
+    }
+    let before = scenarios.len();
+    scenarios.retain(|s| {
+        s.split == Split::Test
+            || !s
+                .agents
+                .iter()
+                .any(|a| test_agents.contains(&(a.kind, a.record_id)))
+    });
+    let left_out = before - scenarios.len();
+    (scenarios, left_out)
 }
 
 /// The general pool `hbs-general` (see the module docs).
@@ -610,19 +641,24 @@ pub fn extract_general(data: &HbsData, params: &GeneralParams) -> ScenarioPool {
         agents.extend(others);
         scenarios.push(Scenario {
             name: scenario_name(scene, car_id),
-            split: split_for(scenarios.len()),
+            split: Split::Train,
             dt: DT,
             ego: 0,
             agents,
         });
     }
+    let (scenarios, left_out) = split_by_block(scenarios);
     let p = format!(
         "moving_speed {} m/s, min_window {} steps, all pedestrians and other cars (non-reactive) \
-         in the window, spawn-overlapping agents dropped",
+         in the window, spawn-overlapping agents dropped; split: the first 3/13 of the windows \
+         (ascending car id) are test, {left_out} windows sharing a recorded agent with a test \
+         window left out, the rest train",
         params.moving_speed, params.min_window
     );
     ScenarioPool {
         version: SCENARIO_FORMAT_VERSION,
+        // The crowded benchmark: the other cars react (docs/MODEL.md, "Traffic").
+        vehicle_model: VehicleModel::Idm,
         name: "hbs-general".to_string(),
         provenance: provenance(data, "hbs-general", &p),
         scenarios,

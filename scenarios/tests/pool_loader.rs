@@ -40,6 +40,7 @@ fn valid_pool() -> ScenarioPool {
     s1.split = Split::Test;
     ScenarioPool {
         version: 1,
+        vehicle_model: sim_core::params::VehicleModel::Replay,
         name: "test-pool".into(),
         provenance: "hand-made".into(),
         scenarios: vec![s0, s1],

@@ -81,7 +81,7 @@ fn no_two_reactive_cars_ever_overlap_in_any_general_scene() {
             );
         });
     }
-    assert_eq!(pool.scenarios.len(), 329);
+    assert_eq!(pool.scenarios.len(), 305);
     assert!(cars > 2000 && steps > 9_000, "{cars} cars, {steps} steps");
 }
 

@@ -6,6 +6,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::params::VehicleModel;
+
 /// Version of the scenario file format ([`ScenarioPool`]); bumped on any incompatible change.
 pub const SCENARIO_FORMAT_VERSION: u32 = 1;
 
@@ -143,7 +145,15 @@ pub struct ScenarioPool {
     pub name: String,
     /// Where the data came from, how it was extracted, and whom to cite.
     pub provenance: String,
+    /// How the pool's vehicles that nobody controls move, unless an env asks otherwise
+    /// (`CreateEnv.vehicle_model`); absent: `replay`.
+    #[serde(default, skip_serializing_if = "is_replay")]
+    pub vehicle_model: VehicleModel,
     pub scenarios: Vec<Scenario>,
+}
+
+fn is_replay(m: &VehicleModel) -> bool {
+    *m == VehicleModel::Replay
 }
 
 impl ScenarioPool {

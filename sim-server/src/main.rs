@@ -6,11 +6,11 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
-use sim_core::params::PedestrianModel;
+use sim_core::params::{PedestrianModel, VehicleModel};
 use sim_core::scenario::ScenarioPool;
 use sim_core::variation::VariationSpec;
 use sim_server::params_file::ParamsDoc;
-use sim_server::rollout::{rollout, EgoDrive};
+use sim_server::rollout::{rollout, EgoDrive, RolloutModels};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -195,6 +195,10 @@ struct RolloutArgs {
     /// Pedestrian model.
     #[arg(long, default_value = "cr_sfm", value_parser = model_names())]
     model: String,
+    /// How the vehicles nobody controls move: `replay` or `idm` (docs/MODEL.md "Traffic");
+    /// default: as the pool says (`hbs-general`: idm, others: replay).
+    #[arg(long, value_parser = vehicle_model_names())]
+    vehicles: Option<String>,
     /// `replay` (the AV follows its record) or a constant normalised action `ACC,YAW_RATE` in [-1, 1].
     #[arg(long, default_value = "replay")]
     av: String,
@@ -226,6 +230,11 @@ fn load_pool(args: &PoolArgs) -> Result<ScenarioPool, String> {
 /// The pedestrian models' names, as a clap parser (the help lists them).
 fn model_names() -> clap::builder::PossibleValuesParser {
     clap::builder::PossibleValuesParser::new(PedestrianModel::ALL.map(|m| m.name()))
+}
+
+/// The vehicle models' names, as a clap parser.
+fn vehicle_model_names() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(VehicleModel::ALL.map(|m| m.name()))
 }
 
 fn parse_model(name: &str) -> Result<PedestrianModel, String> {
@@ -292,10 +301,23 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
         )),
         None => Box::new(std::io::stdout().lock()),
     };
+    let vehicles = match &args.vehicles {
+        Some(name) => VehicleModel::from_name(name).ok_or_else(|| {
+            format!(
+                "unknown vehicle model `{name}` (expected {})",
+                VehicleModel::names()
+            )
+        })?,
+        None => pool.vehicle_model,
+    };
+    let models = RolloutModels {
+        pedestrians: model,
+        vehicles,
+    };
     rollout(
         scenario,
         params,
-        model,
+        models,
         ego,
         variation.as_ref(),
         threads,

@@ -1,4 +1,5 @@
-//! The `rollout` command: one scenario, one pedestrian model, every step written as a JSON line.
+//! The `rollout` command: one scenario, one pedestrian model and one vehicle model, every step
+//! written as a JSON line.
 //!
 //! Format (one JSON object per line; `docs/ROLLOUT.md` documents every field):
 //! - `{"type":"header", ...}`: scenario, model, parameters, agents (id, record id, kind, control);
@@ -11,7 +12,7 @@ use std::io::Write;
 use std::sync::Arc;
 
 use serde_json::{json, Value};
-use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::params::{PedestrianModel, VehicleModel, WorldParams};
 use sim_core::scenario::Scenario;
 use sim_core::variation::Variation;
 use sim_core::world::{AgentOutcome, Control, EpisodeConfig, Event, World, WorldError};
@@ -23,6 +24,15 @@ pub enum EgoDrive {
     Replay,
     /// Is external and holds this normalised action `[acc, yaw rate]` every step.
     Constant([f64; 2]),
+}
+
+/// What moves the agents nobody controls during a rollout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RolloutModels {
+    /// Every pedestrian that is not non-reactive.
+    pub pedestrians: PedestrianModel,
+    /// Every vehicle that is not the external ego.
+    pub vehicles: VehicleModel,
 }
 
 /// Why a rollout failed.
@@ -112,7 +122,7 @@ fn step_json(world: &World, outcomes: &[AgentOutcome], events: &[Event]) -> Valu
 pub fn rollout(
     scenario: Arc<Scenario>,
     params: WorldParams,
-    model: PedestrianModel,
+    models: RolloutModels,
     ego: EgoDrive,
     variation: Option<&Variation>,
     threads: usize,
@@ -122,10 +132,12 @@ pub fn rollout(
         Some(v) => (Arc::new(v.apply(&scenario)), v.apply_params(&params)),
         None => (scenario, params),
     };
-    let config = match ego {
+    let model = models.pedestrians;
+    let mut config = match ego {
         EgoDrive::Replay => EpisodeConfig::replay_vehicles(model),
         EgoDrive::Constant(_) => EpisodeConfig::ego_external(&scenario, model),
     };
+    config.vehicle_model = models.vehicles;
     let mut world = World::new(scenario.clone(), params, config)?;
     world.set_threads(threads);
     let agents: Vec<Value> = scenario
@@ -147,7 +159,9 @@ pub fn rollout(
         "type": "header",
         "format": "sharedspace-rollout/1",
         "scenario": scenario.name,
+        "split": scenario.split,
         "model": model.name(),
+        "vehicle_model": models.vehicles.name(),
         "dt": params.dt,
         "horizon": world.horizon(),
         "ego": scenario.ego,

@@ -4,10 +4,10 @@
 use std::sync::Arc;
 
 use scenarios::synthetic::{generate, Layout, SyntheticConfig};
-use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::params::{PedestrianModel, VehicleModel, WorldParams};
 use sim_core::variation::VariationSpec;
 use sim_core::world::PARALLEL_MIN_AGENTS;
-use sim_server::rollout::{rollout, EgoDrive};
+use sim_server::rollout::{rollout, EgoDrive, RolloutModels};
 
 #[test]
 fn rollout_lines_do_not_depend_on_the_thread_count() {
@@ -36,7 +36,10 @@ fn rollout_lines_do_not_depend_on_the_thread_count() {
         let steps = rollout(
             scenario.clone(),
             params,
-            PedestrianModel::CrSfm,
+            RolloutModels {
+                pedestrians: PedestrianModel::CrSfm,
+                vehicles: VehicleModel::Idm,
+            },
             EgoDrive::Constant([0.2, 0.05]),
             varied.then_some(&variation),
             threads,

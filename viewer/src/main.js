@@ -230,7 +230,7 @@ function agentSummary(a, edges) {
   const max = (list, f) => (list.length ? Math.max(...list.map(f)) : 0);
   const speed = Math.hypot(a.vx, a.vy);
   return (
-    `${a.kind} ${a.id}${a.external ? " (learner)" : ""}\n` +
+    `${a.kind} ${a.id}${a.external ? " (learner)" : a.reactive ? " (reactive)" : a.kind === "vehicle" ? " (replayed)" : ""}\n` +
     `speed ${speed.toFixed(2)} m/s\n` +
     `its beliefs: ${out.length} agents, max u ${max(out, (e) => e.u).toFixed(3)}, ` +
     `max psi ${max(out, (e) => e.psi).toFixed(3)}\n` +

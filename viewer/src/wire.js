@@ -36,6 +36,7 @@ export function readStates(msg) {
   const sizes = toArray(msg.sizes);
   const goals = toArray(msg.goals);
   const external = toArray(msg.external);
+  const reactive = toArray(msg.reactive);
   const agents = [];
   for (let i = 0; i < ids.length; i++) {
     agents.push({
@@ -48,6 +49,8 @@ export function readStates(msg) {
       width: sizes ? sizes[2 * i + 1] : (kinds[i] === 0 ? 1.8 : 0.6),
       goal: goals ? [goals[2 * i], goals[2 * i + 1]] : null,
       external: external ? external[i] === 1 : false,
+      // Moved by a reactive vehicle model (docs/MODEL.md "Traffic"); otherwise a replayed car.
+      reactive: reactive ? reactive[i] === 1 : false,
     });
   }
   let rewards = null;

@@ -259,12 +259,15 @@ def create_env(
     protocol_version: int = PROTOCOL_VERSION,
     synthetic: Mapping[str, Any] | None = None,
     variations: Mapping[str, Any] | None = None,
+    vehicle_model: str | None = None,
 ) -> dict[str, Any]:
     """``CreateEnv`` (SPEC 5.2). ``synthetic``: generated scenes instead of a pool, a map of
     ``layout`` (``crossing``, ``counter_flow``, ``random``), ``pedestrians``, ``vehicles``,
     ``density``, ``seed``, ``scenes`` (defaults in SPEC 5.2). ``variations``: seeded scene
     variations, a map of ``position_sigma``, ``start_offset_steps``, ``desired_speed_scale``,
-    ``param_noise``, ``mirror``, ``rotation_deg`` (SPEC 5.2.1; the server checks them)."""
+    ``param_noise``, ``mirror``, ``rotation_deg`` (SPEC 5.2.1; the server checks them).
+    ``vehicle_model``: how the cars nobody controls move, ``replay`` or ``idm`` (None: the
+    pool's; docs/MODEL.md "Traffic")."""
     if split not in ("train", "test"):
         raise ValueError(f"split must be 'train' or 'test', got {split!r}")
     if mode not in ("lockstep", "realtime"):
@@ -287,7 +290,7 @@ def create_env(
         "realtime_factor": float(realtime_factor),
     } | ({"synthetic": dict(synthetic)} if synthetic is not None else {}) | (
         {"variations": dict(variations)} if variations is not None else {}
-    )
+    ) | ({"vehicle_model": vehicle_model} if vehicle_model is not None else {})
 
 
 def reset(

@@ -122,6 +122,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
             ``CreateEnv.variations``), e.g. ``{"position_sigma": 0.25, "start_offset_steps": 1,
             "desired_speed_scale": 0.1}``; ``env.variation`` is the episode's (seed and values),
             ``reset(options={"variation": seed})`` replays one.
+        vehicle_model: how the cars nobody controls move, ``"replay"`` or ``"idm"`` (reactive,
+            docs/MODEL.md "Traffic"); None: the pool's (``hbs-general``: ``idm``).
         seed: seed of the env at creation (``reset(seed=...)`` re-seeds).
         render_mode: ``None`` or ``"rgb_array"``.
         failover: re-create the env on a surviving server when its server dies (the step
@@ -164,6 +166,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         max_cycles: int | None = None,
         synthetic: Mapping[str, Any] | None = None,
         variations: Mapping[str, Any] | None = None,
+        vehicle_model: str | None = None,
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -189,6 +192,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
             autoreset=False,
             synthetic=synthetic,
             variations=variations,
+            vehicle_model=vehicle_model,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)

@@ -19,6 +19,7 @@ __all__ = ["Frame", "Agent", "draw_scene", "scene_rgb", "frame_from_publications
 
 CONTROLLED = "#1f5fd0"
 VEHICLE = "#c62828"
+REACTIVE = "#e0a030"
 PEDESTRIAN = "#2e7d32"
 GOAL = "#1f5fd0"
 EDGE_CMAP = "YlOrRd"
@@ -36,6 +37,7 @@ class Agent:
     vy: float = 0.0
     heading: float = 0.0
     controlled: bool = False
+    reactive: bool = False  # moved by a reactive vehicle model (docs/MODEL.md "Traffic")
     length: float | None = None  # rectangle footprint, m (vehicles)
     width: float | None = None
     radius: float = 0.3  # disc footprint, m (pedestrians)
@@ -127,7 +129,7 @@ def draw_scene(
     for a in frame.agents:
         if a.kind == "vehicle":
             length, width = a.length or 4.5, a.width or 1.8
-            color = CONTROLLED if a.controlled else VEHICLE
+            color = CONTROLLED if a.controlled else REACTIVE if a.reactive else VEHICLE
             c, s = np.cos(a.heading), np.sin(a.heading)
             corner = (a.x - (c * length - s * width) / 2, a.y - (s * length + c * width) / 2)
             ax.add_patch(
@@ -185,7 +187,12 @@ def draw_scene(
     if legend:
         handles = [
             mpatches.Patch(color=CONTROLLED, label="controlled vehicle"),
-            mpatches.Patch(color=VEHICLE, label="other vehicle"),
+            mpatches.Patch(color=VEHICLE, label="replayed vehicle"),
+            *(
+                [mpatches.Patch(color=REACTIVE, label="reactive vehicle")]
+                if any(a.reactive for a in frame.agents)
+                else []
+            ),
             Line2D([], [], marker="o", ls="", color=PEDESTRIAN, label="pedestrian"),
             Line2D([], [], marker="*", ls="", ms=10, color=GOAL, label="goal"),
             Line2D([], [], color=cmap(0.9), lw=2.5, label=f"risk A (top {top_k} per agent)"),
@@ -222,6 +229,8 @@ def frame_from_publications(
     pos = np.asarray(states["positions"], dtype=np.float64).reshape(-1, 2)
     vel = np.asarray(states.get("velocities", np.zeros_like(pos)), dtype=np.float64).reshape(-1, 2)
     heads = np.asarray(states["headings"], dtype=np.float64).reshape(-1)
+    reactive = states.get("reactive")
+    reactive = np.zeros(len(ids), bool) if reactive is None else np.asarray(reactive).astype(bool)
     out = []
     for i, aid in enumerate(ids.tolist()):
         desc = agents.get(aid, {})
@@ -236,6 +245,7 @@ def frame_from_publications(
                 vy=float(vel[i, 1]),
                 heading=float(heads[i]),
                 controlled=bool(desc.get("external")),
+                reactive=bool(reactive[i]),
                 length=desc.get("length"),
                 width=desc.get("width"),
                 radius=float(desc.get("radius") or 0.3),

@@ -164,9 +164,10 @@ class RemoteBatchedEnv(_ServerEnvs):
         timeout: query timeout, s.
         failover: re-create the envs on a surviving server when theirs dies.
         client: an existing :class:`~sharedspace.client.SimClient` to share.
-        external_agents, reward_weights, pedestrian_params, synthetic, variations:
+        external_agents, reward_weights, pedestrian_params, synthetic, variations, vehicle_model:
             ``CreateEnv`` fields (``synthetic``: generated scenes instead of a pool, SPEC 5.2;
-            ``variations``: seeded scene variations, one drawn per episode, SPEC 5.2.1).
+            ``variations``: seeded scene variations, one drawn per episode, SPEC 5.2.1;
+            ``vehicle_model``: ``replay`` or ``idm``, None: the pool's).
         variation_seeds: per sub-env, the variation seed every episode of that sub-env plays
             (``Reset.variation``; needs ``variations``): a fixed, replayable set of variations,
             as the evaluator uses. None: each episode draws its own.
@@ -201,6 +202,7 @@ class RemoteBatchedEnv(_ServerEnvs):
         pedestrian_params: Mapping[str, float] | None = None,
         synthetic: Mapping[str, Any] | None = None,
         variations: Mapping[str, Any] | None = None,
+        vehicle_model: str | None = None,
         variation_seeds: Sequence[int] | None = None,
     ):
         if num_envs < 1 or max_agents < 1:
@@ -233,6 +235,7 @@ class RemoteBatchedEnv(_ServerEnvs):
             pedestrian_params=pedestrian_params,
             synthetic=synthetic,
             variations=variations,
+            vehicle_model=vehicle_model,
             variation_seeds=variation_seeds,
         )
         if scenario_order not in ("random", "sequential"):
@@ -289,6 +292,7 @@ class RemoteBatchedEnv(_ServerEnvs):
             autoreset=scenario_order == "random" and variation_seeds is None,
             synthetic=synthetic,
             variations=variations,
+            vehicle_model=vehicle_model,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
@@ -513,10 +517,10 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             of them (SPEC 5.2).
         max_agents: M, nodes per observation.
         split, seed, pool, scenario, pedestrian_model, pedestrian_params, reward_weights,
-            synthetic, variations: the ``CreateEnv`` fields (``pool`` by name, e.g.
+            synthetic, variations, vehicle_model: the ``CreateEnv`` fields (``pool`` by name, e.g.
             ``"hbs-general"``, whose scenes have other cars; ``scenario`` pins every episode;
             ``synthetic`` generated scenes with ``vehicles`` cars; ``variations`` seeded scene
-            variations, SPEC 5.2.1).
+            variations, SPEC 5.2.1; ``vehicle_model`` ``replay`` or ``idm``, None: the pool's).
         endpoint, prefix, timeout, client: where the server is (as :class:`RemoteBatchedEnv`).
     """
 
@@ -543,6 +547,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         pedestrian_params: Mapping[str, float] | None = None,
         synthetic: Mapping[str, Any] | None = None,
         variations: Mapping[str, Any] | None = None,
+        vehicle_model: str | None = None,
     ):
         if num_envs < 1 or max_agents < 1 or not external_agents:
             raise ValueError("num_envs, max_agents and external_agents must not be empty")
@@ -564,6 +569,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             pedestrian_params=pedestrian_params,
             synthetic=synthetic,
             variations=variations,
+            vehicle_model=vehicle_model,
         )
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = k = int(num_envs)
@@ -583,6 +589,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             autoreset=True,
             synthetic=synthetic,
             variations=variations,
+            vehicle_model=vehicle_model,
         )
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)

@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Map, Value};
+use sim_core::params::VehicleModel;
 use sim_core::variation::VariationSpec;
 
 use super::core::Limits;
@@ -89,6 +90,10 @@ pub enum PoolEntry {
         path: PathBuf,
         #[serde(default)]
         variations: Option<VariationSpec>,
+        /// How the pool's vehicles nobody controls move (`replay` | `idm`); absent: as the pool
+        /// file says.
+        #[serde(default)]
+        vehicle_model: Option<VehicleModel>,
     },
 }
 
@@ -96,6 +101,13 @@ impl PoolEntry {
     pub fn path(&self) -> &PathBuf {
         match self {
             PoolEntry::Path(p) | PoolEntry::WithVariations { path: p, .. } => p,
+        }
+    }
+
+    pub fn vehicle_model(&self) -> Option<VehicleModel> {
+        match self {
+            PoolEntry::Path(_) => None,
+            PoolEntry::WithVariations { vehicle_model, .. } => *vehicle_model,
         }
     }
 

@@ -587,6 +587,7 @@ impl ServerCore {
             autoreset: req.autoreset,
             realtime_factor: req.realtime_factor,
             variations: req.variations.clone().or_else(|| pool.variations.clone()),
+            vehicle_model: req.vehicle_model.unwrap_or(pool.vehicle_model),
             keys: self.keys.clone(),
             fresh_worlds: EnvSpec::world_cache(&pool),
         });

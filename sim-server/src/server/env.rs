@@ -11,11 +11,14 @@ use protocol::{
 };
 use sim_core::geometry::Shape;
 use sim_core::metrics::EpisodeStatus;
+use sim_core::params::VehicleModel;
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::rng::{derive_seed, SplitMix64};
 use sim_core::scenario::{AgentKind, Split};
 use sim_core::variation::{Variation, VariationSpec};
-use sim_core::world::{AgentId, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World};
+use sim_core::world::{
+    AgentId, Control, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World,
+};
 
 use protocol::wire::{AgentDescRef, BatchArrays, BatchColumns, ObsRef, ResetResultRef};
 
@@ -103,6 +106,8 @@ pub struct EnvSpec {
     pub realtime_factor: f64,
     /// Scene variations drawn per episode (`CreateEnv.variations` or the pool entry's).
     pub variations: Option<VariationSpec>,
+    /// How the vehicles nobody controls move (`CreateEnv.vehicle_model` or the pool's).
+    pub vehicle_model: VehicleModel,
     pub keys: KeySpace,
     /// The fresh world of each scenario of the pool for this configuration, built on first
     /// use (`World::new` is deterministic, so a reset clones it instead of building it again).
@@ -604,7 +609,7 @@ impl Env {
             pedestrian_model: spec.model,
             model_overrides: Vec::new(),
             external: ext_ids.clone(),
-            vehicle_model: Default::default(),
+            vehicle_model: spec.vehicle_model,
             vehicle_overrides: Vec::new(),
         };
         let variation = spec.variations.as_ref().map(|v| {
@@ -1000,6 +1005,10 @@ impl Env {
                 .iter()
                 .map(|a| u8::from(self.ext_ids.contains(&a.id)))
                 .collect();
+            let reactive: Vec<u8> = agents
+                .iter()
+                .map(|a| u8::from(matches!(a.control, Control::Vehicle(_))))
+                .collect();
             let rewards = slots.map(|slots| StateRewards {
                 agents: U32Array::from_slice(&self.ext_ids),
                 reward: F32Array::from_slice(slots.reward),
@@ -1027,6 +1036,9 @@ impl Env {
                 goals: Some(F64Array::new(vec![n, 2], &goals).expect("shape")),
                 external: Some(U8Array::from_slice(&external)),
                 rewards,
+                reactive: reactive
+                    .contains(&1)
+                    .then(|| U8Array::from_slice(&reactive)),
             };
             push(EnvTopic::States, encode(&msg));
         }

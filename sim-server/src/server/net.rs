@@ -8,7 +8,7 @@ use std::sync::{Arc, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant};
 
 use protocol::{EnvTopic, ErrorCode, ErrorReply, KeySpace};
-use sim_core::params::WorldParams;
+use sim_core::params::{VehicleModel, WorldParams};
 use sim_core::scenario::ScenarioPool;
 use sim_core::variation::VariationSpec;
 use tokio::sync::watch;
@@ -320,14 +320,17 @@ pub struct Server {
     _actions: Option<Subscriber<()>>,
 }
 
+/// A pool entry's defaults: its scene variations and its vehicle model.
+type PoolDefaults = (Option<VariationSpec>, Option<VehicleModel>);
+
 fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool>, ServerError> {
-    let pools: Vec<(ScenarioPool, Option<VariationSpec>, String)> = if cfg.pools.is_empty() {
+    let pools: Vec<(ScenarioPool, PoolDefaults, String)> = if cfg.pools.is_empty() {
         scenarios::embedded::EMBEDDED_POOLS
             .iter()
             .filter_map(|name| scenarios::embedded::pool(name))
             .map(|p| {
                 let arg = format!("embedded:{}", p.name);
-                (p, None, arg)
+                (p, (None, None), arg)
             })
             .collect()
     } else {
@@ -341,7 +344,11 @@ fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool
                     v.validate()
                         .map_err(|e| ServerError::Pool(format!("pool {arg}: {e}")))?;
                 }
-                Ok((pool, entry.variations().cloned(), arg))
+                Ok((
+                    pool,
+                    (entry.variations().cloned(), entry.vehicle_model()),
+                    arg,
+                ))
             })
             .collect::<Result<Vec<_>, ServerError>>()?
     };
@@ -373,7 +380,11 @@ fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool
     }
     Ok(pools
         .into_iter()
-        .map(|(pool, variations, _)| ServedPool::new(pool).with_variations(variations))
+        .map(|(pool, (variations, vehicles), _)| {
+            ServedPool::new(pool)
+                .with_variations(variations)
+                .with_vehicle_model(vehicles)
+        })
         .collect())
 }
 

@@ -18,6 +18,7 @@ use std::sync::Arc;
 
 use protocol::{PoolSummary, ScenarioSummary};
 use scenarios::synthetic::SplitMix64;
+use sim_core::params::VehicleModel;
 use sim_core::scenario::{AgentKind, Scenario, ScenarioPool, Split};
 use sim_core::variation::VariationSpec;
 use sim_core::world::AgentId;
@@ -73,11 +74,15 @@ pub struct ServedPool {
     pub scenarios: Vec<ServedScenario>,
     /// Scene variations of the envs on this pool that send none of their own.
     pub variations: Option<VariationSpec>,
+    /// How the vehicles nobody controls move in the envs on this pool that do not say (the pool
+    /// file's `vehicle_model`, or the server configuration's pool entry's).
+    pub vehicle_model: VehicleModel,
     by_name: HashMap<String, usize>,
 }
 
 impl ServedPool {
     pub fn new(pool: ScenarioPool) -> Self {
+        let vehicle_model = pool.vehicle_model;
         let scenarios: Vec<ServedScenario> = pool
             .scenarios
             .into_iter()
@@ -92,6 +97,7 @@ impl ServedPool {
             name: pool.name,
             scenarios,
             variations: None,
+            vehicle_model,
             by_name,
         }
     }
@@ -99,6 +105,15 @@ impl ServedPool {
     /// This pool with default scene variations.
     pub fn with_variations(mut self, variations: Option<VariationSpec>) -> Self {
         self.variations = variations;
+        self
+    }
+
+    /// This pool with its vehicles moved by `model` unless an env says otherwise (`None`: as the
+    /// pool file says).
+    pub fn with_vehicle_model(mut self, model: Option<VehicleModel>) -> Self {
+        if let Some(m) = model {
+            self.vehicle_model = m;
+        }
         self
     }
 

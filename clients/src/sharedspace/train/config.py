@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sharedspace.models import DEFAULT_MODEL
+from sharedspace.models import DEFAULT_MODEL, VEHICLE_MODELS
 
 __all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
 
@@ -42,6 +42,7 @@ class TrainConfig:
     variations: dict[str, Any] = field(
         default_factory=dict
     )  # scene variations of the training envs (SPEC 5.2.1; JSON on --set); {} = none
+    vehicle_model: str = ""  # cars nobody controls: replay | idm (reactive); "" = the pool's
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
@@ -80,6 +81,10 @@ class TrainConfig:
             raise ValueError(f"env_backend must be remote, not {self.env_backend!r}")
         if not isinstance(self.variations, dict):
             raise ValueError(f"variations must be a mapping, not {self.variations!r}")
+        if self.vehicle_model not in ("", *VEHICLE_MODELS):
+            raise ValueError(
+                f"vehicle_model must be one of {VEHICLE_MODELS} or empty, not {self.vehicle_model!r}"
+            )
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
 

@@ -62,6 +62,7 @@ def make_env(
         pedestrian_model=cfg.pedestrian_model,
         variations=variations or None,
         variation_seeds=variation_seeds,
+        vehicle_model=cfg.vehicle_model or None,
     )
     if cfg.scenario_pool:
         kwargs["pool"] = cfg.scenario_pool
