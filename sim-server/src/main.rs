@@ -171,6 +171,12 @@ struct BenchStepArgs {
     /// Scene seed.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Vehicles: the AV and `V - 1` others on parallel lanes through the crowd.
+    #[arg(long, default_value_t = 1)]
+    vehicles: usize,
+    /// How the other vehicles move: `replay` or `idm`.
+    #[arg(long, default_value = "replay", value_parser = vehicle_model_names())]
+    vehicle_model: String,
 }
 
 #[derive(clap::Args, Debug)]
@@ -340,11 +346,14 @@ fn main() -> ExitCode {
         Command::Router(a) => run_router(a),
         Command::Synth(a) => run_synth(a),
         Command::BenchStep(a) => {
-            let (ns, edges, steps) =
-                sim_server::step_timing::time_steps(a.n, a.seed, a.seconds, 10);
+            let model = VehicleModel::from_name(&a.vehicle_model).expect("checked by clap");
+            let (ns, edges, steps) = sim_server::step_timing::time_traffic_steps(
+                a.n, a.seed, a.vehicles, model, a.seconds, 10,
+            );
             println!(
                 "{}",
-                serde_json::json!({"n": a.n, "ns_per_step": ns, "edges": edges, "steps": steps})
+                serde_json::json!({"n": a.n, "vehicles": a.vehicles, "vehicle_model": a.vehicle_model,
+                    "ns_per_step": ns, "edges": edges, "steps": steps})
             );
             Ok(())
         }

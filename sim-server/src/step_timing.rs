@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use scenarios::synthetic::{generate, Layout, SyntheticConfig};
-use sim_core::params::{PedestrianModel, WorldParams};
+use sim_core::params::{PedestrianModel, VehicleModel, WorldParams};
 use sim_core::world::{AgentId, EpisodeConfig, StepScratch, World};
 
 /// Steps taken before timing so that beliefs have a history (not all first sights).
@@ -30,9 +30,25 @@ pub fn bench_world(n: usize, seed: u64) -> World {
 
 /// [`bench_world`] stepping on `threads` threads.
 pub fn bench_world_threads(n: usize, seed: u64, threads: usize) -> World {
-    let cfg = SyntheticConfig::new(Layout::Random, n, seed);
+    bench_traffic_world(n, seed, threads, 1, VehicleModel::Replay)
+}
+
+/// [`bench_world_threads`] with `vehicles` cars (the AV and `vehicles - 1` others on parallel
+/// lanes through the crowd, [`SyntheticConfig::vehicles`]) moved by `model`.
+pub fn bench_traffic_world(
+    n: usize,
+    seed: u64,
+    threads: usize,
+    vehicles: usize,
+    model: VehicleModel,
+) -> World {
+    let cfg = SyntheticConfig {
+        vehicles,
+        ..SyntheticConfig::new(Layout::Random, n, seed)
+    };
     let scenario = Arc::new(generate(&cfg).expect("benchmark scene is valid"));
-    let config = EpisodeConfig::ego_external(&scenario, PedestrianModel::CrSfm);
+    let mut config = EpisodeConfig::ego_external(&scenario, PedestrianModel::CrSfm);
+    config.vehicle_model = model;
     let mut world = World::new(scenario, WorldParams::default(), config).expect("benchmark world");
     world.set_threads(threads);
     for _ in 0..WARM_UP_STEPS {
@@ -75,7 +91,26 @@ pub fn time_steps(
     min_seconds: f64,
     steps_per_clone: u32,
 ) -> (f64, usize, u64) {
-    let base = bench_world(n, seed);
+    time_traffic_steps(
+        n,
+        seed,
+        1,
+        VehicleModel::Replay,
+        min_seconds,
+        steps_per_clone,
+    )
+}
+
+/// [`time_steps`] on [`bench_traffic_world`].
+pub fn time_traffic_steps(
+    n: usize,
+    seed: u64,
+    vehicles: usize,
+    model: VehicleModel,
+    min_seconds: f64,
+    steps_per_clone: u32,
+) -> (f64, usize, u64) {
+    let base = bench_traffic_world(n, seed, bench_threads(), vehicles, model);
     let edges = base.edge_count();
     let mut total = 0.0;
     let mut steps = 0u64;
@@ -84,12 +119,10 @@ pub fn time_steps(
         let mut w = base.clone();
         if w.is_over() {
             // The AV's episode ended during warm-up: time the pedestrians' world without it.
-            w = World::new(
-                base.scenario().clone(),
-                *base.params(),
-                EpisodeConfig::replay_vehicles(PedestrianModel::CrSfm),
-            )
-            .expect("benchmark world");
+            let mut config = EpisodeConfig::replay_vehicles(PedestrianModel::CrSfm);
+            config.vehicle_model = model;
+            w = World::new(base.scenario().clone(), *base.params(), config)
+                .expect("benchmark world");
             w.set_threads(base.threads());
         }
         let t0 = Instant::now();

@@ -42,9 +42,9 @@ pub struct ServerConfig {
     /// (`zenoh/transport/link/tx/lease`, ms, default 10 000).
     pub reconnect_grace_s: f64,
     /// Scenario pools: files (scenarios/FORMAT.md) or `embedded:hbs-paper` /
-    /// `embedded:hbs-general`, each as its path or as `{path, variations}` (the scene
-    /// variations of every env on that pool that sends none of its own); empty = both
-    /// embedded pools. The first pool is the default.
+    /// `embedded:hbs-general`, each as its path or as `{path, variations, vehicle_model}` (the
+    /// scene variations and the vehicle model, `replay` | `idm`, of every env on that pool that
+    /// sends none of its own); empty = both embedded pools. The first pool is the default.
     pub pools: Vec<PoolEntry>,
     /// World-parameter file (JSON5, docs/PARAMETERS.md); absent = defaults.
     pub params: Option<PathBuf>,
@@ -81,8 +81,9 @@ impl Default for ServerConfig {
     }
 }
 
-/// One entry of `pools`: a path, or a path with the pool's default scene variations.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// One entry of `pools`: a path, or a path with the pool's default scene variations and vehicle
+/// model.
+#[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum PoolEntry {
     Path(PathBuf),
@@ -95,6 +96,47 @@ pub enum PoolEntry {
         #[serde(default)]
         vehicle_model: Option<VehicleModel>,
     },
+}
+
+/// The map form of a [`PoolEntry`], read field by field so that a bad field is named (an
+/// untagged enum would only say that no variant matched).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PoolEntryFields {
+    path: PathBuf,
+    #[serde(default)]
+    variations: Option<VariationSpec>,
+    #[serde(default)]
+    vehicle_model: Option<VehicleModel>,
+}
+
+impl<'de> Deserialize<'de> for PoolEntry {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Entry;
+        impl<'de> serde::de::Visitor<'de> for Entry {
+            type Value = PoolEntry;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a pool path, or {path, variations, vehicle_model}")
+            }
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<PoolEntry, E> {
+                Ok(PoolEntry::Path(PathBuf::from(s)))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                map: A,
+            ) -> Result<PoolEntry, A::Error> {
+                let f = PoolEntryFields::deserialize(
+                    serde::de::value::MapAccessDeserializer::new(map),
+                )?;
+                Ok(PoolEntry::WithVariations {
+                    path: f.path,
+                    variations: f.variations,
+                    vehicle_model: f.vehicle_model,
+                })
+            }
+        }
+        d.deserialize_any(Entry)
+    }
 }
 
 impl PoolEntry {
