@@ -9,7 +9,7 @@ PY := $(VENV)/bin/python
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router view browser test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v train eval lint-py venv clean
+.PHONY: help run build serve router view browser test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -131,6 +131,13 @@ table2v: $(SERVER) $(VENV)/.installed ## Table II on seeded variations: the ship
 	$(PY) -m sharedspace.train.powered --policies results/table2/policies \
 		--drivers pursuit_3 pursuit_5 hold stop $(POWERED_ARGS) \
 		--json results/variations/baseline.json --markdown results/variations/baseline.md
+
+table2g: $(SERVER) $(VENV)/.installed ## Table II-G, the crowded benchmark: hbs-general with reactive traffic, 3 variants x 3 seeds (docs/RESULTS.md)
+	TABLE2_POOL=general TABLE2_OUT=$${TABLE2_OUT:-out/table2g} TABLE2_PARAMS=params/table2g.json5 \
+		TABLE2_FRAMES=$${TABLE2_FRAMES:-60000} TABLE2_CKPT=10000 TABLE2_EVAL=0 TABLE2_DOC= \
+		TABLE2_JSON=results/table2g/table2g.json TABLE2_SHIP=results/table2g/policies \
+		TABLE2_SET='max_agents=10 variations={"position_sigma":0.5,"start_offset_steps":2,"desired_speed_scale":0.2,"mirror":true}' \
+		./scripts/table2.sh
 
 clean:
 	$(CARGO) clean
