@@ -24,7 +24,16 @@ SERVER = ROOT / "target" / "release" / "sim-server"
 
 def first_hit(pool: str, index: int, extra: list[str]) -> dict | None:
     """The scene's split and the ego's first collision, or None past the pool's end."""
-    cmd = [str(SERVER), "rollout", "--pool", pool, "--scenario", str(index), "--av=-1,0", *extra]
+    cmd = [
+        str(SERVER),
+        "rollout",
+        "--pool",
+        pool,
+        "--scenario",
+        str(index),
+        "--av=-1,0",
+        *extra,
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         if "no scenario" in proc.stderr:
@@ -34,7 +43,12 @@ def first_hit(pool: str, index: int, extra: list[str]) -> dict | None:
     header = lines[0]
     kinds = {a["id"]: a["kind"] for a in header["agents"]}
     ego = header["ego"]
-    out = {"scenario": header["scenario"], "split": header["split"], "hit_by": None, "t": None}
+    out = {
+        "scenario": header["scenario"],
+        "split": header["split"],
+        "hit_by": None,
+        "t": None,
+    }
     for line in lines[1:]:
         for e in line.get("events", []):
             if e.get("event") == "collision" and ego in (e["a"], e["b"]):
@@ -45,11 +59,15 @@ def first_hit(pool: str, index: int, extra: list[str]) -> dict | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--pool", default="embedded:hbs-general")
     ap.add_argument("--split", default="test")
     ap.add_argument("--params", default="params/table2.json5")
-    ap.add_argument("--vehicles", default=None, help="replay | idm (default: the pool's)")
+    ap.add_argument(
+        "--vehicles", default=None, help="replay | idm (default: the pool's)"
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", default=None, help="write the per-scene results here")
     args = ap.parse_args(argv)
@@ -60,7 +78,11 @@ def main(argv: list[str] | None = None) -> int:
     with ThreadPoolExecutor(args.jobs) as ex:
         start = 0
         while True:
-            batch = list(ex.map(lambda k: first_hit(args.pool, k, extra), range(start, start + 32)))
+            batch = list(
+                ex.map(
+                    lambda k: first_hit(args.pool, k, extra), range(start, start + 32)
+                )
+            )
             results += [r for r in batch if r is not None]
             if any(r is None for r in batch):
                 break
@@ -72,7 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{args.pool} {args.split} ({len(scenes)} scenes), vehicles {args.vehicles or 'pool default'}, "
         f"params {args.params}: hit by a car in {len(by_car)}, by a pedestrian in {len(by_ped)}"
-        + (f", median {statistics.median(times):.1f} s after the start" if times else "")
+        + (
+            f", median {statistics.median(times):.1f} s after the start"
+            if times
+            else ""
+        )
     )
     for r in by_car + by_ped:
         print(f"  {r['scenario']}: {r['hit_by']} {r['other']} at {r['t']:.1f} s")

@@ -272,25 +272,28 @@ def create_env(
         raise ValueError(f"split must be 'train' or 'test', got {split!r}")
     if mode not in ("lockstep", "realtime"):
         raise ValueError(f"mode must be 'lockstep' or 'realtime', got {mode!r}")
-    return {
-        "protocol_version": int(protocol_version),
-        "client_id": client_id,
-        "count": int(count),
-        "pool": pool,
-        "split": split,
-        "seed": int(seed),
-        "pedestrian_model": pedestrian_model,
-        "pedestrian_params": {k: float(v) for k, v in (pedestrian_params or {}).items()},
-        "external_agents": list(external_agents),
-        "reward_weights": {k: float(v) for k, v in (reward_weights or {}).items()},
-        "mode": mode,
-        "max_agents": int(max_agents),
-        "scenario": scenario,
-        "autoreset": bool(autoreset),
-        "realtime_factor": float(realtime_factor),
-    } | ({"synthetic": dict(synthetic)} if synthetic is not None else {}) | (
-        {"variations": dict(variations)} if variations is not None else {}
-    ) | ({"vehicle_model": vehicle_model} if vehicle_model is not None else {})
+    return (
+        {
+            "protocol_version": int(protocol_version),
+            "client_id": client_id,
+            "count": int(count),
+            "pool": pool,
+            "split": split,
+            "seed": int(seed),
+            "pedestrian_model": pedestrian_model,
+            "pedestrian_params": {k: float(v) for k, v in (pedestrian_params or {}).items()},
+            "external_agents": list(external_agents),
+            "reward_weights": {k: float(v) for k, v in (reward_weights or {}).items()},
+            "mode": mode,
+            "max_agents": int(max_agents),
+            "scenario": scenario,
+            "autoreset": bool(autoreset),
+            "realtime_factor": float(realtime_factor),
+        }
+        | ({"synthetic": dict(synthetic)} if synthetic is not None else {})
+        | ({"variations": dict(variations)} if variations is not None else {})
+        | ({"vehicle_model": vehicle_model} if vehicle_model is not None else {})
+    )
 
 
 def reset(

@@ -89,7 +89,6 @@ def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
     )
 
 
-
 def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
     """(pool name, [(scenario name, split)]) of a pool file / list of scenario dicts."""
     if isinstance(pool, str) and not pool.endswith(".json") and not Path(pool).is_file():

@@ -83,7 +83,8 @@ class TrainConfig:
             raise ValueError(f"variations must be a mapping, not {self.variations!r}")
         if self.vehicle_model not in ("", *VEHICLE_MODELS):
             raise ValueError(
-                f"vehicle_model must be one of {VEHICLE_MODELS} or empty, not {self.vehicle_model!r}"
+                f"vehicle_model must be one of {VEHICLE_MODELS} or empty (the pool's), "
+                f"not {self.vehicle_model!r}"
             )
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
