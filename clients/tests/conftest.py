@@ -36,6 +36,7 @@ def pytest_terminal_summary(terminalreporter):
 import os  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
+import time  # noqa: E402
 import uuid  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -141,3 +142,13 @@ TINY_TRAIN = [
     "gcn_hidden=8",
     "progress=false",
 ]
+
+
+def wait_until(pred, timeout: float, interval: float = 0.02) -> bool:
+    """Polls ``pred`` until it is true or ``timeout`` passes."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(interval)
+    return bool(pred())

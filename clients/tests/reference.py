@@ -75,6 +75,17 @@ DEFAULT_PARAMS: dict[str, Any] = {
         "speed_max": 6.0,
         "goal_radius": 2.0,
     },
+    # The reactive vehicle model's (docs/MODEL.md 11); this reference replays every vehicle, as
+    # the paper's set-up does, so it only carries them.
+    "traffic": {
+        "acc": 1.0,
+        "comfortable_decel": 1.5,
+        "time_headway": 1.0,
+        "min_gap": 2.0,
+        "exponent": 4.0,
+        "corridor_margin": 0.3,
+        "lookahead_max": 40.0,
+    },
     "cognition": {"s0": 1.0, "q": 0.3, "s_o": 0.5, "prediction": "constant_velocity"},
     "risk": {"gamma1": 0.5, "gamma2": 1.0, "lambda": 1.0},
     "pedestrians": {

@@ -24,7 +24,7 @@ import traceback
 
 import numpy as np
 
-from sharedspace.client import VectorClient
+from sharedspace.vector import VectorClient
 
 
 def _digest(obs) -> str:

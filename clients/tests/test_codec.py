@@ -292,7 +292,7 @@ MALFORMED_ARRAYS = [
 
 @pytest.mark.parametrize("name", ["reply_step", "reply_reset", "reply_batch_step"])
 def test_client_decode_result_equals_codec_decode_reply(name):
-    from sharedspace.client import decode_result
+    from sharedspace.decode import decode_result
 
     payload = (GOLDEN / f"{name}.msgpack").read_bytes()
     assert _same(decode_result(payload), codec.decode_reply(payload))
@@ -303,7 +303,7 @@ def test_client_decode_result_equals_codec_decode_reply(name):
     MALFORMED_ARRAYS,
 )
 def test_client_decode_result_names_a_malformed_array(field, value, says):
-    from sharedspace.client import decode_result
+    from sharedspace.decode import decode_result
 
     reply = msgpack.unpackb((GOLDEN / "reply_step.msgpack").read_bytes(), raw=False)
     reply["ok"][field] = value
@@ -317,7 +317,7 @@ def test_client_decode_result_names_a_malformed_array(field, value, says):
 )
 @pytest.mark.parametrize("name", ["reply_step", "reply_batch_step"])
 def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
-    from sharedspace.client import decode_batch_result, decode_step_result
+    from sharedspace.decode import decode_batch_result, decode_step_result
 
     decode = decode_step_result if name == "reply_step" else decode_batch_result
     reply = msgpack.unpackb((GOLDEN / f"{name}.msgpack").read_bytes(), raw=False)
@@ -336,7 +336,7 @@ def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
     ],
 )
 def test_client_decode_result_refuses_undecodable_bytes(mangle, says):
-    from sharedspace.client import decode_result
+    from sharedspace.decode import decode_result
 
     with pytest.raises(ProtocolError, match=says):
         decode_result(mangle((GOLDEN / "reply_step.msgpack").read_bytes()))
@@ -351,7 +351,7 @@ def test_batch_step_head_plus_actions_is_the_whole_request(k):
 
 
 def test_client_batch_decoder_equals_codec_decode_reply():
-    from sharedspace.client import decode_batch_result
+    from sharedspace.decode import decode_batch_result
 
     payload = (GOLDEN / "reply_batch_step.msgpack").read_bytes()
     typed = decode_batch_result(payload)
@@ -368,7 +368,7 @@ def test_client_batch_decoder_equals_codec_decode_reply():
 
 
 def test_client_step_decoder_equals_codec_decode_reply():
-    from sharedspace.client import decode_step_result
+    from sharedspace.decode import decode_step_result
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     assert _same(decode_step_result(payload), codec.decode_reply(payload))
@@ -386,7 +386,7 @@ def test_client_step_decoder_equals_codec_decode_reply():
 
 
 def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
-    from sharedspace.client import decode_batch_result
+    from sharedspace.decode import decode_batch_result
 
     with pytest.raises(NonFiniteAction):
         decode_batch_result((GOLDEN / "reply_error.msgpack").read_bytes())
@@ -422,20 +422,20 @@ def test_step_head_plus_action_bytes_is_the_whole_request(n_ext):
     ],
 )
 def test_client_array_views_equal_codec_decode_array(m):
-    from sharedspace.client import _array
+    from sharedspace.decode import _array
 
     assert _same(_array(m), codec.decode_array(m))
 
 
 def test_client_array_refuses_negative_dims_of_a_matching_size():
-    from sharedspace.client import _array
+    from sharedspace.decode import _array
 
     with pytest.raises(ProtocolError, match="non-negative"):
         _array({"dtype": "<f4", "shape": [-1, -1], "data": b"\0" * 4})
 
 
 def test_client_layout_decoder_equals_the_typed_step_decoder():
-    from sharedspace.client import _StepLayout, decode_step_result, step_decoder_for
+    from sharedspace.decode import _StepLayout, decode_step_result, step_decoder_for
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     first = decode_step_result(payload)
@@ -464,7 +464,7 @@ def test_client_layout_decoder_equals_the_typed_step_decoder():
     ids=["other_shape", "other_dtype", "other_obs_shape", "other_term_shape", "autoreset"],
 )
 def test_client_layout_decoder_hands_replies_off_its_layout_to_the_typed_decoder(mangle):
-    from sharedspace.client import decode_step_result, step_decoder_for
+    from sharedspace.decode import decode_step_result, step_decoder_for
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     layout = step_decoder_for(decode_step_result(payload))
@@ -484,7 +484,7 @@ def test_client_layout_decoder_hands_replies_off_its_layout_to_the_typed_decoder
     ],
 )
 def test_client_layout_decoder_names_a_malformed_array(field, value, says):
-    from sharedspace.client import decode_step_result, step_decoder_for
+    from sharedspace.decode import decode_step_result, step_decoder_for
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     layout = step_decoder_for(decode_step_result(payload))

@@ -12,10 +12,11 @@ from conftest import REPO_ROOT, free_port
 from reference import ReferenceWorld
 
 from sharedspace import codec
-from sharedspace.client import SimClient, VectorClient
+from sharedspace.client import SimClient
 from sharedspace.errors import EnvClosed, NoServer, VersionMismatch, WrongShape
 from sharedspace.observer import Observer
 from sharedspace.transport import Transport
+from sharedspace.vector import VectorClient
 
 POOL = json.loads((REPO_ROOT / "scenarios" / "data" / "hbs-paper.json").read_text())["scenarios"]
 

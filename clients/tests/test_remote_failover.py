@@ -7,10 +7,11 @@ import signal
 
 import numpy as np
 import pytest
-from conftest import unique_prefix
+from conftest import unique_prefix, wait_until
 
-from sharedspace.client import SimClient, VectorClient, wait_until
+from sharedspace.client import SimClient
 from sharedspace.transport import ServerLost
+from sharedspace.vector import VectorClient
 
 
 @pytest.fixture

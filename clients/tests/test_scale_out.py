@@ -22,9 +22,9 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import free_port, sim_server_binary, unique_prefix
+from conftest import free_port, sim_server_binary, unique_prefix, wait_until
 
-from sharedspace.client import SimClient, wait_until
+from sharedspace.client import SimClient
 
 TRAINER = Path(__file__).with_name("scale_out_trainer.py")
 STEPS = 40

@@ -46,11 +46,12 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from . import names
-from .client import SimClient, VectorClient
+from .client import SimClient
 from .errors import EnvClosed, WrongShape
 from .models import DEFAULT_MODEL
 from .render import render_observation
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+from .vector import VectorClient
 
 __all__ = ["SharedSpaceParallelEnv", "env", "parallel_env", "ENV_NAME", "INFO_KEYS"]
 

@@ -42,11 +42,12 @@ from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from . import names
-from .client import SimClient, VectorClient
+from .client import SimClient
 from .errors import SharedspaceError
 from .models import DEFAULT_MODEL
 from .pool import DEFAULT_POOL_PATH
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+from .vector import VectorClient
 
 __all__ = [
     "EPISODE_FLAG_KEYS",

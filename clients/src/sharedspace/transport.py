@@ -111,7 +111,7 @@ class QueryFailed(SharedspaceError):
 class ServerLost(SharedspaceError):
     """The server hosting this client's envs went away (its liveliness token disappeared, or a
     query to it got no reply). The envs, and any episode in flight, are lost with it; see
-    :meth:`sharedspace.client.VectorClient.recreate`."""
+    :meth:`sharedspace.vector.VectorClient.recreate`."""
 
     def __init__(self, server_id: str, reason: str, env_ids: Sequence[str] = ()):
         self.server_id = server_id
