@@ -16,7 +16,8 @@ from torchrl.envs.utils import check_env_specs
 import sharedspace  # noqa: F401 - registers the Gymnasium id
 from sharedspace.client import SimClient
 from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
-from sharedspace.torchrl_env import RemoteBatchedEnv, RemoteMultiAgentEnv
+from sharedspace.torchrl_env import RemoteBatchedEnv
+from sharedspace.torchrl_multiagent import RemoteMultiAgentEnv
 
 GENERAL = "hbs-general"
 #: The general pool's crowd: 52 pedestrians (and 6 cars) pass through this car's 84 steps.

@@ -1,0 +1,273 @@
+"""TorchRL env with several controlled vehicles per sub-env (ENV_CONTRACT.md "Several vehicles"):
+:class:`RemoteMultiAgentEnv`, TorchRL's grouped multi-agent layout over the same server envs as
+:class:`~sharedspace.torchrl_env.RemoteBatchedEnv`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
+
+from .client import SimClient
+from .models import DEFAULT_MODEL
+from .torchrl_env import (
+    NODE_FEATURES,
+    _ServerEnvs,
+)
+from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+from .vector import VectorClient
+
+__all__ = ["RemoteMultiAgentEnv"]
+
+
+class RemoteMultiAgentEnv(_ServerEnvs):
+    """K server envs with several controlled vehicles each, in TorchRL's multi-agent layout.
+
+    The A vehicles of ``external_agents`` form one agent group, ``"vehicle"`` (as TorchRL's
+    PettingZoo and VMAS wrappers group agents): under it ``features [K, A, M, F]``,
+    ``adjacency [K, A, M, M]``, ``mask [K, A, M]`` (bool: which nodes are real), ``action
+    [K, A, 2]``, ``reward [K, A, 1]`` and the per-agent ``done`` / ``terminated`` /
+    ``truncated [K, A, 1]``. An agent's flags stay set once its own episode has ended (the
+    server then ignores its actions and gives it reward 0, SPEC 8.3); the root ``done`` /
+    ``terminated`` / ``truncated [K, 1]`` are set when every agent's episode has ended (the
+    sub-env's episode is over; ``truncated`` when some agent ran into the horizon). Sub-envs are
+    created with the server's autoreset, so the partial ``_reset`` after an episode needs no
+    round trip. With one agent it is the single-vehicle env in group form.
+
+    Args:
+        num_envs: K.
+        external_agents: the controlled vehicles (``vehicle_0`` is the scenario's ego, then
+            the scenario's other vehicles); episodes come only from scenarios that have all
+            of them (SPEC 5.2).
+        max_agents: M, nodes per observation.
+        split, seed, pool, scenario, pedestrian_model, pedestrian_params, reward_weights,
+            synthetic, variations, vehicle_model: the ``CreateEnv`` fields (``pool`` by name, e.g.
+            ``"hbs-general"``, whose scenes have other cars; ``scenario`` pins every episode;
+            ``synthetic`` generated scenes with ``vehicles`` cars; ``variations`` seeded scene
+            variations, SPEC 5.2.1; ``vehicle_model`` ``replay`` or ``idm``, None: the pool's).
+        endpoint, prefix, timeout, client: where the server is (as :class:`RemoteBatchedEnv`).
+    """
+
+    batch_locked = True
+    group = "vehicle"
+
+    def __init__(
+        self,
+        num_envs: int = 4,
+        external_agents: Sequence[str] = ("vehicle_0", "vehicle_1"),
+        max_agents: int = 8,
+        split: str = "train",
+        seed: int = 0,
+        pool: str | None = None,
+        scenario: str | None = None,
+        pedestrian_model: str = DEFAULT_MODEL,
+        device: str | torch.device = "cpu",
+        *,
+        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
+        prefix: str = DEFAULT_PREFIX,
+        timeout: float = DEFAULT_TIMEOUT,
+        client: SimClient | None = None,
+        reward_weights: Mapping[str, float] | None = None,
+        pedestrian_params: Mapping[str, float] | None = None,
+        synthetic: Mapping[str, Any] | None = None,
+        variations: Mapping[str, Any] | None = None,
+        vehicle_model: str | None = None,
+    ):
+        if num_envs < 1 or max_agents < 1 or not external_agents:
+            raise ValueError("num_envs, max_agents and external_agents must not be empty")
+        self._remember(
+            client,
+            num_envs=num_envs,
+            external_agents=tuple(external_agents),
+            max_agents=max_agents,
+            split=split,
+            seed=seed,
+            pool=pool,
+            scenario=scenario,
+            pedestrian_model=pedestrian_model,
+            device=str(device),
+            endpoint=endpoint,
+            prefix=prefix,
+            timeout=timeout,
+            reward_weights=reward_weights,
+            pedestrian_params=pedestrian_params,
+            synthetic=synthetic,
+            variations=variations,
+            vehicle_model=vehicle_model,
+        )
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.num_envs = k = int(num_envs)
+        self.n_agents = a = len(external_agents)
+        self.max_agents = m = int(max_agents)
+        self.agent_names = list(external_agents)
+        create = dict(
+            seed=int(seed),
+            split=split,
+            pool=pool,
+            scenario=scenario,
+            pedestrian_model=pedestrian_model,
+            pedestrian_params=pedestrian_params,
+            external_agents=list(external_agents),
+            reward_weights=reward_weights,
+            max_agents=m,
+            autoreset=True,
+            synthetic=synthetic,
+            variations=variations,
+            vehicle_model=vehicle_model,
+        )
+        if client is None:
+            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
+        self.vec = VectorClient(k, client=client, **create)
+        #: Scenario name of each sub-env's current episode.
+        self.scenarios: list[str | None] = [None] * k
+        self._obs = {
+            "features": np.zeros((k, a, m, NODE_FEATURES), dtype=np.float32),
+            "adjacency": np.zeros((k, a, m, m), dtype=np.float32),
+            "mask": np.zeros((k, a, m), dtype=bool),
+        }
+        self._agent_done = np.zeros((k, a), dtype=bool)
+        self._agent_term = np.zeros((k, a), dtype=bool)
+        self._agent_trunc = np.zeros((k, a), dtype=bool)
+        self._pending: list[dict[str, Any] | None] = [None] * k
+        self._needs_reset = np.ones(k, dtype=bool)
+        self._reseed: int | None = None
+        self._set_specs()
+
+    def _set_specs(self) -> None:
+        k, a, m, dev = self.num_envs, self.n_agents, self.max_agents, self.device
+
+        def flags(shape):
+            return {
+                key: Categorical(2, shape=shape, dtype=torch.bool, device=dev)
+                for key in ("done", "terminated", "truncated")
+            }
+
+        self.observation_spec = Composite(
+            {
+                self.group: Composite(
+                    features=Unbounded((k, a, m, NODE_FEATURES), dtype=torch.float32, device=dev),
+                    adjacency=Unbounded((k, a, m, m), dtype=torch.float32, device=dev),
+                    mask=Binary(n=m, shape=(k, a, m), dtype=torch.bool, device=dev),
+                    shape=(k, a),
+                    device=dev,
+                )
+            },
+            shape=(k,),
+            device=dev,
+        )
+        self.action_spec = Composite(
+            {
+                self.group: Composite(
+                    action=Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev),
+                    shape=(k, a),
+                    device=dev,
+                )
+            },
+            shape=(k,),
+            device=dev,
+        )
+        self.reward_spec = Composite(
+            {
+                self.group: Composite(
+                    reward=Unbounded((k, a, 1), dtype=torch.float32, device=dev),
+                    shape=(k, a),
+                    device=dev,
+                )
+            },
+            shape=(k,),
+            device=dev,
+        )
+        self.done_spec = Composite(
+            {**flags((k, 1)), self.group: Composite(flags((k, a, 1)), shape=(k, a), device=dev)},
+            shape=(k,),
+            device=dev,
+        )
+
+    def _take_reset(self, k: int, result: Mapping[str, Any]) -> None:
+        for key in ("features", "adjacency", "mask"):
+            self._obs[key][k] = result["obs"][key]
+        self.scenarios[k] = result["scenario"]
+        self._agent_done[k] = self._agent_term[k] = self._agent_trunc[k] = False
+        self._needs_reset[k] = False
+
+    def _td(self, reward: np.ndarray | None = None) -> TensorDictBase:
+        k, a = self.num_envs, self.n_agents
+        over = self._agent_done.all(1, keepdims=True)
+        trunc = over & self._agent_trunc.any(1, keepdims=True)
+        group = {
+            "features": torch.from_numpy(self._obs["features"].copy()),
+            "adjacency": torch.from_numpy(self._obs["adjacency"].copy()),
+            "mask": torch.from_numpy(self._obs["mask"].copy()),
+            "done": torch.from_numpy(self._agent_done.reshape(k, a, 1).copy()),
+            "terminated": torch.from_numpy(self._agent_term.reshape(k, a, 1).copy()),
+            "truncated": torch.from_numpy(self._agent_trunc.reshape(k, a, 1).copy()),
+        }
+        if reward is not None:
+            group["reward"] = torch.from_numpy(reward.reshape(k, a, 1).astype(np.float32))
+        return TensorDict(
+            {
+                self.group: TensorDict(group, batch_size=(k, a)),
+                "done": torch.from_numpy(over),
+                "terminated": torch.from_numpy(over & ~trunc),
+                "truncated": torch.from_numpy(trunc),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+        todo = [k for k in range(self.num_envs) if mask is None or mask[k] or self._needs_reset[k]]
+        queries = []
+        for k in todo:
+            pending, self._pending[k] = self._pending[k], None
+            if pending is not None and mask is not None:
+                self._take_reset(k, pending)
+            else:
+                queries.append(k)
+        if queries:
+            ids = self.vec.env_ids
+            for k, r in zip(
+                queries, self.vec.client.reset_many([ids[k] for k in queries]), strict=True
+            ):
+                self._take_reset(k, r)
+        return self._td()
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if self._needs_reset.any():
+            k = int(np.flatnonzero(self._needs_reset)[0])
+            raise RuntimeError(f"sub-env {k} is done: reset it (with `_reset`) before stepping")
+        action = tensordict.get((self.group, "action")).detach().cpu().numpy()
+        action = np.clip(action.astype(np.float32, copy=False), -1.0, 1.0)
+        res = self.vec.step(action.reshape(self.num_envs, self.n_agents, 2))
+        for key in ("features", "adjacency", "mask"):
+            self._obs[key][:] = res["obs"][key]
+        term = res["terminated"].astype(bool)
+        trunc = res["truncated"].astype(bool)
+        self._agent_term |= term
+        self._agent_trunc |= trunc
+        self._agent_done |= term | trunc
+        td = self._td(np.asarray(res["reward"], dtype=np.float32))
+        resets = res["resets"]
+        for j, k in enumerate(resets["index"]):
+            k = int(k)
+            self._pending[k] = {
+                "obs": {key: resets["obs"][key][j] for key in ("features", "adjacency", "mask")},
+                "scenario": resets["scenario"][j],
+            }
+        over = self._agent_done.all(1)
+        self._needs_reset |= over
+        return td
+
+    def _set_seed(self, seed: int | None) -> None:
+        # Sub-env k is re-seeded with seed + k at its next reset (SPEC 5.3).
+        self._reseed = 0 if seed is None else int(seed)
+        self._needs_reset[:] = True
+        self._pending = [None] * self.num_envs
