@@ -28,6 +28,7 @@
 #                    test scenes, its other cars reactive (the pool's `idm`; `make table2g`)
 #   TABLE2_SET       more TrainConfig overrides for new runs, space-separated KEY=VALUE (no spaces
 #                    inside a value), e.g. "max_agents=10 variations={\"position_sigma\":0.5}"
+#   TABLE2_SEARCH_ROUNDS  rounds of the planner-bound search per test scenario (default 8; 0 = none)
 #   TABLE2_JSON      where the table's JSON goes (default docs/table2.json)
 #   TABLE2_SHIP      folder for the trained policies (actor + config; default results/table2/policies;
 #                    "" = none): `make run` evaluates results/table2/policies/g_sac_cog-s0.pt
@@ -50,6 +51,7 @@ mkdir -p "$out"
 
 pools=()
 train_pool=()
+eval_pool=()  # the pool whose test split the table is on, when not the server's default
 case "${TABLE2_POOL:-}" in
     "") ;;
     paper+general)
@@ -76,6 +78,7 @@ case "${TABLE2_POOL:-}" in
         fi
         pools=(--cfg "pools:[\"$pool_file\"]")
         train_pool=("scenario_pool=$pool_file")
+        eval_pool=("scenario_pool=$pool_file")
         ;;
     *) echo "TABLE2_POOL must be empty, paper+general or general, not ${TABLE2_POOL}" >&2; exit 2 ;;
 esac
@@ -129,4 +132,5 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
 fi
 
 "$py" -m sharedspace.train.table2 --runs "$out" --frames "$frames" --params "$params" \
-    --json "$json" ${doc:+--doc "$doc"} ${ship:+--ship "$ship"} --set "${remote[@]}"
+    --search-rounds "${TABLE2_SEARCH_ROUNDS:-8}" \
+    --json "$json" ${doc:+--doc "$doc"} ${ship:+--ship "$ship"} --set "${remote[@]}" "${eval_pool[@]}"
