@@ -186,9 +186,7 @@ impl PedestrianModel {
 
     /// Every model's name, `", "`-separated and the last after `or` (for messages).
     pub fn names() -> String {
-        let names: Vec<&str> = Self::ALL.iter().map(|m| m.name()).collect();
-        let (last, rest) = names.split_last().expect("at least one model");
-        format!("{} or {last}", rest.join(", "))
+        or_list(&Self::ALL.map(|m| m.name()))
     }
 }
 
@@ -221,6 +219,12 @@ pub fn models_json() -> String {
         "vehicle_default": VehicleModel::default().name(),
     });
     serde_json::to_string_pretty(&doc).expect("plain JSON") + "\n"
+}
+
+/// `a, b or c` (for messages listing the accepted names).
+fn or_list(names: &[&str]) -> String {
+    let (last, rest) = names.split_last().expect("at least one name");
+    format!("{} or {last}", rest.join(", "))
 }
 
 /// Which model moves a vehicle nobody controls (docs/MODEL.md, "Traffic").
@@ -289,9 +293,7 @@ impl VehicleModel {
 
     /// Every model's name, `", "`-separated and the last after `or` (for messages).
     pub fn names() -> String {
-        let names: Vec<&str> = Self::ALL.iter().map(|m| m.name()).collect();
-        let (last, rest) = names.split_last().expect("at least one model");
-        format!("{} or {last}", rest.join(", "))
+        or_list(&Self::ALL.map(|m| m.name()))
     }
 }
 

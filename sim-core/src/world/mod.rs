@@ -30,12 +30,13 @@ use crate::geometry::{Shape, Vec2};
 use crate::grid::Grid;
 use crate::helpers::Helpers;
 use crate::metrics::EpisodeMetrics;
-use crate::params::{ParamError, PedestrianModel, VehicleModel, WorldParams};
+use crate::params::{ParamError, WorldParams};
 use crate::risk;
 use crate::scenario::{AgentKind, Scenario};
 use crate::traffic::RecordedPath;
 
 mod agents;
+mod config;
 mod lifecycle;
 mod motion;
 mod observe;
@@ -44,6 +45,7 @@ mod store;
 mod traffic;
 
 use agents::{Agents, ExternalTrack};
+pub use config::{Control, EpisodeConfig};
 pub use observe::{Kernels, KernelsUnavailable, PARALLEL_MIN_AGENTS};
 use observe::{ObserveWorker, TargetInfo};
 pub(crate) use store::Edge;
@@ -51,59 +53,6 @@ use store::EdgeStore;
 
 /// An agent's identity: its index in the scenario's agent list. Stable for the whole episode.
 pub type AgentId = u32;
-
-/// What moves an agent.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Control {
-    /// Driven by actions sent to [`World::step`].
-    External,
-    /// Follows its recorded track.
-    Replay,
-    /// A simulated pedestrian.
-    Model(PedestrianModel),
-    /// A vehicle nobody controls, moved by a reactive vehicle model (never
-    /// [`VehicleModel::Replay`], which is [`Control::Replay`]).
-    Vehicle(VehicleModel),
-}
-
-/// Which agents are external and which model moves the others.
-#[derive(Debug, Clone, PartialEq)]
-pub struct EpisodeConfig {
-    /// Model of every pedestrian that is neither external, non-reactive nor overridden.
-    pub pedestrian_model: PedestrianModel,
-    /// Per-agent model overrides.
-    pub model_overrides: Vec<(AgentId, PedestrianModel)>,
-    /// Agents driven by actions.
-    pub external: Vec<AgentId>,
-    /// Model of every vehicle that is neither external, non-reactive nor overridden.
-    pub vehicle_model: VehicleModel,
-    /// Per-agent vehicle model overrides.
-    pub vehicle_overrides: Vec<(AgentId, VehicleModel)>,
-}
-
-impl EpisodeConfig {
-    /// The paper's set-up: the scenario's ego vehicle is external, pedestrians use `model`.
-    pub fn ego_external(scenario: &Scenario, model: PedestrianModel) -> Self {
-        Self {
-            pedestrian_model: model,
-            model_overrides: Vec::new(),
-            external: vec![scenario.ego as AgentId],
-            vehicle_model: VehicleModel::Replay,
-            vehicle_overrides: Vec::new(),
-        }
-    }
-
-    /// Pedestrian-model evaluation (model.md 9): nobody is external, the vehicles replay.
-    pub fn replay_vehicles(model: PedestrianModel) -> Self {
-        Self {
-            pedestrian_model: model,
-            model_overrides: Vec::new(),
-            external: Vec::new(),
-            vehicle_model: VehicleModel::Replay,
-            vehicle_overrides: Vec::new(),
-        }
-    }
-}
 
 /// Why a world could not be created.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -372,35 +321,7 @@ impl World {
                 });
             }
         }
-        let mut control_of = Vec::with_capacity(n_total);
-        for (k, a) in scenario.agents.iter().enumerate() {
-            let overridden = config
-                .model_overrides
-                .iter()
-                .rev()
-                .find(|(id, _)| *id as usize == k);
-            let vehicle_model = config
-                .vehicle_overrides
-                .iter()
-                .rev()
-                .find(|(id, _)| *id as usize == k)
-                .map_or(config.vehicle_model, |&(_, m)| m);
-            let c = match (a.kind, a.non_reactive, overridden) {
-                // A vehicle's model is the episode's: `non_reactive` is a pedestrian's mark (the
-                // HBS extraction marks every other car with it, as replayed by default).
-                (AgentKind::Vehicle, _, _) => match vehicle_model {
-                    VehicleModel::Replay => Control::Replay,
-                    m => Control::Vehicle(m),
-                },
-                (AgentKind::Pedestrian, true, _) => Control::Replay,
-                (AgentKind::Pedestrian, false, Some((_, m))) => Control::Model(*m),
-                (AgentKind::Pedestrian, false, None) => Control::Model(config.pedestrian_model),
-            };
-            control_of.push(match c {
-                Control::Model(PedestrianModel::Replay) => Control::Replay,
-                c => c,
-            });
-        }
+        let mut control_of = config.controls(&scenario);
         let mut externals: Vec<ExternalTrack> = Vec::new();
         for &id in &config.external {
             if id as usize >= n_total {
