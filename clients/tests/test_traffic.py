@@ -122,8 +122,15 @@ def test_a_server_pool_entry_sets_the_vehicle_model(server_factory):
         assert np.asarray(_first_states(c, vehicle_model="idm")["reactive"]).any()
 
 
-def test_a_bad_pool_entry_vehicle_model_stops_the_server_naming_it():
-    spec = json.dumps([{"path": f"embedded:{GENERAL}", "vehicle_model": "teleport"}])
+@pytest.mark.parametrize(
+    "entry, named",
+    [
+        ({"vehicle_model": "teleport"}, "teleport"),
+        ({"vehicles": "idm"}, "unknown field `vehicles`"),
+    ],
+)
+def test_a_bad_pool_entry_stops_the_server_naming_it(entry, named):
+    spec = json.dumps([{"path": f"embedded:{GENERAL}", **entry}])
     out = subprocess.run(
         [str(sim_server_binary()), "serve", "--cfg", f"pools:{spec}"],
         capture_output=True,
@@ -131,4 +138,4 @@ def test_a_bad_pool_entry_vehicle_model_stops_the_server_naming_it():
         timeout=30,
     )
     assert out.returncode != 0
-    assert "teleport" in out.stderr or "vehicle_model" in out.stderr, out.stderr
+    assert named in out.stderr, out.stderr

@@ -192,6 +192,25 @@ mod tests {
     }
 
     #[test]
+    fn bad_traffic_parameters_are_refused_by_name() {
+        for (field, bad) in [
+            ("traffic.acc", 0.0),
+            ("traffic.min_gap", -1.0),
+            ("traffic.lookahead_max", f64::NAN),
+        ] {
+            let mut params = crate::params::WorldParams::default();
+            let t = &mut params.traffic;
+            *match field {
+                "traffic.acc" => &mut t.acc,
+                "traffic.min_gap" => &mut t.min_gap,
+                _ => &mut t.lookahead_max,
+            } = bad;
+            let err = params.validate().unwrap_err();
+            assert_eq!(err.name, field, "{err}");
+        }
+    }
+
+    #[test]
     fn idm_free_road_accelerates_to_the_desired_speed_and_no_further() {
         assert_eq!(
             idm_acceleration(0.0, 5.0, f64::INFINITY, 0.0, &p(), 2.0),

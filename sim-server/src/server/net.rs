@@ -8,9 +8,6 @@ use std::sync::{Arc, RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant};
 
 use protocol::{EnvTopic, ErrorCode, ErrorReply, KeySpace};
-use sim_core::params::{VehicleModel, WorldParams};
-use sim_core::scenario::ScenarioPool;
-use sim_core::variation::VariationSpec;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use zenoh::bytes::Encoding;
@@ -23,7 +20,7 @@ use zenoh::{Session, Wait};
 use super::config::{ConfigError, ServerConfig};
 use super::core::{reply_bytes, Response, ServerCore};
 use super::env::{Gates, Publication, Watch};
-use super::pools::ServedPool;
+use super::pools::load_pools;
 
 /// Why the server could not start.
 #[derive(Debug, thiserror::Error)]
@@ -320,81 +317,13 @@ pub struct Server {
     _actions: Option<Subscriber<()>>,
 }
 
-/// A pool entry's defaults: its scene variations and its vehicle model.
-type PoolDefaults = (Option<VariationSpec>, Option<VehicleModel>);
-
-fn load_pools(cfg: &ServerConfig, params: &WorldParams) -> Result<Vec<ServedPool>, ServerError> {
-    let pools: Vec<(ScenarioPool, PoolDefaults, String)> = if cfg.pools.is_empty() {
-        scenarios::embedded::EMBEDDED_POOLS
-            .iter()
-            .filter_map(|name| scenarios::embedded::pool(name))
-            .map(|p| {
-                let arg = format!("embedded:{}", p.name);
-                (p, (None, None), arg)
-            })
-            .collect()
-    } else {
-        cfg.pools
-            .iter()
-            .map(|entry| {
-                let arg = entry.path().display().to_string();
-                let pool =
-                    scenarios::embedded::pool_from_arg(entry.path()).map_err(ServerError::Pool)?;
-                if let Some(v) = entry.variations() {
-                    v.validate()
-                        .map_err(|e| ServerError::Pool(format!("pool {arg}: {e}")))?;
-                }
-                Ok((
-                    pool,
-                    (entry.variations().cloned(), entry.vehicle_model()),
-                    arg,
-                ))
-            })
-            .collect::<Result<Vec<_>, ServerError>>()?
-    };
-    for (i, (pool, _, arg)) in pools.iter().enumerate() {
-        if let Some((_, _, first)) = pools[..i].iter().find(|(p, _, _)| p.name == pool.name) {
-            return Err(ServerError::Pool(format!(
-                "pools {first} and {arg} are both named {:?}: a pool is chosen by name, so the second could never be reached",
-                pool.name
-            )));
-        }
-    }
-    for (pool, _, _) in &pools {
-        if pool.scenarios.is_empty() {
-            return Err(ServerError::Pool(format!(
-                "pool {:?} has no scenarios ({})",
-                pool.name, pool.provenance
-            )));
-        }
-        if let Some(s) = pool
-            .scenarios
-            .iter()
-            .find(|s| (s.dt - params.dt).abs() > 1e-9)
-        {
-            return Err(ServerError::Pool(format!(
-                "pool {:?}: scenario {:?} is sampled every {} s but the world steps {} s",
-                pool.name, s.name, s.dt, params.dt
-            )));
-        }
-    }
-    Ok(pools
-        .into_iter()
-        .map(|(pool, (variations, vehicles), _)| {
-            ServedPool::new(pool)
-                .with_variations(variations)
-                .with_vehicle_model(vehicles)
-        })
-        .collect())
-}
-
 impl Server {
     /// Opens the zenoh session and declares everything. Returns once the server serves.
     pub async fn start(cfg: ServerConfig) -> Result<Self, ServerError> {
         let params = crate::params_file::ParamsDoc::from_arg(cfg.params.as_deref())
             .and_then(|doc| crate::params_file::ModelParams::from_doc(&doc))
             .map_err(|e| ServerError::Params(e.to_string()))?;
-        let pools = load_pools(&cfg, params.base())?;
+        let pools = load_pools(&cfg.pools, params.base()).map_err(ServerError::Pool)?;
         let keys =
             KeySpace::new(cfg.prefix.clone()).map_err(|e| ConfigError::Invalid(e.to_string()))?;
         let server_id = cfg.server_id_or_random();

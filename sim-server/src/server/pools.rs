@@ -18,10 +18,12 @@ use std::sync::Arc;
 
 use protocol::{PoolSummary, ScenarioSummary};
 use scenarios::synthetic::SplitMix64;
-use sim_core::params::VehicleModel;
+use sim_core::params::{VehicleModel, WorldParams};
 use sim_core::scenario::{AgentKind, Scenario, ScenarioPool, Split};
 use sim_core::variation::VariationSpec;
 use sim_core::world::AgentId;
+
+use super::config::PoolEntry;
 
 /// One scenario with the server's naming of its agents.
 #[derive(Debug)]
@@ -207,6 +209,75 @@ impl ScenarioSequence {
         self.next += 1;
         s
     }
+}
+
+/// A pool entry's defaults: its scene variations and its vehicle model.
+type PoolDefaults = (Option<VariationSpec>, Option<VehicleModel>);
+
+/// The pools a server configuration names (`pools`; empty: both embedded pools), each checked
+/// (scenes, their step, unique names, valid variations), with their entry's defaults. The error
+/// says which pool and what is wrong.
+pub fn load_pools(entries: &[PoolEntry], params: &WorldParams) -> Result<Vec<ServedPool>, String> {
+    let pools: Vec<(ScenarioPool, PoolDefaults, String)> = if entries.is_empty() {
+        scenarios::embedded::EMBEDDED_POOLS
+            .iter()
+            .filter_map(|name| scenarios::embedded::pool(name))
+            .map(|p| {
+                let arg = format!("embedded:{}", p.name);
+                (p, (None, None), arg)
+            })
+            .collect()
+    } else {
+        entries
+            .iter()
+            .map(|entry| {
+                let arg = entry.path().display().to_string();
+                let pool = scenarios::embedded::pool_from_arg(entry.path())?;
+                if let Some(v) = entry.variations() {
+                    v.validate().map_err(|e| format!("pool {arg}: {e}"))?;
+                }
+                Ok((
+                    pool,
+                    (entry.variations().cloned(), entry.vehicle_model()),
+                    arg,
+                ))
+            })
+            .collect::<Result<Vec<_>, String>>()?
+    };
+    for (i, (pool, _, arg)) in pools.iter().enumerate() {
+        if let Some((_, _, first)) = pools[..i].iter().find(|(p, _, _)| p.name == pool.name) {
+            return Err(format!(
+                "pools {first} and {arg} are both named {:?}: a pool is chosen by name, so the second could never be reached",
+                pool.name
+            ));
+        }
+    }
+    for (pool, _, _) in &pools {
+        if pool.scenarios.is_empty() {
+            return Err(format!(
+                "pool {:?} has no scenarios ({})",
+                pool.name, pool.provenance
+            ));
+        }
+        if let Some(s) = pool
+            .scenarios
+            .iter()
+            .find(|s| (s.dt - params.dt).abs() > 1e-9)
+        {
+            return Err(format!(
+                "pool {:?}: scenario {:?} is sampled every {} s but the world steps {} s",
+                pool.name, s.name, s.dt, params.dt
+            ));
+        }
+    }
+    Ok(pools
+        .into_iter()
+        .map(|(pool, (variations, vehicles), _)| {
+            ServedPool::new(pool)
+                .with_variations(variations)
+                .with_vehicle_model(vehicles)
+        })
+        .collect())
 }
 
 #[cfg(test)]
