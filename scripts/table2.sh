@@ -49,6 +49,15 @@ ship=${TABLE2_SHIP-results/table2/policies}
 json=${TABLE2_JSON:-docs/table2.json}
 mkdir -p "$out"
 
+# The general pool (hbs-general, scenarios/EXTRACTION.md) extracted to the file $1.
+extract_general() {
+    local csv
+    csv=$(mktemp)
+    gunzip -c scenarios/data/hbs.csv.gz > "$csv"
+    cargo run --quiet --release -p scenarios --bin extract-hbs -- --csv "$csv" --pool general --out "$1"
+    rm -f "$csv"
+}
+
 pools=()
 train_pool=()
 eval_pool=()  # the pool whose test split the table is on, when not the server's default
@@ -57,11 +66,7 @@ case "${TABLE2_POOL:-}" in
     paper+general)
         pool_file="$out/pool-paper-plus-general.json"
         if [ ! -f "$pool_file" ]; then
-            csv=$(mktemp)
-            gunzip -c scenarios/data/hbs.csv.gz > "$csv"
-            cargo run --quiet --release -p scenarios --bin extract-hbs -- \
-                --csv "$csv" --pool general --out "$out/pool-general.json"
-            rm -f "$csv"
+            extract_general "$out/pool-general.json"
             "$py" -m sharedspace.train.pools --general "$out/pool-general.json" --out "$pool_file"
         fi
         pools=(--cfg "pools:[\"embedded:hbs-paper\",\"$pool_file\"]")
@@ -69,13 +74,7 @@ case "${TABLE2_POOL:-}" in
         ;;
     general)
         pool_file="$out/pool-general.json"
-        if [ ! -f "$pool_file" ]; then
-            csv=$(mktemp)
-            gunzip -c scenarios/data/hbs.csv.gz > "$csv"
-            cargo run --quiet --release -p scenarios --bin extract-hbs -- \
-                --csv "$csv" --pool general --out "$pool_file"
-            rm -f "$csv"
-        fi
+        [ -f "$pool_file" ] || extract_general "$pool_file"
         pools=(--cfg "pools:[\"$pool_file\"]")
         train_pool=("scenario_pool=$pool_file")
         eval_pool=("scenario_pool=$pool_file")
