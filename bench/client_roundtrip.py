@@ -38,7 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "clients" / "src"))
 
 from sharedspace import codec  # noqa: E402
-from sharedspace.client import SimClient, VectorClient  # noqa: E402
+from sharedspace.client import SimClient  # noqa: E402
+from sharedspace.vector import VectorClient  # noqa: E402
 from sharedspace.local_server import free_port, wait_port  # noqa: E402, F401 - soak, viewer_cost
 
 

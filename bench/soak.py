@@ -12,8 +12,14 @@ random actions, for ``--minutes``. Churn, as real trainers make it:
 Every second each trainer writes its env-steps and batch round-trip latencies; the server's RSS
 (``/proc/{pid}/status``) and load (``ServerInfo.load``) are sampled every ``--sample-s`` seconds.
 The report: env-steps/s, p50/p99 step latency and RSS per period, the RSS growth after warm-up
-(the first ``--warmup-min`` minutes), the errors seen by trainers (SIGKILLed trainers excepted),
-and whether the load came back to the live trainers' envs after each kill. It prints a markdown
+(the first ``--warmup-min`` minutes), the RSS slope over the last ``--slope-min`` minutes
+(least squares, MiB/h), the errors seen by trainers (SIGKILLed trainers excepted), whether the
+load came back to the live trainers' envs after each kill, and the server's own tables
+(``ServerInfo.tables``) and allocator figures (``ServerInfo.allocator``): sampled with the RSS,
+and at the end compared with their sizes before the first trainer came (the pools of reusable
+step buffers are bounded, not emptied, and left out of that comparison).
+PASS: no errors, load 0 at the end, every table back to its idle size, and the slope at most
+``--max-slope`` MiB/h (the growth bound of 10 % for runs shorter than ``--slope-min``). It prints a markdown
 table for docs/BENCHMARKS.md and writes everything to ``--out`` (JSON).
 
 Usage: python bench/soak.py [--minutes 10] [--trainers 8] [--envs 64]
@@ -53,6 +59,32 @@ def rss_mib(pid: int) -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
     return float("nan")
+
+
+def sim_server_pid(pid: int) -> int:
+    """The sim-server process at or below ``pid`` (a ``--server-wrap`` runs it as a child)."""
+    todo = [pid]
+    while todo:
+        p = todo.pop(0)
+        try:
+            if Path(f"/proc/{p}/comm").read_text().strip() == "sim-server":
+                return p
+            children = Path(f"/proc/{p}/task/{p}/children").read_text().split()
+        except FileNotFoundError:
+            continue
+        todo += [int(c) for c in children]
+    raise RuntimeError(f"no sim-server process under pid {pid}")
+
+
+def tables_off(idle: dict, now: dict) -> dict[str, list[int]]:
+    """Tables of ``now`` (a ``ServerInfo``) not at their size in ``idle``, as ``[idle, now]``;
+    the bounded pools of reusable buffers (``pooled_*``) are left out."""
+    a, b = idle.get("tables", {}), now.get("tables", {})
+    return {
+        k: [a.get(k, 0), b.get(k, 0)]
+        for k in sorted(set(a) | set(b))
+        if not k.startswith("pooled_") and a.get(k, 0) != b.get(k, 0)
+    }
 
 
 # --------------------------------------------------------------------------------------------
@@ -195,9 +227,26 @@ def main() -> int:
     )
     ap.add_argument("--period-s", type=float, default=60.0, help="report period, s")
     ap.add_argument(
+        "--slope-min",
+        type=float,
+        default=60.0,
+        help="RSS slope over the last this many minutes",
+    )
+    ap.add_argument(
+        "--max-slope",
+        type=float,
+        default=0.1,
+        help="PASS bound on the RSS slope, MiB/h",
+    )
+    ap.add_argument(
         "--warmup-min", type=float, default=2.0, help="RSS baseline after this"
     )
     ap.add_argument("--server", default=str(ROOT / "target" / "release" / "sim-server"))
+    ap.add_argument(
+        "--server-wrap",
+        default="",
+        help="command that runs the server, e.g. 'heaptrack -o out/soak/heap' (a heap profile)",
+    )
     ap.add_argument("--out", default=str(ROOT / "out" / "soak" / "soak.json"))
     ap.add_argument("--trainer", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--endpoint", default="", help=argparse.SUPPRESS)
@@ -209,6 +258,7 @@ def main() -> int:
         return 0
 
     from sharedspace.client import SimClient
+    from sharedspace.errors import NoServer
 
     out = Path(args.out)
     logs = out.parent / "trainers"
@@ -217,6 +267,7 @@ def main() -> int:
     endpoint = f"tcp/127.0.0.1:{port}"
     server = subprocess.Popen(
         [
+            *args.server_wrap.split(),
             args.server,
             "serve",
             "--cfg",
@@ -231,7 +282,17 @@ def main() -> int:
         env={**os.environ, "RUST_LOG": os.environ.get("RUST_LOG", "warn")},
     )
     observer = SimClient(endpoint, timeout=10.0)
-    observer.pick_server()  # waits for the server
+    up_by = time.time() + 120  # a --server-wrap (a heap profiler) may start it slowly
+    while True:
+        try:
+            observer.pick_server()
+            break
+        except NoServer:
+            if time.time() > up_by:
+                raise
+            time.sleep(1.0)
+    server_pid = sim_server_pid(server.pid)
+    idle_info = observer.info("soak")
     start = time.time()
     until = start + args.minutes * 60
     trainers: list[Trainer] = []
@@ -257,9 +318,11 @@ def main() -> int:
             samples.append(
                 {
                     "t": now - start,
-                    "rss_mib": rss_mib(server.pid),
-                    "cpu_s": cpu_s(server.pid),
+                    "rss_mib": rss_mib(server_pid),
+                    "cpu_s": cpu_s(server_pid),
                     "load": info["load"],
+                    "tables": info.get("tables", {}),
+                    "allocator": info.get("allocator", {}),
                 }
             )
             next_sample += args.sample_s
@@ -273,10 +336,16 @@ def main() -> int:
         time.sleep(0.2)
     for t in trainers:
         t.stop(timeout=60)
-    final_load = observer.info("soak")["load"]
-    rss_end = rss_mib(server.pid)
+    final_info = observer.info("soak")
+    # Trainers that were SIGKILLed are reaped after their grace: wait for the tables to settle.
+    settle_by = time.time() + 30
+    while tables_off(idle_info, final_info) and time.time() < settle_by:
+        time.sleep(1.0)
+        final_info = observer.info("soak")
+    final_load = final_info["load"]
+    rss_end = rss_mib(server_pid)
     observer.shutdown()
-    server.send_signal(signal.SIGTERM)
+    os.kill(server_pid, signal.SIGTERM)  # the server itself, not a --server-wrap
     server.wait(timeout=30)
 
     # ---- report
@@ -297,6 +366,8 @@ def main() -> int:
     for p in sorted(per):
         acc = per[p]
         span = min(args.period_s, args.minutes * 60 - p * args.period_s)
+        if span <= 0:
+            continue  # the trainers' last lines, written as the soak ended
         inside = [
             x for x in samples if p * args.period_s <= x["t"] < (p + 1) * args.period_s
         ]
@@ -328,6 +399,14 @@ def main() -> int:
     warm = [s["rss_mib"] for s in samples if s["t"] >= args.warmup_min * 60]
     baseline = warm[0] if warm else float("nan")
     growth = (max(warm) - baseline) / baseline if warm else float("nan")
+    slope_from = max(args.warmup_min, args.minutes - args.slope_min) * 60
+    tail = [(s["t"], s["rss_mib"]) for s in samples if s["t"] >= slope_from]
+    slope = (
+        float(np.polyfit([t for t, _ in tail], [r for _, r in tail], 1)[0]) * 3600
+        if len(tail) > 2
+        else float("nan")
+    )
+    tables_left = tables_off(idle_info, final_info)
     full = [q["env_steps_per_s"] for q in periods[:-1]] or [
         periods[-1]["env_steps_per_s"]
     ]
@@ -344,6 +423,13 @@ def main() -> int:
         "rss_baseline_mib": baseline,
         "rss_end_mib": rss_end,
         "rss_growth_after_warmup": growth,
+        "rss_slope_mib_per_h": slope,
+        "rss_slope_window_min": [slope_from / 60, args.minutes],
+        "tables_idle": idle_info.get("tables", {}),
+        "tables_end": final_info.get("tables", {}),
+        "tables_not_back": tables_left,
+        "allocator_idle": idle_info.get("allocator", {}),
+        "allocator_end": final_info.get("allocator", {}),
         "throughput_min_max": [min(full), max(full)],
         "periods": periods,
         "samples": samples,
@@ -374,7 +460,28 @@ def main() -> int:
     )
     for e in errors[:20]:
         print("  ", e)
-    ok = not errors and final_load == 0 and growth < 0.10
+    mib = 1 << 20
+    alloc = [
+        s["allocator"]
+        for s in samples
+        if s["t"] >= args.warmup_min * 60 and s["allocator"]
+    ]
+    if alloc:
+        print(
+            "allocator (MiB, after warm-up -> last sample): in use "
+            f"{alloc[0]['in_use'] / mib:.1f} -> {alloc[-1]['in_use'] / mib:.1f}, "
+            f"free but retained {alloc[0]['free_retained'] / mib:.1f} -> "
+            f"{alloc[-1]['free_retained'] / mib:.1f}"
+        )
+    print(
+        f"RSS slope over minutes {slope_from / 60:.0f}-{args.minutes:.0f}: {slope:+.3f} MiB/h "
+        f"(bound {args.max_slope})"
+    )
+    print(f"server tables at the end: {final_info.get('tables', {})}")
+    print(f"tables not back to their idle size: {tables_left or 'none'}")
+    long_enough = args.minutes - args.warmup_min >= args.slope_min
+    memory_ok = slope <= args.max_slope if long_enough else growth < 0.10
+    ok = not errors and final_load == 0 and not tables_left and memory_ok
     print("PASS" if ok else "FAIL")
     return 0 if ok else 1
 

@@ -42,7 +42,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from client_roundtrip import free_port, wait_port  # noqa: E402
 
-from sharedspace.client import SimClient, VectorClient  # noqa: E402
+from sharedspace.client import SimClient  # noqa: E402
+from sharedspace.vector import VectorClient  # noqa: E402
 from sharedspace.observer import Observer  # noqa: E402
 from sharedspace.viewer import Viewer  # noqa: E402
 

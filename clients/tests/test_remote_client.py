@@ -33,6 +33,17 @@ def test_discovery_and_info(sim_server, sim_client):
     assert sim_client.pick_server()["server_id"] == sim_server.server_id
     assert sim_client.info(sim_server.server_id)["server_id"] == sim_server.server_id
     assert sim_server.server_id in sim_client.transport.alive_servers()
+    # The server's own tables and its allocator's figures, for soaks (bench/soak.py).
+    assert info["tables"]["envs"] == info["load"]
+    assert {"trainers", "fair_trainers", "pooled_step_buffers"} <= set(info["tables"])
+    assert info["allocator"]["in_use"] > 0
+
+
+def test_every_lazy_name_of_the_package_resolves():
+    import sharedspace
+
+    for name in sharedspace.__all__:
+        assert getattr(sharedspace, name) is not None, name
 
 
 def test_create_reset_step_batch_close(sim_client):

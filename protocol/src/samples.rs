@@ -355,6 +355,14 @@ pub fn server_info() -> ServerInfo {
                 client_id: "trainer-a".to_string(),
             },
         ],
+        tables: [("envs", 2), ("trainers", 1)]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect(),
+        allocator: [("in_use", 12_000_000), ("free_retained", 3_000_000)]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect(),
     }
 }
 

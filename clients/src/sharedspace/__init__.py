@@ -6,12 +6,15 @@
 - :mod:`sharedspace.pool`: scenario pools and what their records say;
 - :mod:`sharedspace.local_server`: ``sim-server`` on this machine (a local server, a rollout);
 - :mod:`sharedspace.transport`: the zenoh session, server discovery, liveliness;
-- :mod:`sharedspace.client`: :class:`SimClient` and the batched :class:`VectorClient` (failover);
+- :mod:`sharedspace.decode`: the server's messages decoded into NumPy arrays;
+- :mod:`sharedspace.client`: :class:`SimClient`, one connection to a server;
+- :mod:`sharedspace.vector`: the batched :class:`VectorClient` (failover);
 - :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``, and
   :func:`env`, the same as an AEC env;
 - :mod:`sharedspace.gym_env`: ``SharedSpaceEnv``, registered with Gymnasium as
   ``sharedspace/SharedSpace-v0`` on import;
 - :mod:`sharedspace.torchrl_env`: ``RemoteBatchedEnv`` (imported lazily: needs torch/torchrl);
+- :mod:`sharedspace.torchrl_multiagent`: ``RemoteMultiAgentEnv``, several cars per scene (lazily);
 - :mod:`sharedspace.observer`: :class:`Observer` of the envs' publications.
 """
 
@@ -31,7 +34,8 @@ _LAZY = {
     "ServerLost": ("transport", "ServerLost"),
     "Transport": ("transport", "Transport"),
     "SimClient": ("client", "SimClient"),
-    "VectorClient": ("client", "VectorClient"),
+    "VectorClient": ("vector", "VectorClient"),
+    "RemoteMultiAgentEnv": ("torchrl_multiagent", "RemoteMultiAgentEnv"),
     "Observer": ("observer", "Observer"),
     "parallel_env": ("pettingzoo_env", "parallel_env"),
     "env": ("pettingzoo_env", "env"),
@@ -73,6 +77,7 @@ __all__ = [
     "env",
     "SharedSpaceParallelEnv",
     "RemoteBatchedEnv",
+    "RemoteMultiAgentEnv",
     "SharedSpaceEnv",
     "__version__",
 ]

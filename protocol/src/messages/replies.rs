@@ -1,5 +1,7 @@
 //! Replies (SPEC section 6), and the stacking of a batch's per-env results.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use crate::array::{ArrayError, F32Array, F64Array, NdArray, U32Array, U64Array, U8Array};
@@ -558,6 +560,16 @@ pub struct ServerInfo {
     /// Every open env, in creation order (absent from servers before it was added).
     #[serde(default)]
     pub envs: Vec<OpenEnv>,
+    /// Entries in each of the server's own tables, by table name (a diagnostic: each table is
+    /// back to its idle size once the trainers are gone; names may change between versions).
+    /// Absent from servers before it was added: empty.
+    #[serde(default)]
+    pub tables: BTreeMap<String, u64>,
+    /// The memory allocator's own figures in bytes, by name (`in_use`, `free_retained`,
+    /// `mmapped`; empty where the allocator does not report them). Absent from servers before
+    /// it was added: empty.
+    #[serde(default)]
+    pub allocator: BTreeMap<String, u64>,
 }
 
 /// [`ServerInfo::envs`]: an open env and the trainer that created it.

@@ -236,6 +236,35 @@ pub struct ServerCore {
     steppers: Mutex<Vec<StepScratch>>,
 }
 
+/// Most step buffers kept for reuse between batches (as many as batches ever ran at once; a
+/// few is plenty).
+const MAX_POOLED_BUFFERS: usize = 8;
+
+/// `ServerInfo::allocator`: glibc malloc's own figures (`mallinfo2`, summed over its arenas):
+/// bytes in use by live allocations, free bytes it keeps in its arenas, and bytes in mmapped
+/// chunks. What RSS holds beyond `in_use` is the allocator's retention, not live data.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub fn allocator_figures() -> BTreeMap<String, u64> {
+    // SAFETY: mallinfo2 only reads the allocator's statistics (it takes each arena's lock);
+    // glibc >= 2.33 has it, and Debian 12 ships 2.36.
+    let m = unsafe { libc::mallinfo2() };
+    [
+        ("in_use", m.uordblks + m.hblkhd),
+        ("free_retained", m.fordblks),
+        ("mmapped", m.hblkhd),
+        ("arena", m.arena),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v as u64))
+    .collect()
+}
+
+/// `ServerInfo::allocator` where the allocator reports nothing: empty.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub fn allocator_figures() -> BTreeMap<String, u64> {
+    BTreeMap::new()
+}
+
 /// Most pedestrians of a requested synthetic scene (a world of this size steps in milliseconds).
 pub const MAX_SYNTHETIC_PEDESTRIANS: u32 = 2_000;
 /// Most scenes of one synthetic request.
@@ -396,7 +425,33 @@ impl ServerCore {
             pedestrian_models: PedestrianModel::ALL.to_vec(),
             pools: self.pools.iter().map(|p| p.summary()).collect(),
             envs: self.open_env_owners(),
+            tables: self.tables(),
+            allocator: allocator_figures(),
         }
+    }
+
+    /// `ServerInfo::tables`: the entries of each of the core's tables. Every one of them is back
+    /// to its idle size once the trainers are gone (the pools of step buffers are bounded, not
+    /// emptied: at most `MAX_POOLED_BUFFERS` and `4 * batch_threads`).
+    pub fn tables(&self) -> BTreeMap<String, u64> {
+        let reg = lock(&self.reg);
+        let sizes = [
+            ("envs", reg.envs.len()),
+            ("env_owners", reg.owner.len()),
+            ("trainers", reg.clients.len()),
+            (
+                "trainer_envs",
+                reg.clients.values().map(|c| c.envs.len()).sum(),
+            ),
+            ("fair_trainers", self.turns.trainers()),
+            ("fair_waiting", self.turns.waiting()),
+            ("pooled_step_buffers", lock(&self.scratch).len()),
+            ("pooled_step_scratch", lock(&self.steppers).len()),
+        ];
+        sizes
+            .into_iter()
+            .map(|(name, n)| (name.to_string(), n as u64))
+            .collect()
     }
 
     /// `ServerInfo::envs`: the open envs in creation order (ids end in the server's counter).
@@ -420,7 +475,6 @@ impl ServerCore {
         envs
     }
 
-    /// `InfoRequest` → `Reply<ServerInfo>`.
     /// The refusal of a request payload of `len` bytes above `max_request_bytes`, decided
     /// before the payload is copied or decoded; `None` when it may be handled.
     pub fn refuse_oversized(&self, len: usize) -> Option<Response> {
@@ -433,10 +487,18 @@ impl ServerCore {
         })
     }
 
-    pub fn handle_info(&self, payload: &[u8]) -> Response {
+    /// `InfoRequest` → `Reply<ServerInfo>`; `net_tables`: the network layer's tables, reported
+    /// beside the core's.
+    pub fn handle_info(&self, payload: &[u8], net_tables: &[(&str, usize)]) -> Response {
         let r = decode_or_default::<InfoRequest>(payload)
             .map_err(bad)
-            .map(|_| self.info());
+            .map(|_| {
+                let mut info = self.info();
+                for (name, n) in net_tables {
+                    info.tables.insert(name.to_string(), *n as u64);
+                }
+                info
+            });
         Response::of(r, Vec::new())
     }
 
@@ -707,6 +769,7 @@ impl ServerCore {
     /// Removes the given envs; returns those that were open.
     fn close_envs(&self, ids: &[String]) -> Vec<String> {
         let mut removed = Vec::new();
+        let mut gone_clients = Vec::new();
         {
             let mut reg = lock(&self.reg);
             for id in ids {
@@ -722,9 +785,15 @@ impl ServerCore {
                     c.envs.remove(id);
                     if c.envs.is_empty() && !c.alive {
                         reg.clients.remove(&client);
+                        gone_clients.push(client);
                     }
                 }
             }
+        }
+        // A client without a token that closed its last env is gone: its fair-queue tag too
+        // (it grew by one entry per such client before, for the server's lifetime).
+        for client in &gone_clients {
+            self.turns.forget(client);
         }
         for (_, env) in &removed {
             lock(env).closed = true;
@@ -963,7 +1032,7 @@ impl ServerCore {
     fn return_buffers(&self, buf: Buffers) {
         let mut pool = lock(&self.scratch);
         // As many as batches ever ran at once; a few is plenty.
-        if pool.len() < 8 {
+        if pool.len() < MAX_POOLED_BUFFERS {
             pool.push(buf);
         }
     }

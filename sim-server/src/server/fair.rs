@@ -85,6 +85,11 @@ impl FairTurns {
         self.lock().finish.remove(trainer);
     }
 
+    /// Trainers with a finish tag (each trainer that sent a batch and is not forgotten).
+    pub fn trainers(&self) -> usize {
+        self.lock().finish.len()
+    }
+
     /// Batches waiting for a turn now.
     pub fn waiting(&self) -> usize {
         self.lock().waiting.len()

@@ -89,6 +89,21 @@ struct EnvWatch {
     flags: RwLock<HashMap<String, [Option<Arc<AtomicBool>>; 5]>>,
 }
 
+impl EnvWatch {
+    /// `ServerInfo::tables` entries: envs with per-env flags, and their publishers.
+    fn sizes(&self) -> [(&'static str, usize); 2] {
+        let flags = self.flags.read().unwrap_or_else(|p| p.into_inner());
+        let publishers = flags
+            .values()
+            .map(|f| f.iter().filter(|x| x.is_some()).count())
+            .sum();
+        [
+            ("watched_envs", flags.len()),
+            ("env_publishers", publishers),
+        ]
+    }
+}
+
 /// [`Watch`] of a request: the topic gates of the moment narrowed by [`EnvWatch`].
 struct NetWatch<'a> {
     topics: Gates,
@@ -227,7 +242,7 @@ impl Ctx {
             .unwrap_or_default();
         let watch = self.watch();
         let resp: Response = match kind {
-            Kind::Info => core.handle_info(&payload),
+            Kind::Info => core.handle_info(&payload, &self.env_watch.sizes()),
             Kind::Create => core.handle_create(&payload, Instant::now()),
             Kind::Batch => core.handle_batch(&payload, &watch),
             Kind::EnvOp => match self.keys.parse_env_op(core.server_id(), &key) {
