@@ -54,6 +54,10 @@ pub struct ServerConfig {
     /// Most `BatchStep`s stepped at once; when more wait, the next turn goes to the trainer
     /// served the fewest env-steps (fair share). 0 (default) = one per batch thread.
     pub batch_slots: u32,
+    /// Seconds between returns of the allocator's free memory to the system (glibc
+    /// `malloc_trim`); 0 = never. Without it, memory freed by the many threads' arenas stays
+    /// in the process (docs/BENCHMARKS.md, soak). Default 10.
+    pub memory_trim_s: f64,
     /// Passed to `zenoh::Config::from_json5` after filling defaults: mode `peer`, listening on
     /// `tcp/127.0.0.1:7447` (peer and router), multicast scouting off.
     pub zenoh: Value,
@@ -76,6 +80,7 @@ impl Default for ServerConfig {
             params: None,
             batch_threads: 0,
             batch_slots: 0,
+            memory_trim_s: 10.0,
             zenoh: Value::Object(Map::new()),
         }
     }
@@ -329,6 +334,11 @@ impl ServerConfig {
                 "reconnect_grace_s must be finite and >= 0".into(),
             ));
         }
+        if !(self.memory_trim_s.is_finite() && self.memory_trim_s >= 0.0) {
+            return Err(ConfigError::Invalid(
+                "memory_trim_s must be finite and >= 0".into(),
+            ));
+        }
         if !self.zenoh.is_object() {
             return Err(ConfigError::Invalid("zenoh must be an object".into()));
         }
@@ -453,6 +463,7 @@ mod tests {
             (d.capacity, d.max_batch, d.max_agents, d.batch_threads)
         );
         assert_eq!(c.zenoh_json(), d.zenoh_json());
+        assert_eq!(c.memory_trim_s, d.memory_trim_s);
     }
 
     #[test]
@@ -467,6 +478,8 @@ mod tests {
         assert!(e.to_string().contains("capacity"), "{e}");
         let e = ServerConfig::load(None, &["batch_threads:-1".into()]).unwrap_err();
         assert!(e.to_string().contains("batch_threads"), "{e}");
+        let e = ServerConfig::load(None, &["memory_trim_s:-1".into()]).unwrap_err();
+        assert!(e.to_string().contains("memory_trim_s"), "{e}");
         let e = ServerConfig::load(None, &["prefix:a//b".into()]).unwrap_err();
         assert!(e.to_string().contains("prefix"), "{e}");
     }

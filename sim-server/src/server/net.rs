@@ -476,6 +476,23 @@ impl Server {
                 }
             }));
         }
+        if cfg.memory_trim_s > 0.0 {
+            let mut stop = stop_rx.clone();
+            let period = Duration::from_secs_f64(cfg.memory_trim_s);
+            tasks.push(tokio::spawn(async move {
+                let mut tick = tokio::time::interval(period);
+                tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+                loop {
+                    tokio::select! {
+                        _ = tick.tick() => {
+                            // Walks every arena under its lock: milliseconds, off the runtime.
+                            let _ = tokio::task::spawn_blocking(super::core::trim_allocator).await;
+                        }
+                        _ = stop.changed() => break,
+                    }
+                }
+            }));
+        }
         {
             let core = core.clone();
             let mut stop = stop_rx.clone();

@@ -1,0 +1,45 @@
+//! The allocator's own figures (`ServerInfo::allocator`) and the periodic return of its free
+//! memory to the system (`memory_trim_s`).
+
+use super::*;
+
+/// `ServerInfo::allocator`: glibc malloc's own figures (`mallinfo2`, summed over its arenas):
+/// bytes in use by live allocations, free bytes it keeps in its arenas, and bytes in mmapped
+/// chunks. What RSS holds beyond `in_use` is the allocator's retention, not live data.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub fn allocator_figures() -> BTreeMap<String, u64> {
+    // SAFETY: mallinfo2 only reads the allocator's statistics (it takes each arena's lock);
+    // glibc >= 2.33 has it, and Debian 12 ships 2.36.
+    let m = unsafe { libc::mallinfo2() };
+    [
+        ("in_use", m.uordblks + m.hblkhd),
+        ("free_retained", m.fordblks),
+        ("mmapped", m.hblkhd),
+        ("arena", m.arena),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v as u64))
+    .collect()
+}
+
+/// Returns the allocator's free memory to the system: glibc's arenas (one per thread that
+/// allocated, up to 8 per core) otherwise keep the pages that the envs, batches and zenoh
+/// sessions of departed trainers freed, and the RSS creeps (docs/BENCHMARKS.md, soak).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub fn trim_allocator() {
+    // SAFETY: malloc_trim only releases free pages of the allocator's own arenas (under their
+    // locks); it never touches live allocations.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
+/// Nothing to trim where the allocator is not glibc's.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub fn trim_allocator() {}
+
+/// `ServerInfo::allocator` where the allocator reports nothing: empty.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub fn allocator_figures() -> BTreeMap<String, u64> {
+    BTreeMap::new()
+}
