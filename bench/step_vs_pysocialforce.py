@@ -112,8 +112,12 @@ def main() -> None:
     parser.add_argument(
         "--pysf-mem-gib", type=float, default=16.0, help="memory cap for pysocialforce"
     )
-    parser.add_argument("--baseline-server", help="an older sim-server build to time alongside")
-    parser.add_argument("--rounds", type=int, default=1, help="rounds (medians are printed)")
+    parser.add_argument(
+        "--baseline-server", help="an older sim-server build to time alongside"
+    )
+    parser.add_argument(
+        "--rounds", type=int, default=1, help="rounds (medians are printed)"
+    )
     parser.add_argument("--pysf-only", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     logging.disable(logging.CRITICAL)  # pysocialforce logs every step at DEBUG
@@ -140,7 +144,9 @@ def main() -> None:
             if base:
                 times["base"].append(time_rust(base, n, args.seconds))
             pysf_steps = args.pysf_max_steps if n < 5000 else 1
-            pysf = time_pysocialforce_isolated(n, args.seconds, pysf_steps, args.pysf_mem_gib)
+            pysf = time_pysocialforce_isolated(
+                n, args.seconds, pysf_steps, args.pysf_mem_gib
+            )
             if pysf is not None:
                 times["pysf"].append(pysf)
         rust = statistics.median(times["new"])
@@ -158,7 +164,9 @@ def main() -> None:
             "samples_us": {k: [t * 1e6 for t in v] for k, v in times.items()},
         }
         rows.append(row)
-        pysf_text = f"{pysf * 1e6:>14.1f}" if pysf is not None else f"{'out of memory':>14}"
+        pysf_text = (
+            f"{pysf * 1e6:>14.1f}" if pysf is not None else f"{'out of memory':>14}"
+        )
         ratio_text = f"{pysf / rust:>8.0f}x" if pysf is not None else f"{'-':>9}"
         base_text = ""
         if old is not None:

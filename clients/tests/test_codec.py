@@ -6,7 +6,7 @@ import json
 import re
 from pathlib import Path
 
-import msgpack
+import msgspec
 import numpy as np
 import pytest
 
@@ -163,7 +163,7 @@ def test_arrays_are_zero_copy_views():
     m = codec.decode(payload)
     pos = m["positions"]
     assert not pos.flags.owndata and not pos.flags.writeable
-    raw = msgpack.unpackb(payload)["positions"]["data"]
+    raw = codec.decode(payload, arrays=False)["positions"]["data"]
     assert pos.tobytes() == raw
     assert pos.dtype == np.float64 and pos.shape == (3, 2)
     assert m["kinds"].dtype == np.uint8 and m["ids"].dtype == np.uint32
@@ -247,10 +247,10 @@ def test_bad_payloads_raise_protocol_error():
         codec.decode(_golden("close.msgpack") + b"\x00")  # trailing bytes
     bad_len = {"dtype": "<f4", "shape": [3], "data": b"\x00" * 8}
     with pytest.raises(ProtocolError):
-        codec.decode(msgpack.packb({"a": bad_len}, use_bin_type=True))
+        codec.decode(msgspec.msgpack.encode({"a": bad_len}))
     bad_dtype = {"dtype": "<i8", "shape": [1], "data": b"\x00" * 8}
     with pytest.raises(ProtocolError):
-        codec.decode(msgpack.packb({"a": bad_dtype}, use_bin_type=True))
+        codec.decode(msgspec.msgpack.encode({"a": bad_dtype}))
     assert codec.decode(b"") == {}
 
 
@@ -305,10 +305,10 @@ def test_client_decode_result_equals_codec_decode_reply(name):
 def test_client_decode_result_names_a_malformed_array(field, value, says):
     from sharedspace.decode import decode_result
 
-    reply = msgpack.unpackb((GOLDEN / "reply_step.msgpack").read_bytes(), raw=False)
+    reply = msgspec.msgpack.decode((GOLDEN / "reply_step.msgpack").read_bytes())
     reply["ok"][field] = value
     with pytest.raises(ProtocolError, match=says):
-        decode_result(msgpack.packb(reply, use_bin_type=True))
+        decode_result(msgspec.msgpack.encode(reply))
 
 
 @pytest.mark.parametrize(
@@ -320,10 +320,10 @@ def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
     from sharedspace.decode import decode_batch_result, decode_step_result
 
     decode = decode_step_result if name == "reply_step" else decode_batch_result
-    reply = msgpack.unpackb((GOLDEN / f"{name}.msgpack").read_bytes(), raw=False)
+    reply = msgspec.msgpack.decode((GOLDEN / f"{name}.msgpack").read_bytes())
     reply["ok"][field] = value
     with pytest.raises(ProtocolError, match=says):
-        decode(msgpack.packb(reply, use_bin_type=True))
+        decode(msgspec.msgpack.encode(reply))
 
 
 @pytest.mark.parametrize(
@@ -373,16 +373,16 @@ def test_client_step_decoder_equals_codec_decode_reply():
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     assert _same(decode_step_result(payload), codec.decode_reply(payload))
     # with an autoreset (the generic path) and as an error reply
-    reply = msgpack.unpackb((GOLDEN / "reply_reset.msgpack").read_bytes(), raw=False)
-    step = msgpack.unpackb(payload, raw=False)
+    reply = msgspec.msgpack.decode((GOLDEN / "reply_reset.msgpack").read_bytes())
+    step = msgspec.msgpack.decode(payload)
     step["ok"]["reset"] = reply["ok"]
-    with_reset = msgpack.packb(step, use_bin_type=True)
+    with_reset = msgspec.msgpack.encode(step)
     assert _same(decode_step_result(with_reset), codec.decode_reply(with_reset))
     with pytest.raises(NonFiniteAction):
         decode_step_result((GOLDEN / "reply_error.msgpack").read_bytes())
     step["ok"]["reward"] = {"dtype": "<f4", "shape": [2], "data": b"\0" * 4}
     with pytest.raises(ProtocolError, match="needs 8"):
-        decode_step_result(msgpack.packb(step, use_bin_type=True))
+        decode_step_result(msgspec.msgpack.encode(step))
 
 
 def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
@@ -390,13 +390,13 @@ def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
 
     with pytest.raises(NonFiniteAction):
         decode_batch_result((GOLDEN / "reply_error.msgpack").read_bytes())
-    reply = msgpack.unpackb((GOLDEN / "reply_batch_step.msgpack").read_bytes(), raw=False)
+    reply = msgspec.msgpack.decode((GOLDEN / "reply_batch_step.msgpack").read_bytes())
     reply["ok"]["reward"] = {"dtype": "<f4", "shape": [5, 1], "data": b"\0" * 8}
     with pytest.raises(ProtocolError, match="needs 20"):
-        decode_batch_result(msgpack.packb(reply, use_bin_type=True))
+        decode_batch_result(msgspec.msgpack.encode(reply))
     reply["ok"]["reward"] = {"dtype": "<f4", "shape": [3], "data": 7}  # not even bytes
     with pytest.raises(ProtocolError, match="binary-array map"):
-        decode_batch_result(msgpack.packb(reply, use_bin_type=True))
+        decode_batch_result(msgspec.msgpack.encode(reply))
     with pytest.raises(ProtocolError, match="empty reply"):
         decode_batch_result(b"")
 
@@ -458,7 +458,7 @@ def test_client_layout_decoder_equals_the_typed_step_decoder():
             extra={"dtype": "<f4", "shape": [3], "data": b"\0" * 12}
         ),
         lambda ok: ok.update(
-            reset=msgpack.unpackb((GOLDEN / "reply_reset.msgpack").read_bytes(), raw=False)["ok"]
+            reset=msgspec.msgpack.decode((GOLDEN / "reply_reset.msgpack").read_bytes())["ok"]
         ),
     ],
     ids=["other_shape", "other_dtype", "other_obs_shape", "other_term_shape", "autoreset"],
@@ -468,9 +468,9 @@ def test_client_layout_decoder_hands_replies_off_its_layout_to_the_typed_decoder
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     layout = step_decoder_for(decode_step_result(payload))
-    reply = msgpack.unpackb(payload, raw=False)
+    reply = msgspec.msgpack.decode(payload)
     mangle(reply["ok"])
-    other = msgpack.packb(reply, use_bin_type=True)
+    other = msgspec.msgpack.encode(reply)
     assert _same(layout(other), decode_step_result(other))
 
 
@@ -488,9 +488,9 @@ def test_client_layout_decoder_names_a_malformed_array(field, value, says):
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     layout = step_decoder_for(decode_step_result(payload))
-    reply = msgpack.unpackb(payload, raw=False)
+    reply = msgspec.msgpack.decode(payload)
     reply["ok"][field] = value
     with pytest.raises(ProtocolError, match=says):
-        layout(msgpack.packb(reply, use_bin_type=True))
+        layout(msgspec.msgpack.encode(reply))
     with pytest.raises(NonFiniteAction):
         layout((GOLDEN / "reply_error.msgpack").read_bytes())

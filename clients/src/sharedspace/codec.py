@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-import msgpack
+import msgspec
 import numpy as np
 
 from . import names as _names
@@ -164,13 +164,28 @@ def _prepare(v: Any) -> Any:
 
 def encode(message: Any) -> bytes:
     """One message as MessagePack bytes (named maps; numpy arrays become binary-array maps)."""
-    return msgpack.packb(_prepare(message), use_bin_type=True)
+    return _ENCODER.encode(_prepare(message))
 
 
-def _hook(m: dict[str, Any]) -> Any:
-    if is_array_map(m):
-        return decode_array(m)
-    return m
+#: The package's one MessagePack library (msgspec): untyped here, typed per reply shape in
+#: :mod:`sharedspace.decode`.
+_ENCODER = msgspec.msgpack.Encoder()
+_DECODER = msgspec.msgpack.Decoder()
+
+
+def _arrays_in(v: Any) -> Any:
+    """``v`` with every binary-array map (at any depth) a numpy array."""
+    if type(v) is dict:
+        if is_array_map(v):
+            return decode_array(v)
+        for k, x in v.items():
+            if type(x) is dict or type(x) is list:
+                v[k] = _arrays_in(x)
+    elif type(v) is list:
+        for i, x in enumerate(v):
+            if type(x) is dict or type(x) is list:
+                v[i] = _arrays_in(x)
+    return v
 
 
 def decode(payload: bytes | bytearray | memoryview, *, arrays: bool = True) -> Any:
@@ -181,17 +196,10 @@ def decode(payload: bytes | bytearray | memoryview, *, arrays: bool = True) -> A
     if len(payload) == 0:
         return {}
     try:
-        return msgpack.unpackb(
-            payload,
-            raw=False,
-            use_list=True,
-            strict_map_key=True,
-            object_hook=_hook if arrays else None,
-        )
-    except SharedspaceError:
-        raise
-    except Exception as e:  # msgpack's ExtraData, FormatError, StackError, ValueError, ...
+        message = _DECODER.decode(payload)
+    except msgspec.DecodeError as e:  # truncated, trailing bytes, malformed
         raise ProtocolError(f"undecodable payload: {type(e).__name__}: {e}") from e
+    return _arrays_in(message) if arrays else message
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,8 +236,11 @@ def unwrap_reply(reply: Any) -> Any:
 
 
 def decode_reply(payload: bytes | bytearray | memoryview) -> Any:
-    """Decodes a reply and returns its ``ok`` value, or raises its error (see :mod:`.errors`)."""
-    return unwrap_reply(decode(payload))
+    """Decodes a reply and returns its ``ok`` value, or raises its error (see :mod:`.errors`):
+    :func:`sharedspace.decode.decode_result`, the one reply decoder."""
+    from .decode import decode_result  # it builds on this module
+
+    return decode_result(bytes(payload))
 
 
 # --------------------------------------------------------------------------------------------

@@ -63,9 +63,9 @@ def _obs_in(r: Any) -> None:
                     obs[k] = _array(obs[k])
 
 
-#: Untyped MessagePack decoder of replies: the same dicts, lists, str and bytes as
-#: ``msgpack.unpackb(raw=False)``, built faster (a K = 256 batch reply: 1.31 -> 0.93 ms; a
-#: single step's: 35 -> 19 us; docs/BENCHMARKS.md section 3, in its git history).
+#: Untyped MessagePack decoder of replies: dicts, lists, str and bytes, as fast as a decoder
+#: without a per-map hook gets (a K = 256 batch reply: 0.93 ms where msgpack-python's
+#: ``unpackb`` took 1.31; docs/BENCHMARKS.md section 3, in its git history).
 _REPLY_DECODER = msgspec.msgpack.Decoder()
 
 

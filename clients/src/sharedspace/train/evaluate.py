@@ -106,11 +106,7 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
                     sums[term] = sums.get(term, 0.0) + float(values[i])
                 if done[i]:
                     status = next(
-                        (
-                            s
-                            for s in STATUSES
-                            if bool(nxt[f"episode_{s}"][i])
-                        ),
+                        (s for s in STATUSES if bool(nxt[f"episode_{s}"][i])),
                         "timeout",
                     )
                     records[i] = {

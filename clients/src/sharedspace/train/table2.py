@@ -98,8 +98,6 @@ def evaluate_run(run: Path, overrides: Sequence[str], split: str = "test") -> di
     return out
 
 
-
-
 def variant_stats(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
     """Mean and spread over seeds, pooled counts with Wilson intervals."""
     summaries = [r["summary"] for r in per_seed.values()]
