@@ -77,6 +77,7 @@ pub mod env;
 pub mod fair;
 pub mod net;
 pub mod pools;
+mod watch;
 
 pub use self::config::ServerConfig;
 pub use self::core::{Limits, ServerCore};
