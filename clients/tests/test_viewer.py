@@ -252,16 +252,44 @@ def test_the_viewer_follows_a_live_env_with_its_agents_and_risk_edges(
             assert shot.stat().st_size > 10_000
             if os.environ.get("SHAREDSPACE_VIEWER_SCREENSHOT"):
                 shutil.copy(shot, Path(os.environ["SHAREDSPACE_VIEWER_SCREENSHOT"]))
-            # Its env closed (a trainer restarting), the page follows the next open env.
+            # Its env closed (a trainer restarting), the page follows the next open env: one of
+            # hbs-general, whose other cars are reactive (the pool's default vehicle model).
             stepper.close()
             client.close(env_id)
-            env2 = client.create(1, max_agents=8, autoreset=True)["env_ids"][0]
+            env2 = client.create(1, pool="hbs-general", max_agents=8, autoreset=True)["env_ids"][0]
             client.reset(env2, seed=7)
             deadline = time.monotonic() + 20
             while time.monotonic() < deadline and _shown(browser)["env"] != env2:
                 client.step(env2, np.zeros((1, 2), np.float32))
                 time.sleep(0.3)
             assert _shown(browser)["env"] == env2
+            # The reactive cars arrive as agents marked `reactive` (StatesMsg.reactive, read by
+            # wire.js's generic per-agent fields) and are painted amber, not replay grey.
+            script = """
+                const v = window.viewer, c = document.getElementById('scene');
+                if (!v.frame || v.frame.envId !== arguments[0]) return null;
+                const ctx = c.getContext('2d');
+                return v.frame.agents
+                  .filter((a) => a.kind === 'vehicle' && !a.external && a.reactive === 1)
+                  .map((a) => {
+                    const px = Math.round(c.width / 2 + (a.x - v.view.cx) * v.view.scale);
+                    const py = Math.round(c.height / 2 - (a.y - v.view.cy) * v.view.scale);
+                    return Array.from(ctx.getImageData(px, py, 1, 1).data);
+                  });
+                """
+            centres = None
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline and not centres:
+                client.step(env2, np.zeros((1, 2), np.float32))
+                time.sleep(0.3)
+                centres = browser.execute_script(script, env2)
+            assert centres, "no reactive car among the agents of an hbs-general env"
+            amber = [
+                rgb
+                for rgb in centres
+                if abs(rgb[0] - 0xE0) + abs(rgb[1] - 0xA0) + abs(rgb[2] - 0x30) < 40
+            ]
+            assert amber, f"no reactive car's centre is amber: {centres}"
 
             severe = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
             assert not [e for e in severe if "favicon" not in e["message"]], severe

@@ -101,7 +101,8 @@ export function drawFrame(ctx, width, height, view, frame, edges, amax, trails, 
       ctx.translate(x, y);
       ctx.rotate(-a.heading);
       const l = a.length * view.scale, w = a.width * view.scale;
-      // The learner's car blue, reactive cars amber, replayed cars grey.
+      // The learner's car blue, reactive cars amber (StatesMsg `reactive`, docs/MODEL.md
+      // "Traffic"), replayed cars grey.
       ctx.fillStyle = a.external ? "#1f77b4" : a.reactive ? "#e0a030" : "#9a9a9a";
       ctx.strokeStyle = a.id === selected ? "#000" : "#333";
       ctx.lineWidth = a.id === selected ? 2.5 : 1;

@@ -26,6 +26,14 @@ export function decodePayload(bytes) {
   return decode(bytes);
 }
 
+/** The StatesMsg fields read into named agent properties below; every other per-agent array
+ * (first dimension = the agent count, e.g. `reactive`) becomes a property of the same name by
+ * itself: a row for a 2-D array, a number for a 1-D one. A new per-agent field of StatesMsg
+ * therefore reaches draw.js without an edit here. */
+const NAMED_STATE_FIELDS = new Set([
+  "ids", "kinds", "positions", "velocities", "headings", "sizes", "goals", "external",
+]);
+
 /** A StatesMsg as plain arrays: one entry per agent. */
 export function readStates(msg) {
   const ids = toArray(msg.ids);
@@ -36,7 +44,12 @@ export function readStates(msg) {
   const sizes = toArray(msg.sizes);
   const goals = toArray(msg.goals);
   const external = toArray(msg.external);
-  const reactive = toArray(msg.reactive);
+  const perAgent = [];
+  for (const [name, value] of Object.entries(msg)) {
+    if (NAMED_STATE_FIELDS.has(name) || value == null || value.dtype === undefined) continue;
+    const arr = toArray(value);
+    if (arr.shape.length >= 1 && arr.shape[0] === ids.length) perAgent.push([name, arr]);
+  }
   const agents = [];
   for (let i = 0; i < ids.length; i++) {
     agents.push({
@@ -49,9 +62,11 @@ export function readStates(msg) {
       width: sizes ? sizes[2 * i + 1] : (kinds[i] === 0 ? 1.8 : 0.6),
       goal: goals ? [goals[2 * i], goals[2 * i + 1]] : null,
       external: external ? external[i] === 1 : false,
-      // Moved by a reactive vehicle model (docs/MODEL.md "Traffic"); otherwise a replayed car.
-      reactive: reactive ? reactive[i] === 1 : false,
     });
+    for (const [name, arr] of perAgent) {
+      const width = arr.length / ids.length;
+      agents[i][name] = width === 1 ? Number(arr[i]) : Array.from(arr.slice(i * width, (i + 1) * width));
+    }
   }
   let rewards = null;
   if (msg.rewards) {
