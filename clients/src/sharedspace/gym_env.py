@@ -29,15 +29,14 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium
-import numpy as np
-from gymnasium import spaces
+
+from .spaces import action_space, observation_space
 
 __all__ = ["SharedSpaceEnv", "ENV_ID", "register"]
 
 #: The registered id (``gymnasium.make(ENV_ID, endpoint=...)``).
 ENV_ID = "sharedspace/SharedSpace-v0"
 _AGENT = "vehicle_0"
-NODE_FEATURES = 11
 
 
 class SharedSpaceEnv(gymnasium.Env):
@@ -60,15 +59,8 @@ class SharedSpaceEnv(gymnasium.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         self._kwargs: dict[str, Any] = {**kwargs, "render_mode": render_mode}
-        m = int(kwargs.get("max_agents", 8))
-        self.observation_space = spaces.Dict(
-            {
-                "features": spaces.Box(-np.inf, np.inf, (m, NODE_FEATURES), np.float32),
-                "adjacency": spaces.Box(0.0, np.inf, (m, m), np.float32),
-                "mask": spaces.MultiBinary(m),
-            }
-        )
-        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.observation_space = observation_space(int(kwargs.get("max_agents", 8)))
+        self.action_space = action_space()
         self._parallel = None
 
     def _env(self):

@@ -46,6 +46,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from . import names
+from . import spaces as _spaces
 from .client import SimClient
 from .errors import EnvClosed, WrongShape
 from .models import DEFAULT_MODEL
@@ -275,18 +276,11 @@ class SharedSpaceParallelEnv(ParallelEnv):
 
     @functools.cache  # noqa: B019 - PettingZoo style: one object per agent
     def observation_space(self, agent: str) -> spaces.Dict:
-        m = self.max_agents
-        return spaces.Dict(
-            {
-                "features": spaces.Box(-np.inf, np.inf, (m, NODE_FEATURES), np.float32),
-                "adjacency": spaces.Box(0.0, np.inf, (m, m), np.float32),
-                "mask": spaces.MultiBinary(m),
-            }
-        )
+        return _spaces.observation_space(self.max_agents)
 
     @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (2,), np.float32)
+        return _spaces.action_space()
 
     @functools.cached_property
     def state_space(self) -> spaces.Box:
