@@ -24,7 +24,8 @@ pub fn allocator_figures() -> BTreeMap<String, u64> {
 
 /// Returns the allocator's free memory to the system: glibc's arenas (one per thread that
 /// allocated, up to 8 per core) otherwise keep the pages that the envs, batches and zenoh
-/// sessions of departed trainers freed, and the RSS creeps (docs/BENCHMARKS.md, soak).
+/// sessions of departed trainers freed. Only whole free pages go back; a page with one live
+/// allocation in it stays (fragmentation; docs/BENCHMARKS.md section 6, the soak).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 pub fn trim_allocator() {
     // SAFETY: malloc_trim only releases free pages of the allocator's own arenas (under their
