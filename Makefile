@@ -6,6 +6,10 @@ CARGO ?= cargo
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
+# uv installs the venv: its cache (~/.cache/uv) keeps every wheel, so the fresh-venv install test
+# (clients/tests/test_installed_package.py) installs torch again offline, by hard links.
+UV_VERSION := 0.13.9
+UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
@@ -23,9 +27,9 @@ $(SERVER): $(shell find sim-core scenarios protocol sim-server -name '*.rs' -o -
 
 $(VENV)/.installed: clients/requirements-dev.txt clients/requirements-train.txt clients/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r clients/requirements-dev.txt -r clients/requirements-train.txt
-	$(PY) -m pip install --quiet --no-deps -e clients
+	$(PY) -m pip install --quiet uv==$(UV_VERSION)
+	$(UV) pip install --quiet --python $(PY) -r clients/requirements-dev.txt \
+		-r clients/requirements-train.txt -e 'clients[train]'
 	@touch $@
 
 venv: $(VENV)/.installed ## create the Python virtualenv in .venv

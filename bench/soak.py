@@ -61,19 +61,20 @@ def rss_mib(pid: int) -> float:
     return float("nan")
 
 
-def sim_server_pid(pid: int) -> int:
-    """The sim-server process at or below ``pid`` (a ``--server-wrap`` runs it as a child)."""
+def sim_server_pid(pid: int, binary: str) -> int:
+    """The process of ``binary`` at or below ``pid`` (a ``--server-wrap`` runs it as a child)."""
+    comm = Path(binary).name[:15]  # the kernel keeps 15 bytes of a process name
     todo = [pid]
     while todo:
         p = todo.pop(0)
         try:
-            if Path(f"/proc/{p}/comm").read_text().strip() == "sim-server":
+            if Path(f"/proc/{p}/comm").read_text().strip() == comm:
                 return p
             children = Path(f"/proc/{p}/task/{p}/children").read_text().split()
         except FileNotFoundError:
             continue
         todo += [int(c) for c in children]
-    raise RuntimeError(f"no sim-server process under pid {pid}")
+    raise RuntimeError(f"no {comm} process under pid {pid}")
 
 
 def tables_off(idle: dict, now: dict) -> dict[str, list[int]]:
@@ -291,7 +292,7 @@ def main() -> int:
             if time.time() > up_by:
                 raise
             time.sleep(1.0)
-    server_pid = sim_server_pid(server.pid)
+    server_pid = sim_server_pid(server.pid, args.server)
     idle_info = observer.info("soak")
     start = time.time()
     until = start + args.minutes * 60

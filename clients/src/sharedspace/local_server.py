@@ -47,8 +47,9 @@ def sim_server_binary() -> Path:
         if path.is_file() and os.access(path, os.X_OK):
             return path
     raise FileNotFoundError(
-        "sim-server not found: build it (`make build`), put it on PATH or set "
-        "SHAREDSPACE_SIM_SERVER"
+        "sim-server not found: install it on PATH from a checkout of the repository "
+        "(`cargo install --path sim-server`), or set SHAREDSPACE_SIM_SERVER to a built binary "
+        "(`make build` builds target/release/sim-server)"
     )
 
 
