@@ -121,6 +121,7 @@ struct ServeArgs {
 fn run_serve(args: ServeArgs) -> Result<(), String> {
     let config = sim_server::server::ServerConfig::load(args.config.as_deref(), &args.cfg)
         .map_err(|e| e.to_string())?;
+    sim_server::server::limit_allocator_arenas(config.malloc_arenas);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -332,6 +333,10 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     .map(|_| ())
     .map_err(|e| e.to_string())
 }
+
+#[cfg(feature = "jemalloc")]
+#[global_allocator]
+static GLOBAL: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()

@@ -58,6 +58,11 @@ pub struct ServerConfig {
     /// `malloc_trim`); 0 = never. Without it, memory freed by the many threads' arenas stays
     /// in the process (docs/BENCHMARKS.md, soak). Default 10.
     pub memory_trim_s: f64,
+    /// Most glibc malloc arenas the process keeps (`M_ARENA_MAX`, set by `sim-server serve`
+    /// before its threads start); 0 = glibc's own limit (8 per core). Every thread that
+    /// allocates, the batch threads included, otherwise gets its own arena, and memory freed
+    /// in one stays fragmented there (docs/BENCHMARKS.md section 6, the soak). Default 2.
+    pub malloc_arenas: u32,
     /// Passed to `zenoh::Config::from_json5` after filling defaults: mode `peer`, listening on
     /// `tcp/127.0.0.1:7447` (peer and router), multicast scouting off.
     pub zenoh: Value,
@@ -81,6 +86,7 @@ impl Default for ServerConfig {
             batch_threads: 0,
             batch_slots: 0,
             memory_trim_s: 10.0,
+            malloc_arenas: 2,
             zenoh: Value::Object(Map::new()),
         }
     }
@@ -464,6 +470,7 @@ mod tests {
         );
         assert_eq!(c.zenoh_json(), d.zenoh_json());
         assert_eq!(c.memory_trim_s, d.memory_trim_s);
+        assert_eq!(c.malloc_arenas, d.malloc_arenas);
     }
 
     #[test]
@@ -480,6 +487,8 @@ mod tests {
         assert!(e.to_string().contains("batch_threads"), "{e}");
         let e = ServerConfig::load(None, &["memory_trim_s:-1".into()]).unwrap_err();
         assert!(e.to_string().contains("memory_trim_s"), "{e}");
+        let e = ServerConfig::load(None, &["malloc_arenas:-2".into()]).unwrap_err();
+        assert!(e.to_string().contains("malloc_arenas"), "{e}");
         let e = ServerConfig::load(None, &["prefix:a//b".into()]).unwrap_err();
         assert!(e.to_string().contains("prefix"), "{e}");
     }

@@ -80,5 +80,5 @@ pub mod pools;
 mod watch;
 
 pub use self::config::ServerConfig;
-pub use self::core::{Limits, ServerCore};
+pub use self::core::{limit_allocator_arenas, Limits, ServerCore};
 pub use self::net::{run, shutdown_signal, Server, ServerError};

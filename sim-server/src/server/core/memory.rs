@@ -35,6 +35,23 @@ pub fn trim_allocator() {
     }
 }
 
+/// Caps glibc malloc's arenas at `arenas` (`M_ARENA_MAX`; 0 leaves glibc's limit). Call it
+/// before the runtime's threads start: a thread keeps the arena it first allocated in.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub fn limit_allocator_arenas(arenas: u32) {
+    if arenas > 0 {
+        // SAFETY: mallopt only sets one of the allocator's tunables; M_ARENA_MAX bounds the
+        // arenas created from now on and is safe to set at any time.
+        unsafe {
+            libc::mallopt(libc::M_ARENA_MAX, arenas.min(i32::MAX as u32) as i32);
+        }
+    }
+}
+
+/// No arenas to cap where the allocator is not glibc's.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub fn limit_allocator_arenas(_arenas: u32) {}
+
 /// Nothing to trim where the allocator is not glibc's.
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 pub fn trim_allocator() {}

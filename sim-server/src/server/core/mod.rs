@@ -43,7 +43,7 @@ mod reaping;
 mod tests;
 
 pub use create::{MAX_SYNTHETIC_PEDESTRIANS, MAX_SYNTHETIC_SCENES};
-pub use memory::{allocator_figures, trim_allocator};
+pub use memory::{allocator_figures, limit_allocator_arenas, trim_allocator};
 
 /// Batches of at least this many envs may be stepped on several threads (see
 /// [`ServerCore::set_batch_threads`]).
