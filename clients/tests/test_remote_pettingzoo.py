@@ -8,6 +8,7 @@ from pettingzoo.test import parallel_api_test
 
 import sharedspace
 from sharedspace.errors import EnvClosed, WrongShape
+from sharedspace.names import Feature
 
 
 @pytest.fixture
@@ -156,6 +157,15 @@ def test_render_rgb(sim_client):
         # the controlled vehicle (scene_plot.CONTROLLED) is drawn
         blue = (np.abs(img.astype(int) - (31, 95, 208)).sum(-1) < 12).sum()
         assert blue > 20
+        # its goal comes from the StatesMsg, where its own observation (ego frame) puts it too
+        frame = env.scene_frame()
+        ego = next(a for a in frame.agents if a.controlled)
+        obs = env._obs["features"][0][0]
+        dx, dy = float(obs[Feature.GOAL_DX]), float(obs[Feature.GOAL_DY])
+        c, s = np.cos(ego.heading), np.sin(ego.heading)
+        expected = (ego.x + c * dx - s * dy, ego.y + s * dx + c * dy)
+        assert len(frame.goals) == 1
+        np.testing.assert_allclose(frame.goals[0], expected, atol=1e-3)
     finally:
         env.close()
 

@@ -542,20 +542,9 @@ class SharedSpaceParallelEnv(ParallelEnv):
             return None
         ids = [int(i) for i in np.asarray(states["ids"]).tolist()]
         pos = np.asarray(states["positions"], dtype=np.float64).reshape(-1, 2)
-        heads = np.asarray(states["headings"], dtype=np.float64).reshape(-1)
-        row = {aid: k for k, aid in enumerate(ids)}
-        goals = []
-        for aid, desc in self._agents_desc.items():
-            e = self._index.get(desc.get("name", ""))
-            if e is None or aid not in row or self._obs is None:
-                continue
-            k = row[aid]
-            gdx, gdy = (float(v) for v in self._obs["features"][e][0, 8:10])
-            c, s_ = np.cos(heads[k]), np.sin(heads[k])
-            goals.append((pos[k, 0] + c * gdx - s_ * gdy, pos[k, 1] + s_ * gdx + c * gdy))
         if int(states.get("step", 0)) == 0:
             self._trails = {}
-        for aid, k in row.items():
+        for k, aid in enumerate(ids):
             trail = self._trails.setdefault(aid, [])
             if not trail or trail[-1] != (float(pos[k, 0]), float(pos[k, 1])):
                 trail.append((float(pos[k, 0]), float(pos[k, 1])))
@@ -564,8 +553,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
             {**states, "t": states.get("t", self._step * 0.5)},
             graph,
             self._agents_desc,
-            goals=goals,
-            trails={aid: list(t) for aid, t in self._trails.items() if aid in row},
+            trails={aid: list(t) for aid, t in self._trails.items() if aid in ids},
             note=self.scenario or "",
         )
 

@@ -214,27 +214,50 @@ def scene_rgb(frame: Frame, size: tuple[int, int] = (480, 480), **kw) -> np.ndar
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
+def _flags(values, n: int) -> np.ndarray:
+    """A ``[n]`` ``|u1`` array of a message as booleans (all false when the message has none)."""
+    return np.zeros(n, bool) if values is None else np.asarray(values).reshape(-1).astype(bool)
+
+
 def frame_from_publications(
     states: Mapping,
     risk_graph: Mapping | None,
-    agents: Mapping[int, Mapping],
-    goals: Sequence[tuple[float, float]] = (),
+    agents: Mapping[int, Mapping] | None = None,
     note: str = "",
     trails: Mapping[int, Sequence[tuple[float, float]]] | None = None,
 ) -> Frame:
-    """A :class:`Frame` from a ``StatesMsg``, a ``RiskGraphMsg`` and the episode's
-    ``AgentDesc`` by id (protocol/SPEC.md)."""
+    """A :class:`Frame` from a ``StatesMsg`` and a ``RiskGraphMsg`` (protocol/SPEC.md). The
+    message's footprints, goals and external flags draw the agents, the controlled vehicles'
+    goals and their colour; ``agents`` (the episode's ``AgentDesc`` by id) stands in for them
+    in messages from senders that leave those fields out."""
+    agents = agents or {}
     ids = np.asarray(states["ids"], dtype=np.int64)
+    n = len(ids)
     kinds = np.asarray(states["kinds"])
     pos = np.asarray(states["positions"], dtype=np.float64).reshape(-1, 2)
     vel = np.asarray(states.get("velocities", np.zeros_like(pos)), dtype=np.float64).reshape(-1, 2)
     heads = np.asarray(states["headings"], dtype=np.float64).reshape(-1)
-    reactive = states.get("reactive")
-    reactive = np.zeros(len(ids), bool) if reactive is None else np.asarray(reactive).astype(bool)
-    out = []
+    reactive = _flags(states.get("reactive"), n)
+    sent_sizes = states.get("sizes")
+    sizes = None if sent_sizes is None else np.asarray(sent_sizes, np.float64).reshape(-1, 2)
+    sent_external = states.get("external")
+    external = (
+        _flags(sent_external, n)
+        if sent_external is not None
+        else np.array([bool(agents.get(int(a), {}).get("external")) for a in ids], bool)
+    )
+    sent_goals = states.get("goals")
+    goal_of = None if sent_goals is None else np.asarray(sent_goals, np.float64).reshape(-1, 2)
+    out, goals = [], []
     for i, aid in enumerate(ids.tolist()):
         desc = agents.get(aid, {})
         vehicle = int(kinds[i]) == 0
+        if sizes is not None:
+            length, width = float(sizes[i, 0]), float(sizes[i, 1])
+            radius = 0.5 * length
+        else:
+            length, width = desc.get("length"), desc.get("width")
+            radius = float(desc.get("radius") or 0.3)
         out.append(
             Agent(
                 id=aid,
@@ -244,13 +267,15 @@ def frame_from_publications(
                 vx=float(vel[i, 0]),
                 vy=float(vel[i, 1]),
                 heading=float(heads[i]),
-                controlled=bool(desc.get("external")),
+                controlled=bool(external[i]),
                 reactive=bool(reactive[i]),
-                length=desc.get("length"),
-                width=desc.get("width"),
-                radius=float(desc.get("radius") or 0.3),
+                length=length if vehicle else None,
+                width=width if vehicle else None,
+                radius=radius,
             )
         )
+        if external[i] and goal_of is not None:
+            goals.append((float(goal_of[i, 0]), float(goal_of[i, 1])))
     edges = []
     if risk_graph is not None:
         edges = [
@@ -262,7 +287,7 @@ def frame_from_publications(
     return Frame(
         agents=out,
         edges=edges,
-        goals=list(goals),
+        goals=goals,
         t=None if t is None else float(t),
         step=None if step is None else int(step),
         trails=trails or {},
