@@ -96,6 +96,40 @@ fn to_world_params(
     Ok(params)
 }
 
+/// `base` with `values` set at their dotted paths in the parameter file
+/// (`pedestrians.sfm.tau`), through the same serde overlay and checks as a file: an unknown
+/// path, a non-finite value or a value [`WorldParams::validate`] refuses is an error naming it.
+pub fn with_values(
+    base: &WorldParams,
+    values: &[(String, f64)],
+    origin: &str,
+) -> Result<WorldParams, ParamsFileError> {
+    let Ok(Value::Object(mut fields)) = serde_json::to_value(base) else {
+        unreachable!("WorldParams serializes to a JSON object");
+    };
+    let mut top = Map::new();
+    for (path, value) in values {
+        let mut at = &mut top;
+        let mut keys = path.split('.').peekable();
+        while let Some(key) = keys.next() {
+            if keys.peek().is_none() {
+                // A non-finite f64 becomes null, which the f64 field then refuses by its path.
+                at.insert(key.to_string(), Value::from(*value));
+            } else {
+                let next = at
+                    .entry(key.to_string())
+                    .or_insert_with(|| Value::Object(Map::new()));
+                let Value::Object(next) = next else {
+                    unreachable!("a path's inner keys are objects");
+                };
+                at = next;
+            }
+        }
+    }
+    merge(&mut fields, &top);
+    to_world_params(fields, origin)
+}
+
 impl ParamsDoc {
     /// Parses (but does not yet check against [`WorldParams`]) a JSON5 document.
     pub fn parse(text: &str, origin: &str) -> Result<Self, ParamsFileError> {

@@ -4,76 +4,90 @@
 use super::*;
 
 /// The names accepted in `CreateEnv.pedestrian_params` (model.md names) besides the social-force
-/// ones (`SocialForceParams::NAMES`, which apply to the parameter sets of `sfm`, `ra_sfm` and
-/// `cr_sfm` alike), each with the field it sets.
-type ParamField = fn(&mut WorldParams) -> &mut f64;
-const OTHER_PEDESTRIAN_PARAMS: [(&str, ParamField); 9] = [
-    ("gamma1", |p| &mut p.risk.gamma1),
-    ("gamma2", |p| &mut p.risk.gamma2),
-    ("lambda", |p| &mut p.risk.lambda),
-    ("s0", |p| &mut p.cognition.s0),
-    ("q", |p| &mut p.cognition.q),
-    ("s_o", |p| &mut p.cognition.s_o),
-    ("v_ped_max", |p| &mut p.ped_speed_max),
-    ("ped_radius", |p| &mut p.ped_radius),
-    ("ped_goal_radius", |p| &mut p.ped_goal_radius),
+/// ones (`SocialForceParams::NAMES`, which set that field of every model with social forces),
+/// each with the parameter-file field it sets.
+const OTHER_PEDESTRIAN_PARAMS: [(&str, &str); 9] = [
+    ("gamma1", "risk.gamma1"),
+    ("gamma2", "risk.gamma2"),
+    ("lambda", "risk.lambda"),
+    ("s0", "cognition.s0"),
+    ("q", "cognition.q"),
+    ("s_o", "cognition.s_o"),
+    ("v_ped_max", "ped_speed_max"),
+    ("ped_radius", "ped_radius"),
+    ("ped_goal_radius", "ped_goal_radius"),
 ];
 
-fn apply_pedestrian_params(
-    base: WorldParams,
-    overrides: &BTreeMap<String, f64>,
+/// The names accepted in `CreateEnv.reward_weights` (`protocol::REWARD_WEIGHT_DEFAULTS`), each
+/// with the parameter-file field it sets.
+const REWARD_WEIGHTS: [(&str, &str); 7] = [
+    ("progress", "reward.progress"),
+    ("success", "reward.success"),
+    ("collision", "reward.collision"),
+    ("danger", "reward.danger"),
+    ("danger_clearance", "reward.danger_clearance"),
+    ("comfort_jerk", "reward.jerk_penalty"),
+    ("comfort_omega", "reward.yaw_rate_penalty"),
+];
+
+/// The parameter-file fields a `pedestrian_params` name sets, or None for an unknown name.
+fn pedestrian_param_fields(name: &str) -> Option<Vec<String>> {
+    if SocialForceParams::NAMES.contains(&name) {
+        let defaults = WorldParams::default().pedestrians;
+        let sets = PedestrianModel::ALL
+            .into_iter()
+            .filter(|&m| defaults.for_model(m).is_some());
+        return Some(
+            sets.map(|m| format!("pedestrians.{}.{name}", m.name()))
+                .collect(),
+        );
+    }
+    let (_, field) = OTHER_PEDESTRIAN_PARAMS.iter().find(|(n, _)| *n == name)?;
+    Some(vec![field.to_string()])
+}
+
+/// `base` with a request's `pedestrian_params` and `reward_weights`, set through the parameter
+/// file's overlay (`params_file::with_values`), so that they are checked as a file's fields are.
+fn apply_overrides(
+    base: &WorldParams,
+    pedestrian_params: &BTreeMap<String, f64>,
+    reward_weights: &BTreeMap<String, f64>,
 ) -> Result<WorldParams, ErrorReply> {
-    let mut p = base;
-    for (name, &v) in overrides {
-        if SocialForceParams::NAMES.contains(&name.as_str()) {
-            for set in p.pedestrians.social_force_sets_mut() {
-                *set.get_mut(name).expect("one of NAMES") = v;
-            }
-        } else if let Some((_, field)) = OTHER_PEDESTRIAN_PARAMS.iter().find(|(n, _)| n == name) {
-            *field(&mut p) = v;
-        } else {
+    let bad = |m: String| ErrorReply::new(ErrorCode::BadRequest, m);
+    let mut values = Vec::new();
+    for (name, &v) in pedestrian_params {
+        let fields = pedestrian_param_fields(name).ok_or_else(|| {
             let known: Vec<&str> = SocialForceParams::NAMES
                 .iter()
                 .copied()
                 .chain(OTHER_PEDESTRIAN_PARAMS.iter().map(|(n, _)| *n))
                 .collect();
-            return Err(ErrorReply::new(
-                ErrorCode::BadRequest,
-                format!(
-                    "unknown pedestrian parameter {name:?}; known: {}",
-                    known.join(", ")
-                ),
-            ));
-        }
+            bad(format!(
+                "unknown pedestrian parameter {name:?}; known: {}",
+                known.join(", ")
+            ))
+        })?;
+        values.extend(fields.into_iter().map(|f| (f, v)));
     }
-    p.validate()
-        .map_err(|e| ErrorReply::new(ErrorCode::BadRequest, format!("pedestrian_params: {e}")))?;
-    Ok(p)
-}
-
-fn apply_reward_weights(
-    mut p: WorldParams,
-    weights: &BTreeMap<String, f64>,
-) -> Result<WorldParams, ErrorReply> {
-    for (name, &v) in weights {
-        let w = &mut p.reward;
-        match name.as_str() {
-            "progress" => w.progress = v,
-            "success" => w.success = v,
-            "collision" => w.collision = v,
-            "danger" => w.danger = v,
-            "danger_clearance" => w.danger_clearance = v,
-            "comfort_jerk" => w.jerk_penalty = v,
-            "comfort_omega" => w.yaw_rate_penalty = v,
-            _ => {
-                return Err(ErrorReply::new(
-                    ErrorCode::BadRequest,
-                    format!("unknown reward weight {name:?}"),
-                ))
-            }
-        }
+    for (name, &v) in reward_weights {
+        let (_, field) = REWARD_WEIGHTS
+            .iter()
+            .find(|(n, _)| n == name)
+            .ok_or_else(|| bad(format!("unknown reward weight {name:?}")))?;
+        values.push((field.to_string(), v));
     }
-    Ok(p)
+    if values.is_empty() {
+        return Ok(*base);
+    }
+    crate::params_file::with_values(base, &values, "CreateEnv").map_err(|e| match e {
+        crate::params_file::ParamsFileError::Parse { message, .. } => {
+            bad(format!("pedestrian_params/reward_weights: {message}"))
+        }
+        crate::params_file::ParamsFileError::Invalid { source, .. } => {
+            bad(format!("pedestrian_params/reward_weights: {source}"))
+        }
+        e => bad(e.to_string()),
+    })
 }
 
 fn split_of(s: WireSplit) -> Split {
@@ -191,11 +205,11 @@ impl ServerCore {
                 names.join(", ")
             ))
         })?;
-        let params = apply_pedestrian_params(
-            *self.params.for_model(req.pedestrian_model),
+        let params = apply_overrides(
+            self.params.for_model(req.pedestrian_model),
             &req.pedestrian_params,
+            &req.reward_weights,
         )?;
-        let params = apply_reward_weights(params, &req.reward_weights)?;
         let mut vehicles = Vec::with_capacity(req.external_agents.len());
         for name in &req.external_agents {
             let k = parse_vehicle(name).ok_or_else(|| {
@@ -314,38 +328,69 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_pedestrian_param_name_sets_its_field_and_nothing_else() {
+    fn every_override_name_sets_its_field_and_nothing_else() {
         let base = WorldParams::default();
-        let names = SocialForceParams::NAMES
+        let none = BTreeMap::new();
+        let pedestrian = SocialForceParams::NAMES
             .iter()
             .copied()
-            .chain(OTHER_PEDESTRIAN_PARAMS.iter().map(|(n, _)| *n));
-        for name in names {
-            let set = apply_pedestrian_params(base, &[(name.to_string(), 0.123)].into())
-                .unwrap_or_else(|e| panic!("{name}: {e:?}"));
-            assert_ne!(set, base, "{name} changed nothing");
-            let mut back = set;
-            if SocialForceParams::NAMES.contains(&name) {
-                for (s, b) in back.pedestrians.social_force_sets_mut().into_iter().zip([
-                    base.pedestrians.sfm,
-                    base.pedestrians.ra_sfm,
-                    base.pedestrians.cr_sfm,
-                ]) {
-                    assert_eq!(*s.get_mut(name).unwrap(), 0.123, "{name}");
-                    *s.get_mut(name).unwrap() = *b.clone().get_mut(name).unwrap();
-                }
+            .chain(OTHER_PEDESTRIAN_PARAMS.iter().map(|(n, _)| *n))
+            .map(|n| (n, true));
+        let reward = REWARD_WEIGHTS.iter().map(|(n, _)| (*n, false));
+        for (name, is_pedestrian) in pedestrian.chain(reward) {
+            let one = BTreeMap::from([(name.to_string(), 0.123)]);
+            let (p, r) = if is_pedestrian {
+                (&one, &none)
             } else {
-                let field = OTHER_PEDESTRIAN_PARAMS
-                    .iter()
-                    .find(|(n, _)| *n == name)
-                    .unwrap()
-                    .1;
-                assert_eq!(*field(&mut back), 0.123, "{name}");
-                *field(&mut back) = *field(&mut base.clone());
+                (&none, &one)
+            };
+            let set = apply_overrides(&base, p, r).unwrap_or_else(|e| panic!("{name}: {e:?}"));
+            // Every field that changed is one the name stands for, and now holds 0.123.
+            let (before, after) = (
+                serde_json::to_value(base).unwrap(),
+                serde_json::to_value(set).unwrap(),
+            );
+            let mut changed = changed_leaves(&before, &after, "");
+            let mut expected: Vec<String> = if is_pedestrian {
+                pedestrian_param_fields(name).unwrap()
+            } else {
+                let field = REWARD_WEIGHTS.iter().find(|(n, _)| *n == name).unwrap().1;
+                vec![field.to_string()]
+            };
+            changed.sort();
+            expected.sort();
+            assert_eq!(changed, expected, "{name}");
+            for field in &expected {
+                let leaf = field.split('.').fold(&after, |v, k| &v[k]);
+                assert_eq!(leaf.as_f64(), Some(0.123), "{field}");
             }
-            assert_eq!(back, base, "{name} changed another field too");
         }
-        let e = apply_pedestrian_params(base, &[("nope".to_string(), 1.0)].into()).unwrap_err();
+        let social = pedestrian_param_fields("tau").unwrap();
+        assert_eq!(social.len(), 3, "sfm, ra_sfm and cr_sfm: {social:?}");
+        let e = apply_overrides(&base, &[("nope".to_string(), 1.0)].into(), &none).unwrap_err();
         assert!(e.message.contains("ped_goal_radius") && e.message.contains("lambda3"));
+        let e = apply_overrides(&base, &none, &[("nope".to_string(), 1.0)].into()).unwrap_err();
+        assert!(e.message.contains("unknown reward weight"), "{}", e.message);
+        let e = apply_overrides(&base, &[("tau".to_string(), -1.0)].into(), &none).unwrap_err();
+        assert!(e.message.contains("tau"), "{}", e.message);
+    }
+
+    /// The dotted paths of the leaves that differ between two JSON values.
+    fn changed_leaves(a: &serde_json::Value, b: &serde_json::Value, path: &str) -> Vec<String> {
+        match (a, b) {
+            (serde_json::Value::Object(x), serde_json::Value::Object(y)) => x
+                .iter()
+                .flat_map(|(k, v)| {
+                    let at = if path.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{path}.{k}")
+                    };
+                    changed_leaves(v, &y[k], &at)
+                })
+                .collect(),
+            _ if a != b => vec![path.to_string()],
+            _ => vec![],
+        }
     }
 }
