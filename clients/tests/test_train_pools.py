@@ -73,3 +73,16 @@ def test_the_validation_pool_holds_out_train_scenes_and_never_the_test_split(tmp
     assert json.loads(out.read_text()) == pool
     with pytest.raises(ValueError, match="between 1 and"):
         validation_pool(paper, len(train))
+
+
+def test_one_pool_reader_lists_a_file_a_document_a_list_and_leaves_a_name_to_the_server():
+    from sharedspace.pool import listed_scenarios
+
+    paper = _paper()
+    expected = [(s["name"], s["split"]) for s in paper["scenarios"]]
+    assert listed_scenarios(DEFAULT_POOL_PATH) == ("hbs-paper", expected)
+    assert listed_scenarios(str(DEFAULT_POOL_PATH)) == ("hbs-paper", expected)
+    assert listed_scenarios(paper) == ("hbs-paper", expected)
+    assert listed_scenarios(paper["scenarios"][:2]) == (None, expected[:2])
+    assert listed_scenarios("hbs-general") == ("hbs-general", None)
+    assert listed_scenarios(None) == (None, None)

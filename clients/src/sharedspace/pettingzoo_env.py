@@ -23,7 +23,7 @@ the episode is over when ``env.agents`` is empty (then call ``reset``).
 **Infos** are numbers only, with the same keys at ``reset`` and every ``step`` (:data:`INFO_KEYS`),
 so that wrappers which turn infos into tensors (TorchRL's ``PettingZooWrapper``, SuperSuit)
 take them as they are: ``step``, ``t``, ``scenario_index`` (position of the
-scenario in the pool file, -1 if the pool file is not at hand), ``action_clipped``,
+scenario in the pool, as the server lists it: ``SimClient.scenarios``), ``action_clipped``,
 ``failover``, one ``reward_<term>`` per reward term, and the episode's metrics
 (``success``, ``collision``, ``timeout``, ``episode_steps``, ``episode_return``, ``avg_speed``,
 ``avg_abs_jerk``, ``max_abs_acc``: 0 until the step that ends the agent's episode). Names travel
@@ -86,24 +86,6 @@ def _blank_info() -> dict[str, float | int | bool]:
     for key in ("action_clipped", "failover", "success", "collision", "timeout"):
         info[key] = False
     return info
-
-
-def _pool_index(pool: str | None) -> dict[str, int]:
-    """Scenario name -> position in the pool file (the embedded pool's file in a checkout;
-    empty where there is none, and the env asks the server instead)."""
-    import json
-    from pathlib import Path
-
-    path = (
-        Path(pool)
-        if pool
-        else Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
-    )
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    return {sc["name"]: i for i, sc in enumerate(data.get("scenarios", []))}
 
 
 class SharedSpaceParallelEnv(ParallelEnv):
@@ -216,7 +198,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self.scenario: str | None = None
         #: Steps of the current episode at which the server truncates (from the reset).
         self.horizon_steps: int | None = None
-        self._scenario_index = _pool_index(pool)
+        #: Scenario name -> position in the pool, as the server lists it (at the first reset).
+        self._scenario_index: dict[str, int] = {}
         self._agents_desc: dict[int, dict[str, Any]] = {}
         self._latest: dict[str, dict[str, Any]] = {}
         self._latest_lock = threading.Lock()
@@ -362,7 +345,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         return obs, {a: dict(info) for a in self.agents}
 
     def _info(self, t: float = 0.0) -> dict[str, float | int | bool]:
-        if not self._scenario_index:  # no pool file at hand (an installed package)
+        if not self._scenario_index:
             pool = self._create.get("pool")
             _, names = self._connected.client.scenarios(pool, self.server_id)
             self._scenario_index = {name: i for i, (name, _) in enumerate(names)}

@@ -12,7 +12,13 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DEFAULT_POOL_PATH", "load_pool", "recorded_headings", "split_indices"]
+__all__ = [
+    "DEFAULT_POOL_PATH",
+    "listed_scenarios",
+    "load_pool",
+    "recorded_headings",
+    "split_indices",
+]
 
 #: The paper's scenario pool (HBS shared space, 59 train + 18 test scenarios).
 DEFAULT_POOL_PATH = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
@@ -21,6 +27,24 @@ DEFAULT_POOL_PATH = Path(__file__).resolve().parents[3] / "scenarios" / "data" /
 def load_pool(path: str | Path | None = None) -> list[dict[str, Any]]:
     """The scenarios of a scenario file (scenarios/FORMAT.md), in pool order."""
     return json.loads(Path(path or DEFAULT_POOL_PATH).read_text())["scenarios"]
+
+
+def listed_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]] | None]:
+    """``(pool name, [(scenario name, split), ...])`` in pool order of a pool the caller holds: a
+    pool file's path, a pool document or a list of scenario dicts. For a pool name, or None (the
+    server's default pool), ``(pool, None)``: the server serving it lists its scenarios
+    (:meth:`~sharedspace.client.SimClient.scenarios`), which is what every env asks then."""
+    if pool is None:
+        return None, None
+    if isinstance(pool, str | Path):
+        if not (str(pool).endswith(".json") or Path(pool).is_file()):
+            return str(pool), None
+        pool = json.loads(Path(pool).read_text())
+    if isinstance(pool, Mapping):
+        name, scenarios = pool.get("name"), pool["scenarios"]
+    else:
+        name, scenarios = None, list(pool)
+    return name, [(str(s["name"]), str(s.get("split", "train"))) for s in scenarios]
 
 
 def split_indices(pool: Sequence[Mapping[str, Any]], split: str | None) -> list[int]:

@@ -29,7 +29,6 @@ surviving server; the following partial ``_reset`` starts their first episodes (
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -45,7 +44,7 @@ from . import names
 from .client import SimClient
 from .errors import SharedspaceError
 from .models import DEFAULT_MODEL
-from .pool import DEFAULT_POOL_PATH
+from .pool import listed_scenarios
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
 from .vector import VectorClient
 
@@ -87,24 +86,6 @@ def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
         shape=(k,),
         device=dev,
     )
-
-
-def _pool_scenarios(pool: Any) -> tuple[str | None, list[tuple[str, str]]]:
-    """(pool name, [(scenario name, split)]) of a pool file / list of scenario dicts."""
-    if isinstance(pool, str) and not pool.endswith(".json") and not Path(pool).is_file():
-        return pool, []  # a pool name: the server lists its scenarios
-    if pool is None:
-        path = DEFAULT_POOL_PATH
-        if not path.is_file():
-            return None, []
-        data = json.loads(path.read_text())
-    elif isinstance(pool, str | Path):
-        data = json.loads(Path(pool).read_text())
-    elif isinstance(pool, Mapping):
-        data = pool
-    else:
-        data = {"name": None, "scenarios": list(pool)}
-    return data.get("name"), [(s["name"], s.get("split", "train")) for s in data["scenarios"]]
 
 
 def synthetic_names(synthetic: Mapping[str, Any], split: str) -> list[tuple[str, str]]:
@@ -267,7 +248,7 @@ class RemoteBatchedEnv(_ServerEnvs):
                 raise ValueError("synthetic scenes and a pool exclude each other")
             pool_name, pool_list = "synthetic", synthetic_names(synthetic, split)
         else:
-            pool_name, pool_list = _pool_scenarios(pool)
+            pool_name, pool_list = listed_scenarios(pool)
         self.pool_name = pool_name
         self.env_time_s = 0.0
         #: Each reward term of the last step, ``{term: [K]}`` (weighted, model.md 7; ``reward``
@@ -296,10 +277,8 @@ class RemoteBatchedEnv(_ServerEnvs):
         if client is None:
             create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
         self.vec = VectorClient(k, client=client, failover=failover, **create)
-        if not pool_list:  # no pool file at hand (an installed package): ask the server
-            self.pool_name, pool_list = self.vec.client.scenarios(
-                pool_name if pool is not None else None, self.vec.server_id
-            )
+        if pool_list is None:  # a pool the server names: it lists the scenarios
+            self.pool_name, pool_list = self.vec.client.scenarios(pool_name, self.vec.server_id)
         self._scenario_index = {name: i for i, (name, _) in enumerate(pool_list)}
         self._split_names = [name for name, s in pool_list if s == split]
         if scenarios is not None:
