@@ -17,9 +17,11 @@
 use std::future::Future;
 use std::path::Path;
 
-use serde_json::{json, Map, Value};
+use serde_json::{json, Value};
 
-use crate::server::config::{load_json5_with_overrides, ConfigError};
+use crate::server::config::{
+    load_json5_with_overrides, multicast_scouting_off_unless_set, ConfigError,
+};
 
 /// Why the router could not run.
 #[derive(Debug, thiserror::Error)]
@@ -55,17 +57,7 @@ pub fn fill_defaults(root: &mut Value) -> Result<(), RouterError> {
         ))
         .into());
     }
-    let scouting = obj
-        .entry("scouting")
-        .or_insert_with(|| Value::Object(Map::new()));
-    if let Some(s) = scouting.as_object_mut() {
-        let mc = s
-            .entry("multicast")
-            .or_insert_with(|| Value::Object(Map::new()));
-        if let Some(m) = mc.as_object_mut() {
-            m.entry("enabled").or_insert(json!(false));
-        }
-    }
+    multicast_scouting_off_unless_set(obj);
     Ok(())
 }
 

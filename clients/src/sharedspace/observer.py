@@ -25,7 +25,7 @@ import zenoh
 
 from . import codec
 from .errors import SharedspaceError
-from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, Transport
+from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, Transport, undeclare_all
 
 __all__ = ["Observer", "TOPICS"]
 
@@ -146,11 +146,7 @@ class Observer:
         if self._closed:
             return
         self._closed = True
-        for s in self._subs:
-            try:
-                s.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
+        undeclare_all(self._subs)
         if self._own:
             self.transport.close()
 

@@ -51,7 +51,7 @@ from .client import SimClient
 from .errors import EnvClosed, WrongShape
 from .models import DEFAULT_MODEL
 from .render import render_observation
-from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
+from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT, undeclare_all
 from .vector import VectorClient
 
 __all__ = ["SharedSpaceParallelEnv", "env", "parallel_env", "ENV_NAME", "INFO_KEYS"]
@@ -448,11 +448,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
     # Rendering
 
     def _subscribe(self) -> None:
-        for s in self._subs:
-            try:
-                s.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
+        undeclare_all(self._subs)
         t = self._connected.client.transport
         env_id = self.env_id
         self._subs = [
@@ -544,11 +540,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
         if self._closed:
             return
         self._closed = True
-        for s in self._subs:
-            try:
-                s.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
+        undeclare_all(self._subs)
         if self._vec is not None:
             self._vec.close()
 

@@ -49,6 +49,7 @@ __all__ = [
     "Transport",
     "make_client_id",
     "server_load",
+    "undeclare_all",
 ]
 
 log = logging.getLogger("sharedspace")
@@ -142,6 +143,16 @@ def _as_list(x: str | Iterable[str] | None) -> list[str]:
     if isinstance(x, str):
         return [x]
     return list(x)
+
+
+def undeclare_all(declarations) -> None:
+    """Undeclares zenoh subscribers, tokens and queryables, best effort: one that fails (its
+    session already closed) does not keep the others."""
+    for d in declarations:
+        try:
+            d.undeclare()
+        except Exception:  # noqa: BLE001 - best effort on shutdown
+            pass
 
 
 class Transport:
@@ -416,11 +427,7 @@ class Transport:
             if self._closed:
                 return
             self._closed = True
-        for obj in (self._watch, self._token):
-            try:
-                obj.undeclare()
-            except Exception:  # noqa: BLE001 - best effort on shutdown
-                pass
+        undeclare_all((self._watch, self._token))
         try:
             self.session.close()
         except Exception:  # noqa: BLE001

@@ -17,6 +17,23 @@ use super::core::Limits;
 /// Default zenoh listen endpoint of a peer or router server.
 pub const DEFAULT_LISTEN: &str = "tcp/127.0.0.1:7447";
 
+/// Sets zenoh's `scouting/multicast/enabled` to false where a configuration leaves it out:
+/// every sharedspace process (server, router) finds its peers by configured endpoints, not by
+/// multicast, unless asked to.
+pub fn multicast_scouting_off_unless_set(zenoh: &mut Map<String, Value>) {
+    let scouting = zenoh
+        .entry("scouting")
+        .or_insert_with(|| Value::Object(Map::new()));
+    if let Some(s) = scouting.as_object_mut() {
+        let multicast = s
+            .entry("multicast")
+            .or_insert_with(|| Value::Object(Map::new()));
+        if let Some(m) = multicast.as_object_mut() {
+            m.entry("enabled").or_insert(json!(false));
+        }
+    }
+}
+
 /// Everything the server needs to start.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -386,17 +403,7 @@ impl ServerConfig {
         if mode != "client" && !obj.contains_key("listen") {
             obj.insert("listen".into(), json!({"endpoints": [DEFAULT_LISTEN]}));
         }
-        let scouting = obj
-            .entry("scouting")
-            .or_insert_with(|| Value::Object(Map::new()));
-        if let Some(s) = scouting.as_object_mut() {
-            let mc = s
-                .entry("multicast")
-                .or_insert_with(|| Value::Object(Map::new()));
-            if let Some(m) = mc.as_object_mut() {
-                m.entry("enabled").or_insert(json!(false));
-            }
-        }
+        multicast_scouting_off_unless_set(obj);
         z.to_string()
     }
 
