@@ -326,11 +326,80 @@ impl<T: Element> fmt::Debug for NdArray<T> {
 
 impl<T: Element> Serialize for NdArray<T> {
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        let mut m = serializer.serialize_map(Some(3))?;
-        m.serialize_entry("dtype", T::DTYPE)?;
-        m.serialize_entry("shape", &self.shape)?;
-        m.serialize_entry("data", serde_bytes::Bytes::new(&self.data))?;
-        m.end()
+        serialize_wire_array(serializer, T::DTYPE, &self.shape, &self.data)
+    }
+}
+
+/// The wire layout of every array: `{dtype, shape, data}` with `data` as bin.
+fn serialize_wire_array<S: Serializer>(
+    serializer: S,
+    dtype: &str,
+    shape: &[u32],
+    data: &[u8],
+) -> Result<S::Ok, S::Error> {
+    let mut m = serializer.serialize_map(Some(3))?;
+    m.serialize_entry("dtype", dtype)?;
+    m.serialize_entry("shape", shape)?;
+    m.serialize_entry("data", serde_bytes::Bytes::new(data))?;
+    m.end()
+}
+
+/// A row-major array borrowed from the caller's buffer: it serializes to exactly the bytes of
+/// the [`NdArray`] with the same shape and values, without building that array (on a
+/// little-endian host the values go out as they lie in memory).
+#[derive(Debug, Clone)]
+pub struct ArrayView<'a, T: Element> {
+    shape: Vec<u32>,
+    values: &'a [T],
+}
+
+impl<'a, T: Element> ArrayView<'a, T> {
+    /// A view of `values` (row-major) as an array of `shape`.
+    pub fn new(shape: Vec<u32>, values: &'a [T]) -> Result<Self, ArrayError> {
+        let n = shape_len(&shape)?;
+        if values.len() != n {
+            return Err(ArrayError::LengthMismatch {
+                dtype: T::DTYPE,
+                shape,
+                expected: n,
+                expected_bytes: n.saturating_mul(T::SIZE),
+                actual_bytes: values.len().saturating_mul(T::SIZE),
+            });
+        }
+        // MessagePack's bin holds at most 2^32 - 1 bytes.
+        if n.checked_mul(T::SIZE)
+            .is_none_or(|b| u32::try_from(b).is_err())
+        {
+            return Err(ArrayError::ShapeOverflow { shape });
+        }
+        Ok(Self { shape, values })
+    }
+
+    pub fn shape(&self) -> &[u32] {
+        &self.shape
+    }
+}
+
+impl<T: Element> Serialize for ArrayView<'_, T> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serialize_wire_array(serializer, T::DTYPE, &self.shape, &le_bytes(self.values))
+    }
+}
+
+/// The little-endian bytes of `values`: borrowed on a little-endian host, copied otherwise.
+fn le_bytes<T: Element>(values: &[T]) -> std::borrow::Cow<'_, [u8]> {
+    if cfg!(target_endian = "little") {
+        // SAFETY: `T` is one of f32, f64, u32, u64, u8 (the trait is sealed): no padding and
+        // every byte initialised, so its memory may be read as bytes; `size_of_val` bytes from
+        // the slice's start stay inside it; `u8` needs no alignment. On a little-endian host
+        // those bytes are the little-endian encoding.
+        std::borrow::Cow::Borrowed(unsafe {
+            std::slice::from_raw_parts(values.as_ptr().cast::<u8>(), std::mem::size_of_val(values))
+        })
+    } else {
+        let mut bytes = vec![0; values.len() * T::SIZE];
+        T::write_all_le(values, &mut bytes);
+        std::borrow::Cow::Owned(bytes)
     }
 }
 

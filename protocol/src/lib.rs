@@ -12,8 +12,8 @@
 //! * [`codec`]: [`encode`] / [`decode`] (named-map MessagePack).
 //! * `samples` (feature `samples`, on in this crate's tests): the fixed example values behind
 //!   the golden files in `tests/golden/`.
-//! * [`wire`]: direct writing of the batch-step reply from borrowed slices (same bytes as
-//!   [`encode`]).
+//! * [`wire`]: the batch-step reply as borrowed views of [`BatchStepResult`] (its arrays are
+//!   [`ArrayView`]s of the server's step buffers; same bytes as [`encode`] of the owned result).
 
 pub mod array;
 pub mod codec;
@@ -28,7 +28,8 @@ pub mod wire;
 pub const PROTOCOL_VERSION: u32 = 2;
 
 pub use array::{
-    ArrayError, Element, F32Array, F64Array, FloatArray, NdArray, U32Array, U64Array, U8Array,
+    ArrayError, ArrayView, Element, F32Array, F64Array, FloatArray, NdArray, U32Array, U64Array,
+    U8Array,
 };
 pub use codec::{decode, decode_or_default, encode, try_encode};
 pub use error::ProtocolError;

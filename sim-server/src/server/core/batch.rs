@@ -194,7 +194,7 @@ impl ServerCore {
             if i == 0 {
                 cols = part;
             } else {
-                cols.append(&part);
+                cols.append(part);
             }
             pubs.extend(p);
         }

@@ -20,7 +20,7 @@ use sim_core::world::{
     AgentId, Control, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World,
 };
 
-use protocol::wire::{AgentDescRef, BatchArrays, BatchColumns, ObsRef, ResetResultRef};
+use protocol::wire::{BatchArrays, BatchColumns, BatchReset, ObsRef};
 
 use super::pools::{ScenarioSequence, ServedPool, ServedScenario};
 
@@ -351,18 +351,7 @@ impl Env {
         self.fill_reset_obs();
         let world = self.world.as_ref().expect("reset_result after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
-        let agents: Vec<AgentDesc> = agent_descs(world, served, &self.ext_ids)
-            .into_iter()
-            .map(|a| AgentDesc {
-                id: a.id,
-                name: a.name.to_string(),
-                kind: a.kind,
-                external: a.external,
-                radius: a.radius,
-                length: a.length,
-                width: a.width,
-            })
-            .collect();
+        let agents = agent_descs(world, served, &self.ext_ids);
         let obs = self.reset_obs.obs();
         Ok(ResetResult {
             env_id: self.id.clone(),
@@ -386,12 +375,11 @@ impl Env {
             .as_ref()
             .expect("push_reset_columns after a reset");
         let served = &self.spec.pool.scenarios[self.scenario];
-        let agents = agent_descs(world, served, &self.ext_ids);
-        cols.push_reset(&ResetResultRef {
+        cols.push_reset(BatchReset {
             episode: self.episode,
             scenario: &served.scenario.name,
             horizon_steps: world.horizon(),
-            agents: &agents,
+            agents: agent_descs(world, served, &self.ext_ids),
             obs: self.reset_obs.obs_ref(),
             variation: self.variation.as_ref().map(|v| v.seed),
         });
@@ -629,22 +617,18 @@ impl Env {
     }
 }
 
-/// The `ResetResult::agents` entries of `world` (borrowed names), in id order.
-fn agent_descs<'a>(
-    world: &World,
-    served: &'a ServedScenario,
-    ext_ids: &[AgentId],
-) -> Vec<AgentDescRef<'a>> {
-    let mut agents: Vec<AgentDescRef<'a>> = world
+/// The `ResetResult::agents` entries of `world`, in id order.
+fn agent_descs(world: &World, served: &ServedScenario, ext_ids: &[AgentId]) -> Vec<AgentDesc> {
+    let mut agents: Vec<AgentDesc> = world
         .agents()
         .map(|a| {
             let (length, width) = match a.shape {
                 Shape::Rect { length, width } => (Some(length), Some(width)),
                 Shape::Disc { .. } => (None, None),
             };
-            AgentDescRef {
+            AgentDesc {
                 id: a.id,
-                name: &served.names[a.id as usize],
+                name: served.names[a.id as usize].clone(),
                 kind: to_wire_kind(a.kind),
                 external: ext_ids.contains(&a.id),
                 radius: a.shape.bounding_radius(),
