@@ -1,4 +1,4 @@
-//! MessagePack codec: every message is encoded with `rmp_serde::to_vec_named`, so structs are
+//! MessagePack codec: every message is encoded with `rmp_serde`'s named encoding ([`try_encode_into`]), so structs are
 //! maps keyed by field name and any MessagePack reader sees plain maps.
 
 use serde::de::DeserializeOwned;
@@ -27,7 +27,17 @@ pub fn type_label<T: ?Sized>() -> String {
 
 /// Encodes `value` as named-map MessagePack, returning an error instead of panicking.
 pub fn try_encode<T: Serialize + ?Sized>(value: &T) -> Result<Vec<u8>, ProtocolError> {
-    rmp_serde::to_vec_named(value).map_err(|source| ProtocolError::Encode {
+    let mut out = Vec::new();
+    try_encode_into(&mut out, value)?;
+    Ok(out)
+}
+
+/// [`try_encode`] appending to `out` (a buffer the caller sized, e.g. for a batch reply).
+pub fn try_encode_into<T: Serialize + ?Sized>(
+    out: &mut Vec<u8>,
+    value: &T,
+) -> Result<(), ProtocolError> {
+    rmp_serde::encode::write_named(out, value).map_err(|source| ProtocolError::Encode {
         what: type_label::<T>(),
         source,
     })

@@ -179,9 +179,9 @@ pub fn write_batch_step_ok(
             variation: &r.variation,
         },
     };
-    if let Err(e) = rmp_serde::encode::write_named(out, &Reply::Ok(view)) {
+    if let Err(e) = crate::codec::try_encode_into(out, &Reply::Ok(view)) {
         // Writing into a Vec cannot fail, and the views serialize infallibly.
-        unreachable!("encoding into a Vec failed: {e}");
+        unreachable!("{e}");
     }
     Ok(())
 }
