@@ -117,6 +117,21 @@ pub fn shape_len(shape: &[u32]) -> Result<usize, ArrayError> {
         })
 }
 
+/// The number of elements of `shape`, or an error unless `len` values fill it exactly.
+fn checked_len<T: Element>(shape: &[u32], len: usize) -> Result<usize, ArrayError> {
+    let n = shape_len(shape)?;
+    if len != n {
+        return Err(ArrayError::LengthMismatch {
+            dtype: T::DTYPE,
+            shape: shape.to_vec(),
+            expected: n,
+            expected_bytes: n.saturating_mul(T::SIZE),
+            actual_bytes: len.saturating_mul(T::SIZE),
+        });
+    }
+    Ok(n)
+}
+
 /// A row-major n-dimensional array of `T`, stored as little-endian bytes.
 #[derive(Clone, PartialEq)]
 pub struct NdArray<T: Element> {
@@ -139,16 +154,7 @@ pub type U8Array = NdArray<u8>;
 impl<T: Element> NdArray<T> {
     /// Builds an array from row-major values; errors unless `values.len() == product(shape)`.
     pub fn new(shape: Vec<u32>, values: &[T]) -> Result<Self, ArrayError> {
-        let n = shape_len(&shape)?;
-        if values.len() != n {
-            return Err(ArrayError::LengthMismatch {
-                dtype: T::DTYPE,
-                shape,
-                expected: n,
-                expected_bytes: n.saturating_mul(T::SIZE),
-                actual_bytes: values.len().saturating_mul(T::SIZE),
-            });
-        }
+        let n = checked_len::<T>(&shape, values.len())?;
         let mut data = vec![0u8; n * T::SIZE];
         T::write_all_le(values, &mut data);
         Ok(Self {
@@ -356,16 +362,7 @@ pub struct ArrayView<'a, T: Element> {
 impl<'a, T: Element> ArrayView<'a, T> {
     /// A view of `values` (row-major) as an array of `shape`.
     pub fn new(shape: Vec<u32>, values: &'a [T]) -> Result<Self, ArrayError> {
-        let n = shape_len(&shape)?;
-        if values.len() != n {
-            return Err(ArrayError::LengthMismatch {
-                dtype: T::DTYPE,
-                shape,
-                expected: n,
-                expected_bytes: n.saturating_mul(T::SIZE),
-                actual_bytes: values.len().saturating_mul(T::SIZE),
-            });
-        }
+        let n = checked_len::<T>(&shape, values.len())?;
         // MessagePack's bin holds at most 2^32 - 1 bytes.
         if n.checked_mul(T::SIZE)
             .is_none_or(|b| u32::try_from(b).is_err())
