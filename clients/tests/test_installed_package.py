@@ -90,7 +90,7 @@ def test_a_fresh_venv_with_the_train_extra_trains_against_a_server_it_starts(tmp
 
     bin_dir = tmp_path / "bin"  # a PATH with sim-server on it, as `cargo install` makes one
     bin_dir.mkdir()
-    (bin_dir / "sim-server").symlink_to(binary)
+    (bin_dir / "sim-server").symlink_to(Path(binary).resolve())  # may be relative
     env = {k: v for k, v in os.environ.items() if k != "SHAREDSPACE_SIM_SERVER"}
 
     def run(path: str, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:
