@@ -7,6 +7,8 @@
 //! same bytes (the tests compare the two), with each array's bytes copied once, into the output.
 //! The per-env columns ([`BatchColumns`]) are gathered by the threads that step the envs.
 
+use std::sync::Arc;
+
 use serde::Serialize;
 
 use crate::array::{ArrayError, ArrayView};
@@ -110,13 +112,23 @@ struct BatchStepView<'a> {
     terminated: ArrayView<'a, u8>,
     truncated: ArrayView<'a, u8>,
     episode: ArrayView<'a, u64>,
-    scenario: &'a [String],
+    scenario: SharedNames<'a>,
     step: ArrayView<'a, u32>,
     t: ArrayView<'a, f64>,
     action_clipped: ArrayView<'a, u8>,
     events: &'a [BatchEvent],
     metrics: &'a [BatchMetrics],
     resets: BatchResetsView<'a>,
+}
+
+/// A list of shared strings (the scenario names of a batch's envs: an `Arc` each, so naming an
+/// env costs no copy), serialized as a list of strings.
+struct SharedNames<'a>(&'a [Arc<str>]);
+
+impl Serialize for SharedNames<'_> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_seq(self.0.iter().map(|name| &**name))
+    }
 }
 
 /// Writes a whole `Reply::Ok(BatchStepResult)` from the stacked arrays and the per-env
@@ -153,7 +165,7 @@ pub fn write_batch_step_ok(
         terminated: ArrayView::new(vec![k, n], a.terminated)?,
         truncated: ArrayView::new(vec![k, n], a.truncated)?,
         episode: ArrayView::new(vec![k], &cols.episode)?,
-        scenario: &cols.scenario,
+        scenario: SharedNames(&cols.scenario),
         step: ArrayView::new(vec![k], &cols.step)?,
         t: ArrayView::new(vec![k], &cols.t)?,
         action_clipped: ArrayView::new(vec![k, n], &cols.action_clipped)?,
@@ -190,7 +202,7 @@ pub fn write_batch_step_ok(
 #[derive(Debug, Clone, Copy)]
 pub struct BatchEnvRef<'a> {
     pub episode: u64,
-    pub scenario: &'a str,
+    pub scenario: &'a Arc<str>,
     pub step: u32,
     pub t: f64,
     pub action_clipped: &'a [bool],
@@ -223,7 +235,7 @@ pub struct BatchColumns {
     /// Position in `env_ids` of the first env pushed.
     base: u32,
     episode: Vec<u64>,
-    scenario: Vec<String>,
+    scenario: Vec<Arc<str>>,
     step: Vec<u32>,
     t: Vec<f64>,
     action_clipped: Vec<u8>,
@@ -298,7 +310,7 @@ impl BatchColumns {
     pub fn push_env(&mut self, e: &BatchEnvRef<'_>) {
         let index = self.base + self.episode.len() as u32;
         self.episode.push(e.episode);
-        self.scenario.push(e.scenario.to_owned());
+        self.scenario.push(Arc::clone(e.scenario));
         self.step.push(e.step);
         self.t.push(e.t);
         self.action_clipped
@@ -350,7 +362,7 @@ impl BatchColumns {
         let r = &self.resets;
         let names = |v: &[String]| v.iter().map(|s| s.len() + 5).sum::<usize>();
         32 * self.len()
-            + names(&self.scenario)
+            + self.scenario.iter().map(|s| s.len() + 5).sum::<usize>()
             + 160 * (self.events.len() + self.metrics.len())
             + names(&r.scenario)
             + 96 * r.agents.iter().map(Vec::len).sum::<usize>()

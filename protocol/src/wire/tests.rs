@@ -116,7 +116,7 @@ fn direct(steps: &[StepResult], chunk: usize) -> Vec<u8> {
         for s in part {
             next.push_env(&BatchEnvRef {
                 episode: s.episode,
-                scenario: &s.scenario,
+                scenario: &std::sync::Arc::from(s.scenario.as_str()),
                 step: s.step,
                 t: s.t,
                 action_clipped: &s.info.action_clipped,

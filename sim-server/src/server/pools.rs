@@ -33,6 +33,8 @@ pub struct ServedScenario {
     pub vehicles: Vec<AgentId>,
     /// Name of every agent, indexed by agent id.
     pub names: Vec<String>,
+    /// The scenario's name, shared by the batch replies that name it (no copy per env step).
+    pub name: Arc<str>,
 }
 
 impl ServedScenario {
@@ -62,6 +64,7 @@ impl ServedScenario {
             }
         }
         Self {
+            name: Arc::from(scenario.name.as_str()),
             scenario: Arc::new(scenario),
             vehicles,
             names,

@@ -202,8 +202,8 @@ impl Env {
     }
 
     /// The name of scenario `idx` of this env's pool (as in [`StepMeta::scenario`]).
-    pub fn scenario_name(&self, idx: usize) -> &str {
-        &self.spec.pool.scenarios[idx].scenario.name
+    pub fn scenario_name(&self, idx: usize) -> &Arc<str> {
+        &self.spec.pool.scenarios[idx].name
     }
 
     /// Starts a new episode (`Reset`). Publications of the first state go to `pubs`.
