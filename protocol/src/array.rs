@@ -371,10 +371,6 @@ impl<'a, T: Element> ArrayView<'a, T> {
         }
         Ok(Self { shape, values })
     }
-
-    pub fn shape(&self) -> &[u32] {
-        &self.shape
-    }
 }
 
 impl<T: Element> Serialize for ArrayView<'_, T> {

@@ -1,6 +1,6 @@
 //! MessagePack codec: every message is encoded with `rmp_serde`'s named encoding
-//! ([`try_encode_into`]), so structs are
-//! maps keyed by field name and any MessagePack reader sees plain maps.
+//! ([`try_encode_into`]), so structs are maps keyed by field name and any MessagePack reader
+//! sees plain maps.
 
 use serde::de::DeserializeOwned;
 use serde::Serialize;
