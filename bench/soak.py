@@ -210,38 +210,20 @@ def main() -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument(
-        "--minutes", type=float, default=10.0, help="soak duration (hours: 60 * h)"
-    )
-    ap.add_argument(
-        "--trainers", type=int, default=8, help="trainer processes at any time"
-    )
-    ap.add_argument("--envs", type=int, default=64, help="envs per trainer")
-    ap.add_argument(
-        "--churn-s", type=float, default=10.0, help="mean seconds between churn ops"
-    )
-    ap.add_argument(
-        "--kill-every-s", type=float, default=60.0, help="seconds between SIGKILLs"
-    )
-    ap.add_argument(
-        "--sample-s", type=float, default=5.0, help="seconds between RSS samples"
-    )
-    ap.add_argument("--period-s", type=float, default=60.0, help="report period, s")
-    ap.add_argument(
-        "--slope-min",
-        type=float,
-        default=60.0,
-        help="RSS slope over the last this many minutes",
-    )
-    ap.add_argument(
-        "--max-slope",
-        type=float,
-        default=0.1,
-        help="PASS bound on the RSS slope, MiB/h",
-    )
-    ap.add_argument(
-        "--warmup-min", type=float, default=2.0, help="RSS baseline after this"
-    )
+    numbers = [  # flag, type, default, help
+        ("--minutes", float, 10.0, "soak duration (hours: 60 * h)"),
+        ("--trainers", int, 8, "trainer processes at any time"),
+        ("--envs", int, 64, "envs per trainer"),
+        ("--churn-s", float, 10.0, "mean seconds between churn ops"),
+        ("--kill-every-s", float, 60.0, "seconds between SIGKILLs"),
+        ("--sample-s", float, 5.0, "seconds between RSS samples"),
+        ("--period-s", float, 60.0, "report period, s"),
+        ("--slope-min", float, 60.0, "RSS slope over the last this many minutes"),
+        ("--max-slope", float, 0.1, "PASS bound on the RSS slope, MiB/h"),
+        ("--warmup-min", float, 2.0, "RSS baseline after this"),
+    ]
+    for flag, kind, default, text in numbers:
+        ap.add_argument(flag, type=kind, default=default, help=text)
     ap.add_argument("--server", default=str(ROOT / "target" / "release" / "sim-server"))
     ap.add_argument(
         "--server-wrap",

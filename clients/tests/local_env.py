@@ -25,14 +25,14 @@ from typing import Any
 import numpy as np
 import torch
 from reference import ReferenceWorld, merge_params
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.torchrl_env import (
-    EPISODE_FLAG_KEYS,
-    EPISODE_FLOAT_KEYS,
     NODE_FEATURES,
+    blank_step_columns,
+    contract_tensordict,
     set_contract_specs,
 )
 
@@ -160,30 +160,19 @@ class LocalBatchedEnv(EnvBase):
 
     def _blank(self) -> dict[str, np.ndarray]:
         k, m = self.num_envs, self.max_agents
-        out = {
-            "features": np.zeros((k, m, NODE_FEATURES), dtype=np.float32),
-            "adjacency": np.zeros((k, m, m), dtype=np.float32),
-            "mask": np.zeros((k, m), dtype=bool),
-            "reward": np.zeros((k, 1), dtype=np.float32),
-            "terminated": np.zeros((k, 1), dtype=bool),
-            "truncated": np.zeros((k, 1), dtype=bool),
-        }
-        for key in EPISODE_FLAG_KEYS:
-            out[key] = np.zeros((k, 1), dtype=bool)
-        for key in EPISODE_FLOAT_KEYS:
-            out[key] = np.zeros((k, 1), dtype=np.float32)
+        out = blank_step_columns(k)
+        out.update(
+            features=np.zeros((k, m, NODE_FEATURES), dtype=np.float32),
+            adjacency=np.zeros((k, m, m), dtype=np.float32),
+            mask=np.zeros((k, m), dtype=bool),
+            reward=np.zeros((k, 1), dtype=np.float32),
+        )
         return out
 
     def _to_td(self, out: dict[str, np.ndarray], with_reward: bool) -> TensorDictBase:
-        out["done"] = out["terminated"] | out["truncated"]
-        out["scenario_index"] = self._scenario.reshape(-1, 1).copy()
         if not with_reward:
             del out["reward"]
-        return TensorDict(
-            {key: torch.from_numpy(v) for key, v in out.items()},
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        return contract_tensordict(self, out, self._scenario)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         t0 = time.perf_counter()

@@ -10,17 +10,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from sharedspace import codec
-from sharedspace.errors import (
-    EnvClosed,
-    NonFiniteAction,
-    NoServer,
-    ProtocolError,
-    ServerError,
-    SharedspaceError,
-    VersionMismatch,
-    WrongShape,
-)
+from sharedspace import codec, errors
 
 GOLDEN = Path(__file__).resolve().parents[2] / "tests" / "golden"
 FILES = sorted(p.name for p in GOLDEN.glob("*.msgpack"))
@@ -76,27 +66,20 @@ def _parse(tokens, i=0):
     if m.group("word"):
         return {"nil": None, "true": True, "false": False}[m.group("word")], i + 1
     p = m.group("punct")
-    if p == "{":
-        out = {}
+    if p in ("{", "["):  # a map of `key: value` items or an array, items separated by commas
+        close, items = "}" if p == "{" else "]", []
         i += 1
-        while tokens[i].group("punct") != "}":
+        while tokens[i].group("punct") != close:
             if tokens[i].group("punct") == ",":
                 i += 1
                 continue
-            key, i = _parse(tokens, i)
-            assert tokens[i].group("punct") == ":"
-            out[key], i = _parse(tokens, i + 1)
-        return out, i + 1
-    if p == "[":
-        out = []
-        i += 1
-        while tokens[i].group("punct") != "]":
-            if tokens[i].group("punct") == ",":
-                i += 1
-                continue
-            v, i = _parse(tokens, i)
-            out.append(v)
-        return out, i + 1
+            item, i = _parse(tokens, i)
+            if p == "{":
+                assert tokens[i].group("punct") == ":"
+                value, i = _parse(tokens, i + 1)
+                item = (item, value)
+            items.append(item)
+        return (dict(items) if p == "{" else items), i + 1
     raise ValueError(f"unexpected token {m.group(0)!r}")
 
 
@@ -197,13 +180,13 @@ def test_request_builders_reproduce_golden_bytes():
 
 
 def test_wrong_action_shapes_raise_wrong_shape():
-    with pytest.raises(WrongShape):
+    with pytest.raises(errors.WrongShape):
         codec.step(np.zeros((2, 3)))
-    with pytest.raises(WrongShape):
+    with pytest.raises(errors.WrongShape):
         codec.step(np.zeros((2, 2)), n_ext=1)
-    with pytest.raises(WrongShape):
+    with pytest.raises(errors.WrongShape):
         codec.batch_step(["a", "b"], np.zeros((3, 1, 2), dtype=np.float32))
-    with pytest.raises(WrongShape):
+    with pytest.raises(errors.WrongShape):
         codec.action_msg([1.0, 2.0, 3.0])
     # Integer actions are sent as float64 (the server refuses integer dtypes).
     assert codec.step([[1, 0]])["actions"].dtype == np.float64
@@ -215,9 +198,9 @@ def test_reply_envelope():
     step = codec.decode_reply(_golden("reply_step.msgpack"))
     assert step["obs"]["features"].shape == (1, 4, 11)
     assert step["reward"].dtype == np.float32 and step["reward"][0] == np.float32(-1.125)
-    with pytest.raises(NonFiniteAction) as e:
+    with pytest.raises(errors.NonFiniteAction) as e:
         codec.decode_reply(_golden("reply_error.msgpack"))
-    assert isinstance(e.value, ServerError) and isinstance(e.value, SharedspaceError)
+    assert isinstance(e.value, errors.ServerError) and isinstance(e.value, errors.SharedspaceError)
     assert e.value.code == "non_finite_action" and e.value.env_id == "s1-1"
     assert "component 1 is NaN" in e.value.message
 
@@ -225,10 +208,10 @@ def test_reply_envelope():
 @pytest.mark.parametrize(
     ("code", "cls"),
     [
-        ("version_mismatch", VersionMismatch),
-        ("env_closed", EnvClosed),
-        ("wrong_shape", WrongShape),
-        ("something_new", ServerError),
+        ("version_mismatch", errors.VersionMismatch),
+        ("env_closed", errors.EnvClosed),
+        ("wrong_shape", errors.WrongShape),
+        ("something_new", errors.ServerError),
     ],
 )
 def test_error_codes_map_to_exceptions(code, cls):
@@ -239,25 +222,25 @@ def test_error_codes_map_to_exceptions(code, cls):
 
 
 def test_bad_payloads_raise_protocol_error():
-    with pytest.raises(ProtocolError):
+    with pytest.raises(errors.ProtocolError):
         codec.decode_reply(codec.encode({"ok": 1, "error": {"code": "x", "message": "y"}}))
-    with pytest.raises(ProtocolError):
+    with pytest.raises(errors.ProtocolError):
         codec.decode_reply(codec.encode({"neither": 1}))
-    with pytest.raises(ProtocolError):
+    with pytest.raises(errors.ProtocolError):
         codec.decode(_golden("close.msgpack") + b"\x00")  # trailing bytes
     bad_len = {"dtype": "<f4", "shape": [3], "data": b"\x00" * 8}
-    with pytest.raises(ProtocolError):
+    with pytest.raises(errors.ProtocolError):
         codec.decode(msgspec.msgpack.encode({"a": bad_len}))
     bad_dtype = {"dtype": "<i8", "shape": [1], "data": b"\x00" * 8}
-    with pytest.raises(ProtocolError):
+    with pytest.raises(errors.ProtocolError):
         codec.decode(msgspec.msgpack.encode({"a": bad_dtype}))
     assert codec.decode(b"") == {}
 
 
 def test_no_server_error():
-    e = NoServer("sharedspace/server/*/info", 5.0)
+    e = errors.NoServer("sharedspace/server/*/info", 5.0)
     assert e.endpoint == "sharedspace/server/*/info" and e.timeout == 5.0
-    assert "5 s" in str(e) and isinstance(e, SharedspaceError)
+    assert "5 s" in str(e) and isinstance(e, errors.SharedspaceError)
 
 
 # --------------------------------------------------------------------------------------------
@@ -307,7 +290,7 @@ def test_client_decode_result_names_a_malformed_array(field, value, says):
 
     reply = msgspec.msgpack.decode((GOLDEN / "reply_step.msgpack").read_bytes())
     reply["ok"][field] = value
-    with pytest.raises(ProtocolError, match=says):
+    with pytest.raises(errors.ProtocolError, match=says):
         decode_result(msgspec.msgpack.encode(reply))
 
 
@@ -322,7 +305,7 @@ def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
     decode = decode_step_result if name == "reply_step" else decode_batch_result
     reply = msgspec.msgpack.decode((GOLDEN / f"{name}.msgpack").read_bytes())
     reply["ok"][field] = value
-    with pytest.raises(ProtocolError, match=says):
+    with pytest.raises(errors.ProtocolError, match=says):
         decode(msgspec.msgpack.encode(reply))
 
 
@@ -338,7 +321,7 @@ def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
 def test_client_decode_result_refuses_undecodable_bytes(mangle, says):
     from sharedspace.decode import decode_result
 
-    with pytest.raises(ProtocolError, match=says):
+    with pytest.raises(errors.ProtocolError, match=says):
         decode_result(mangle((GOLDEN / "reply_step.msgpack").read_bytes()))
 
 
@@ -378,26 +361,26 @@ def test_client_step_decoder_equals_codec_decode_reply():
     step["ok"]["reset"] = reply["ok"]
     with_reset = msgspec.msgpack.encode(step)
     assert _same(decode_step_result(with_reset), codec.decode_reply(with_reset))
-    with pytest.raises(NonFiniteAction):
+    with pytest.raises(errors.NonFiniteAction):
         decode_step_result((GOLDEN / "reply_error.msgpack").read_bytes())
     step["ok"]["reward"] = {"dtype": "<f4", "shape": [2], "data": b"\0" * 4}
-    with pytest.raises(ProtocolError, match="needs 8"):
+    with pytest.raises(errors.ProtocolError, match="needs 8"):
         decode_step_result(msgspec.msgpack.encode(step))
 
 
 def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
     from sharedspace.decode import decode_batch_result
 
-    with pytest.raises(NonFiniteAction):
+    with pytest.raises(errors.NonFiniteAction):
         decode_batch_result((GOLDEN / "reply_error.msgpack").read_bytes())
     reply = msgspec.msgpack.decode((GOLDEN / "reply_batch_step.msgpack").read_bytes())
     reply["ok"]["reward"] = {"dtype": "<f4", "shape": [5, 1], "data": b"\0" * 8}
-    with pytest.raises(ProtocolError, match="needs 20"):
+    with pytest.raises(errors.ProtocolError, match="needs 20"):
         decode_batch_result(msgspec.msgpack.encode(reply))
     reply["ok"]["reward"] = {"dtype": "<f4", "shape": [3], "data": 7}  # not even bytes
-    with pytest.raises(ProtocolError, match="binary-array map"):
+    with pytest.raises(errors.ProtocolError, match="binary-array map"):
         decode_batch_result(msgspec.msgpack.encode(reply))
-    with pytest.raises(ProtocolError, match="empty reply"):
+    with pytest.raises(errors.ProtocolError, match="empty reply"):
         decode_batch_result(b"")
 
 
@@ -430,7 +413,7 @@ def test_client_array_views_equal_codec_decode_array(m):
 def test_client_array_refuses_negative_dims_of_a_matching_size():
     from sharedspace.decode import _array
 
-    with pytest.raises(ProtocolError, match="non-negative"):
+    with pytest.raises(errors.ProtocolError, match="non-negative"):
         _array({"dtype": "<f4", "shape": [-1, -1], "data": b"\0" * 4})
 
 
@@ -490,7 +473,7 @@ def test_client_layout_decoder_names_a_malformed_array(field, value, says):
     layout = step_decoder_for(decode_step_result(payload))
     reply = msgspec.msgpack.decode(payload)
     reply["ok"][field] = value
-    with pytest.raises(ProtocolError, match=says):
+    with pytest.raises(errors.ProtocolError, match=says):
         layout(msgspec.msgpack.encode(reply))
-    with pytest.raises(NonFiniteAction):
+    with pytest.raises(errors.NonFiniteAction):
         layout((GOLDEN / "reply_error.msgpack").read_bytes())

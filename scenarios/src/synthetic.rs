@@ -399,22 +399,10 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
     let walk = side.min(cfg.max_walk);
     let mut agents = Vec::with_capacity(cfg.pedestrians + cfg.vehicles);
     let margin = 0.5 * VEHICLE_LENGTH + 1.0;
-    let (pos, vel) = straight_track(
-        [-margin, 0.5 * side],
-        [side + margin, 0.5 * side],
-        cfg.vehicle_speed,
-    );
-    agents.push(AgentRecord {
-        record_id: 0,
-        kind: AgentKind::Vehicle,
-        start_step: 0,
-        positions: pos,
-        velocities: vel,
-        non_reactive: false,
-        desired_speed: None,
-    });
-    // The other vehicles, drawn without randomness so that V = 1 scenes stay as they were.
-    for k in 1..cfg.vehicles {
+    // Vehicle 0 (the ego) drives along the centre line, left to right; the others alternate
+    // direction on lanes either side of it, drawn without randomness so that V = 1 scenes stay
+    // as they were.
+    for k in 0..cfg.vehicles {
         let lane = (k as f64 / 2.0).ceil() * LANE_SPACING * if k % 2 == 1 { -1.0 } else { 1.0 };
         let y = 0.5 * side + lane;
         let (from, to) = if k % 2 == 1 {

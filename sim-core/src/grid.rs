@@ -122,6 +122,7 @@ impl Grid {
         let x1 = (cx + 1).min(self.nx - 1);
         let mut out = [(0, 0); 3];
         for (k, y) in (y0..=y1).enumerate() {
+            // Cells x0..=x1 of one row are contiguous in `sorted`.
             out[k] = (
                 self.starts[y * self.nx + x0] as usize,
                 self.starts[y * self.nx + x1 + 1] as usize,
@@ -141,16 +142,8 @@ impl Grid {
     /// superset of its neighbours within the radius, `i` itself included).
     #[inline]
     pub fn for_each_candidate(&self, i: usize, mut f: impl FnMut(usize)) {
-        let (cx, cy) = self.cell_xy[i];
-        let (cx, cy) = (cx as usize, cy as usize);
-        let y0 = cy.saturating_sub(1);
-        let y1 = (cy + 1).min(self.ny - 1);
-        let x0 = cx.saturating_sub(1);
-        let x1 = (cx + 1).min(self.nx - 1);
-        for y in y0..=y1 {
-            // Cells x0..=x1 of one row are contiguous in `sorted`.
-            let a = self.starts[y * self.nx + x0] as usize;
-            let b = self.starts[y * self.nx + x1 + 1] as usize;
+        let (ranges, rows) = self.candidate_ranges(i);
+        for &(a, b) in &ranges[..rows] {
             for &j in &self.sorted[a..b] {
                 f(j as usize);
             }

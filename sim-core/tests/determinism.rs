@@ -4,7 +4,7 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{fingerprint, line, scenario, track, Rng};
+use common::{fingerprint, line, mixed_models, scenario, track, Rng};
 use sim_core::scenario::{AgentKind, AgentRecord, Scenario};
 use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
 
@@ -45,13 +45,7 @@ fn crowd(seed: u64) -> (Arc<Scenario>, EpisodeConfig) {
         (0..50).map(|k| [(k % 3) as f64 - 1.0, 0.5]).collect(),
     ));
     let sc = scenario(0, agents);
-    let config = EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
-        model_overrides: overrides,
-        external: vec![0],
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
-    };
+    let config = mixed_models(overrides);
     (sc, config)
 }
 

@@ -4,9 +4,9 @@
 
 mod common;
 
-use common::{fingerprint, line, scenario, Rng};
+use common::{fingerprint, line, mixed_models, scenario, Rng};
 use sim_core::scenario::{AgentKind, AgentRecord};
-use sim_core::{EpisodeConfig, PedestrianModel, StepScratch, World, WorldParams};
+use sim_core::{PedestrianModel, StepScratch, World, WorldParams};
 
 /// An external car among `n` pedestrians on a `side` x `side` square, a third of them
 /// entering after the start and some arriving early, of every simulated model.
@@ -35,13 +35,7 @@ fn world(seed: u64, n: usize, side: f64) -> World {
         agents.push(line(AgentKind::Pedestrian, start, p0, v, 4 + k % 17));
         overrides.push((k as u32 + 1, MODELS[k % 4]));
     }
-    let config = EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
-        model_overrides: overrides,
-        external: vec![0],
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
-    };
+    let config = mixed_models(overrides);
     World::new(scenario(0, agents), WorldParams::default(), config).unwrap()
 }
 

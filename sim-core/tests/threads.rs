@@ -3,11 +3,11 @@
 
 mod common;
 
-use common::{fingerprint, line, scenario, Rng};
+use common::{fingerprint, line, mixed_models, scenario, Rng};
 use sim_core::params::PredictionModel;
 use sim_core::scenario::{AgentKind, AgentRecord};
 use sim_core::world::{Kernels, PARALLEL_MIN_AGENTS};
-use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
+use sim_core::{PedestrianModel, World, WorldParams};
 
 const MODELS: [PedestrianModel; 4] = [
     PedestrianModel::CrSfm,
@@ -38,13 +38,7 @@ fn world_with(threads: usize, params: WorldParams) -> World {
         agents.push(line(AgentKind::Pedestrian, start, p0, v, 6 + k % 30));
         overrides.push(((agents.len() - 1) as u32, MODELS[k % 4]));
     }
-    let config = EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
-        model_overrides: overrides,
-        external: vec![0],
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
-    };
+    let config = mixed_models(overrides);
     let mut w = World::new(scenario(0, agents), params, config).unwrap();
     w.set_threads(threads);
     w

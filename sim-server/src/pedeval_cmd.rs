@@ -21,10 +21,11 @@ use serde_json::{json, Value};
 use sim_core::metrics::PedestrianEvalSummary;
 use sim_core::params::{PedestrianModel, WorldParams};
 use sim_core::pedeval::evaluate_scenario;
-use sim_core::scenario::{AgentKind, Scenario, ScenarioPool, Split};
+use sim_core::scenario::{Scenario, ScenarioPool, Split};
 use sim_core::world::AgentId;
 
 use crate::params_file::ParamsDoc;
+use crate::rollout::agent_json;
 
 /// Command-line arguments of `eval-peds`.
 #[derive(clap::Args, Debug, Clone, Default)]
@@ -398,14 +399,11 @@ fn write_trajectories(
             .iter()
             .enumerate()
             .map(|(id, a)| {
-                json!({
-                    "id": id,
-                    "record_id": a.record_id,
-                    "kind": match a.kind { AgentKind::Pedestrian => "pedestrian", AgentKind::Vehicle => "vehicle" },
-                    "ego": id == s.ego,
-                    "start_step": a.start_step,
-                    "recorded": a.positions,
-                })
+                let fields = [
+                    ("ego", json!(id == s.ego)),
+                    ("recorded", json!(a.positions)),
+                ];
+                agent_json(id, a, fields)
             })
             .collect();
         let mut models = serde_json::Map::new();

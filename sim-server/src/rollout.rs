@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use serde_json::{json, Value};
 use sim_core::params::{PedestrianModel, VehicleModel, WorldParams};
-use sim_core::scenario::Scenario;
+use sim_core::scenario::{AgentRecord, Scenario};
 use sim_core::variation::Variation;
 use sim_core::world::{AgentOutcome, Control, EpisodeConfig, Event, World, WorldError};
 
@@ -55,11 +55,23 @@ fn control_name(c: Control) -> String {
     }
 }
 
-fn kind_name(k: sim_core::AgentKind) -> &'static str {
-    match k {
-        sim_core::AgentKind::Pedestrian => "pedestrian",
-        sim_core::AgentKind::Vehicle => "vehicle",
+/// Agent `id` of a scenario as the rollout and trajectory files list it: its index, record id,
+/// kind (`pedestrian` or `vehicle`) and first step, plus the caller's `fields`.
+pub(crate) fn agent_json<const N: usize>(
+    id: usize,
+    a: &AgentRecord,
+    fields: [(&str, Value); N],
+) -> Value {
+    let mut object = json!({
+        "id": id,
+        "record_id": a.record_id,
+        "kind": a.kind,
+        "start_step": a.start_step,
+    });
+    for (key, value) in fields {
+        object[key] = value;
     }
+    object
 }
 
 fn event_json(e: &Event) -> Value {
@@ -145,14 +157,12 @@ pub fn rollout(
         .iter()
         .enumerate()
         .map(|(id, a)| {
-            json!({
-                "id": id,
-                "record_id": a.record_id,
-                "kind": kind_name(a.kind),
-                "control": control_name(world.control(id as u32).expect("id in range")),
-                "start_step": a.start_step,
-                "end_step": a.end_step(),
-            })
+            let control = control_name(world.control(id as u32).expect("id in range"));
+            let fields = [
+                ("control", json!(control)),
+                ("end_step", json!(a.end_step())),
+            ];
+            agent_json(id, a, fields)
         })
         .collect();
     let header = json!({

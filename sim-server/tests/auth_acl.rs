@@ -6,6 +6,7 @@
 //! a server: its queryable and liveliness token under `{prefix}/server/**` are never seen by
 //! other clients, while the same declarations by a session with the server credentials are.
 
+mod common;
 mod procs;
 
 use std::time::Duration;

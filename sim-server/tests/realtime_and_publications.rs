@@ -8,7 +8,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{client, config, free_port, session, start, t};
+use common::{client, config, episode_over, free_port, session, start, t};
 use protocol::{
     decode, encode, ActionMsg, CreateEnv, ErrorCode, EventsMsg, F32Array, Mode, Reset,
     RiskGraphMsg, StatesMsg, StepResult, UncertaintyMsg,
@@ -50,11 +50,7 @@ async fn observer_receives_states_uncertainty_and_risk_graph() {
             "no publications received"
         );
         let s = t(c.step(&env, &[[0.3, 0.0]])).await.unwrap();
-        if s.terminated
-            .iter()
-            .chain(s.truncated.iter())
-            .any(|v| v == 1)
-        {
+        if episode_over(&s) {
             t(c.reset(&env, &Reset::default())).await.unwrap();
         }
         tokio::time::sleep(Duration::from_millis(10)).await;
@@ -139,11 +135,7 @@ async fn realtime_env_steps_on_the_wall_clock_with_held_actions() {
             speeds_up += 1;
         }
         steps.push(s.step);
-        if s.terminated
-            .iter()
-            .chain(s.truncated.iter())
-            .any(|v| v == 1)
-        {
+        if episode_over(&s) {
             break;
         }
     }

@@ -8,10 +8,12 @@
 //! of the same seeds); trainer B, whose envs live on the surviving server, is undisturbed (its
 //! trajectory equals a solo run).
 
+mod common;
 mod procs;
 
 use std::time::Duration;
 
+use common::{episode_over, outcome_bytes};
 use procs::{free_port, router, serve, session, t, Scratch, SERVER_USER, TRAINER_USER};
 use protocol::{decode, encode, CreateEnv, InfoRequest, KeySpace, Reply, Reset, ServerInfo};
 use sim_server::server::client::{Client, ClientError};
@@ -115,19 +117,12 @@ async fn run(
                 Ok(s) => s,
                 Err(e) => return (out, Some(e)),
             };
-            over[i] = s
-                .terminated
-                .iter()
-                .chain(s.truncated.iter())
-                .any(|v| v == 1);
-            let mut rew = s.reward.as_le_bytes().to_vec();
-            rew.extend_from_slice(s.terminated.as_le_bytes());
-            rew.extend_from_slice(s.truncated.as_le_bytes());
+            over[i] = episode_over(&s);
             out.push((
                 i,
-                s.scenario,
+                s.scenario.clone(),
                 s.step,
-                rew,
+                outcome_bytes(&s),
                 s.obs.features.as_le_bytes().to_vec(),
             ));
         }

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{client, config, free_port, start, t};
+use common::{client, config, episode_over, free_port, outcome_bytes, start, t};
 use protocol::{CreateEnv, Reset};
 use sim_server::server::client::Client;
 
@@ -18,24 +18,17 @@ async fn trajectory(c: &Client, seed: u64, steps: u32, phase: f32) -> Vec<Record
     req.seed = seed;
     let env = t(c.create(req)).await.unwrap().env_ids.remove(0);
     let mut out = Vec::new();
-    let r = t(c.reset(&env, &Reset::default())).await.unwrap();
-    out.push((
-        r.scenario.clone(),
-        0,
-        Vec::new(),
-        r.obs.features.as_le_bytes().to_vec(),
-        r.obs.node_ids.as_le_bytes().to_vec(),
-    ));
-    let mut over = false;
+    let mut over = true; // the first step starts from a reset
     for k in 0..steps {
         if over {
             let r = t(c.reset(&env, &Reset::default())).await.unwrap();
+            let (features, node_ids) = (r.obs.features.as_le_bytes(), r.obs.node_ids.as_le_bytes());
             out.push((
                 r.scenario.clone(),
                 0,
                 Vec::new(),
-                r.obs.features.as_le_bytes().to_vec(),
-                r.obs.node_ids.as_le_bytes().to_vec(),
+                features.to_vec(),
+                node_ids.to_vec(),
             ));
         }
         let a = [
@@ -43,18 +36,11 @@ async fn trajectory(c: &Client, seed: u64, steps: u32, phase: f32) -> Vec<Record
             ((k as f32) * 0.11).cos() * 0.5,
         ];
         let s = t(c.step(&env, &[a])).await.unwrap();
-        over = s
-            .terminated
-            .iter()
-            .chain(s.truncated.iter())
-            .any(|v| v == 1);
-        let mut rew = s.reward.as_le_bytes().to_vec();
-        rew.extend_from_slice(s.terminated.as_le_bytes());
-        rew.extend_from_slice(s.truncated.as_le_bytes());
+        over = episode_over(&s);
         out.push((
-            s.scenario,
+            s.scenario.clone(),
             s.step,
-            rew,
+            outcome_bytes(&s),
             s.obs.features.as_le_bytes().to_vec(),
             s.obs.adjacency.as_le_bytes().to_vec(),
         ));

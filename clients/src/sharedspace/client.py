@@ -22,7 +22,6 @@ from .transport import (
     CREATE_TIMEOUT,
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
-    DEFAULT_TIMEOUT,
     QueryFailed,
     ServerLost,
     Transport,
@@ -43,8 +42,9 @@ class SimClient:
     """A trainer's connection to the sharedspace servers under ``prefix``.
 
     Args:
-        endpoint, prefix, mode, listen, multicast, timeout, client_id, config: see
-            :class:`~sharedspace.transport.Transport` (ignored when ``transport`` is given).
+        endpoint, prefix, **transport_options: the :class:`~sharedspace.transport.Transport`
+            to open (``mode``, ``listen``, ``multicast``, ``timeout``, ``client_id``,
+            ``config``, ``protocol_version``: see there; ignored when ``transport`` is given).
         transport: an existing transport to share.
         server_id: pin every ``create`` to this server (default: least loaded at each create).
         discover_timeout: how long ``create`` waits for a server to answer (default: timeout).
@@ -55,29 +55,13 @@ class SimClient:
         endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
         prefix: str = DEFAULT_PREFIX,
         *,
-        mode: str = "peer",
-        listen: str | Sequence[str] | None = None,
-        multicast: bool = False,
-        timeout: float = DEFAULT_TIMEOUT,
-        client_id: str | None = None,
-        config: dict[str, Any] | None = None,
         transport: Transport | None = None,
         server_id: str | None = None,
         discover_timeout: float | None = None,
-        protocol_version: int = codec.PROTOCOL_VERSION,
+        **transport_options: Any,
     ):
         self._own_transport = transport is None
-        self.transport = transport or Transport(
-            endpoint,
-            prefix,
-            mode=mode,
-            listen=listen,
-            multicast=multicast,
-            timeout=timeout,
-            client_id=client_id,
-            config=config,
-            protocol_version=protocol_version,
-        )
+        self.transport = transport or Transport(endpoint, prefix, **transport_options)
         self.server_id = server_id
         self.discover_timeout = (
             self.transport.timeout if discover_timeout is None else float(discover_timeout)

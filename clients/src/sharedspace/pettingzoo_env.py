@@ -52,7 +52,7 @@ from .errors import EnvClosed, WrongShape
 from .models import DEFAULT_MODEL
 from .render import render_observation
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT, undeclare_all
-from .vector import VectorClient
+from .vector import VectorClient, adapter_params
 
 __all__ = ["SharedSpaceParallelEnv", "env", "parallel_env", "ENV_NAME", "INFO_KEYS"]
 
@@ -163,23 +163,12 @@ class SharedSpaceParallelEnv(ParallelEnv):
         if self._scenario_list == []:
             raise ValueError("scenario: an empty list")
         self._resets = 0
-        create = dict(
-            seed=int(seed),
-            split=split,
+        create = adapter_params(
+            locals(),
             pool=pool,
             scenario=scenario if isinstance(scenario, str) else None,
-            pedestrian_model=pedestrian_model,
-            pedestrian_params=pedestrian_params,
-            external_agents=list(external_agents),
-            reward_weights=reward_weights,
-            max_agents=int(max_agents),
             autoreset=False,
-            synthetic=synthetic,
-            variations=variations,
-            vehicle_model=vehicle_model,
         )
-        if client is None:
-            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
         self._create, self._failover, self._client = create, failover, client
         self._vec: VectorClient | None = None  # connected on first use (see _connected)
         self.max_agents = int(max_agents)

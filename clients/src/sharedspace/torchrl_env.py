@@ -46,13 +46,15 @@ from .errors import SharedspaceError
 from .models import DEFAULT_MODEL
 from .pool import listed_scenarios
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
-from .vector import VectorClient
+from .vector import VectorClient, adapter_params
 
 __all__ = [
     "EPISODE_FLAG_KEYS",
     "EPISODE_FLOAT_KEYS",
     "NODE_FEATURES",
     "RemoteBatchedEnv",
+    "blank_step_columns",
+    "contract_tensordict",
     "set_contract_specs",
 ]
 
@@ -88,6 +90,29 @@ def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
     )
 
 
+def blank_step_columns(k: int) -> dict[str, np.ndarray]:
+    """The ``[k, 1]`` columns of a contract step, zeroed: ``terminated``, ``truncated`` and the
+    episode keys (what a step fills in for the sub-envs whose episode ends)."""
+    out = {key: np.zeros((k, 1), dtype=bool) for key in ("terminated", "truncated")}
+    out.update({key: np.zeros((k, 1), dtype=bool) for key in EPISODE_FLAG_KEYS})
+    out.update({key: np.zeros((k, 1), dtype=np.float32) for key in EPISODE_FLOAT_KEYS})
+    return out
+
+
+def contract_tensordict(
+    env: EnvBase, out: dict[str, np.ndarray], scenario_index: np.ndarray
+) -> TensorDictBase:
+    """A contract step's columns ``out`` as ``env``'s TensorDict, with ``done`` (terminated or
+    truncated) and each sub-env's ``scenario_index`` added."""
+    out["done"] = out["terminated"] | out["truncated"]
+    out["scenario_index"] = scenario_index.reshape(-1, 1).copy()
+    return TensorDict(
+        {key: torch.from_numpy(v) for key, v in out.items()},
+        batch_size=env.batch_size,
+        device=env.device,
+    )
+
+
 def synthetic_names(synthetic: Mapping[str, Any], split: str) -> list[tuple[str, str]]:
     """The scenes a ``CreateEnv.synthetic`` request makes, as ``(name, split)`` in order (the
     server names them ``synthetic-{layout}-n{N}[-v{V}]-seed{seed}``, SPEC 5.2)."""
@@ -102,9 +127,12 @@ class _ServerEnvs(EnvBase):
     """What both remote envs share: K server envs behind one ``VectorClient`` (``self.vec``),
     and copies (pickle, deepcopy) that make their own connection and server envs."""
 
-    def _remember(self, client: SimClient | None, **kwargs: Any) -> None:
-        """Keeps the constructor's arguments for copies (see ``__reduce__``); a shared
-        ``client`` is replaced by its endpoints, prefix and timeout."""
+    def _remember(self, init_locals: Mapping[str, Any]) -> None:
+        """Keeps the constructor's arguments (its ``locals()``, taken first thing) for copies
+        (see ``__reduce__``); a shared ``client`` is replaced by its endpoints, prefix and
+        timeout."""
+        kwargs = {k: v for k, v in init_locals.items() if k not in ("self", "__class__")}
+        client = kwargs.pop("client")
         if client is not None:
             t = client.transport
             kwargs.update(endpoint=list(t.endpoints), prefix=t.prefix, timeout=t.timeout)
@@ -185,6 +213,7 @@ class RemoteBatchedEnv(_ServerEnvs):
         vehicle_model: str | None = None,
         variation_seeds: Sequence[int] | None = None,
     ):
+        self._remember(locals())
         if num_envs < 1 or max_agents < 1:
             raise ValueError("num_envs and max_agents must be at least 1")
         if variation_seeds is not None:
@@ -195,29 +224,6 @@ class RemoteBatchedEnv(_ServerEnvs):
                 raise ValueError(
                     f"variation_seeds: {len(variation_seeds)} seeds for {num_envs} sub-envs"
                 )
-        self._remember(
-            client,
-            num_envs=num_envs,
-            max_agents=max_agents,
-            split=split,
-            seed=seed,
-            scenario_order=scenario_order,
-            scenarios=scenarios,
-            pool=pool,
-            pedestrian_model=pedestrian_model,
-            device=str(device),
-            endpoint=endpoint,
-            prefix=prefix,
-            timeout=timeout,
-            failover=failover,
-            external_agents=tuple(external_agents),
-            reward_weights=reward_weights,
-            pedestrian_params=pedestrian_params,
-            synthetic=synthetic,
-            variations=variations,
-            vehicle_model=vehicle_model,
-            variation_seeds=variation_seeds,
-        )
         if scenario_order not in ("random", "sequential"):
             raise ValueError(f"unknown scenario_order {scenario_order!r}")
         if split not in ("train", "test"):
@@ -259,23 +265,12 @@ class RemoteBatchedEnv(_ServerEnvs):
         self._cursor = [0] * k
         self._variation_seeds = variation_seeds
         self.last_variation_seeds: list[int | None] = [None] * k
-        create = dict(
-            seed=self._seed,
-            split=split,
+        create = adapter_params(
+            self._init_kwargs,
             pool=pool_name if pool is not None and synthetic is None else None,
-            pedestrian_model=pedestrian_model,
-            pedestrian_params=pedestrian_params,
-            external_agents=list(external_agents),
-            reward_weights=reward_weights,
-            max_agents=m,
             # Fixed variation seeds are sent with each reset, so their sub-envs reset by request.
             autoreset=scenario_order == "random" and variation_seeds is None,
-            synthetic=synthetic,
-            variations=variations,
-            vehicle_model=vehicle_model,
         )
-        if client is None:
-            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
         self.vec = VectorClient(k, client=client, failover=failover, **create)
         if pool_list is None:  # a pool the server names: it lists the scenarios
             self.pool_name, pool_list = self.vec.client.scenarios(pool_name, self.vec.server_id)
@@ -350,29 +345,11 @@ class RemoteBatchedEnv(_ServerEnvs):
             variation = variation.get("seed")
         self.last_variation_seeds[k] = None if variation is None else int(variation)
 
-    def _blank(self) -> dict[str, np.ndarray]:
-        k = self.num_envs
-        out: dict[str, np.ndarray] = {
-            "terminated": np.zeros((k, 1), dtype=bool),
-            "truncated": np.zeros((k, 1), dtype=bool),
-        }
-        for key in EPISODE_FLAG_KEYS:
-            out[key] = np.zeros((k, 1), dtype=bool)
-        for key in EPISODE_FLOAT_KEYS:
-            out[key] = np.zeros((k, 1), dtype=np.float32)
-        return out
-
     def _to_td(self, out: dict[str, np.ndarray]) -> TensorDictBase:
         out["features"] = self._obs["features"].copy()
         out["adjacency"] = self._obs["adjacency"].copy()
         out["mask"] = self._obs["mask"].copy()
-        out["done"] = out["terminated"] | out["truncated"]
-        out["scenario_index"] = self._scenario.reshape(-1, 1).copy()
-        return TensorDict(
-            {key: torch.from_numpy(v) for key, v in out.items()},
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        return contract_tensordict(self, out, self._scenario)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         t0 = time.perf_counter()
@@ -410,7 +387,7 @@ class RemoteBatchedEnv(_ServerEnvs):
                 self._take_reset(k, r)
             if self._reseed_pending and len(queries) == self.num_envs:
                 self._reseed_pending = False
-        td = self._to_td(self._blank())
+        td = self._to_td(blank_step_columns(self.num_envs))
         self.env_time_s += time.perf_counter() - t0
         return td
 
@@ -422,7 +399,7 @@ class RemoteBatchedEnv(_ServerEnvs):
         actions = tensordict.get("action").detach().cpu().numpy().astype(np.float32, copy=False)
         actions = np.clip(actions, -1.0, 1.0).reshape(self.num_envs, 1, 2)
         res = self.vec.step(actions)
-        out = self._blank()
+        out = blank_step_columns(self.num_envs)
         obs = res["obs"]
         self._obs["features"][:] = obs["features"][:, 0]
         self._obs["adjacency"][:] = obs["adjacency"][:, 0]

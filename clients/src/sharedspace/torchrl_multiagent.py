@@ -20,7 +20,7 @@ from .torchrl_env import (
     _ServerEnvs,
 )
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
-from .vector import VectorClient
+from .vector import VectorClient, adapter_params
 
 __all__ = ["RemoteMultiAgentEnv"]
 
@@ -78,50 +78,15 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         variations: Mapping[str, Any] | None = None,
         vehicle_model: str | None = None,
     ):
+        self._remember(locals())
         if num_envs < 1 or max_agents < 1 or not external_agents:
             raise ValueError("num_envs, max_agents and external_agents must not be empty")
-        self._remember(
-            client,
-            num_envs=num_envs,
-            external_agents=tuple(external_agents),
-            max_agents=max_agents,
-            split=split,
-            seed=seed,
-            pool=pool,
-            scenario=scenario,
-            pedestrian_model=pedestrian_model,
-            device=str(device),
-            endpoint=endpoint,
-            prefix=prefix,
-            timeout=timeout,
-            reward_weights=reward_weights,
-            pedestrian_params=pedestrian_params,
-            synthetic=synthetic,
-            variations=variations,
-            vehicle_model=vehicle_model,
-        )
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.num_envs = k = int(num_envs)
         self.n_agents = a = len(external_agents)
         self.max_agents = m = int(max_agents)
         self.agent_names = list(external_agents)
-        create = dict(
-            seed=int(seed),
-            split=split,
-            pool=pool,
-            scenario=scenario,
-            pedestrian_model=pedestrian_model,
-            pedestrian_params=pedestrian_params,
-            external_agents=list(external_agents),
-            reward_weights=reward_weights,
-            max_agents=m,
-            autoreset=True,
-            synthetic=synthetic,
-            variations=variations,
-            vehicle_model=vehicle_model,
-        )
-        if client is None:
-            create.update(endpoint=endpoint, prefix=prefix, timeout=timeout)
+        create = adapter_params(self._init_kwargs, pool=pool, scenario=scenario, autoreset=True)
         self.vec = VectorClient(k, client=client, **create)
         #: Scenario name of each sub-env's current episode.
         self.scenarios: list[str | None] = [None] * k

@@ -35,9 +35,39 @@ from .transport import (
     ServerLost,
 )
 
-__all__ = ["VectorClient"]
+__all__ = ["VectorClient", "adapter_params"]
 
 log = logging.getLogger("sharedspace")
+
+#: The env adapters' constructor arguments that reach ``VectorClient`` unchanged: the
+#: connection settings (ignored there when a client is shared) and ``CreateEnv`` fields.
+_PASSED_THROUGH = (
+    "endpoint",
+    "prefix",
+    "timeout",
+    "split",
+    "pedestrian_model",
+    "pedestrian_params",
+    "reward_weights",
+    "synthetic",
+    "variations",
+    "vehicle_model",
+)
+
+
+def adapter_params(args: Mapping[str, Any], **fields: Any) -> dict[str, Any]:
+    """The ``VectorClient`` keyword arguments of an env adapter (PettingZoo, TorchRL) made from
+    its constructor's arguments ``args``: those it passes through as given, ``seed``,
+    ``external_agents`` and ``max_agents`` normalised, then ``fields``, what the adapter
+    decides itself (``pool``, ``scenario``, ``autoreset``)."""
+    params = {key: args[key] for key in _PASSED_THROUGH}
+    params.update(
+        seed=int(args["seed"]),
+        external_agents=list(args["external_agents"]),
+        max_agents=int(args["max_agents"]),
+    )
+    params.update(fields)
+    return params
 
 
 def _stack_reset_obs(results: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:

@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use sim_core::scenario::{AgentKind, AgentRecord, Scenario, Split};
+use sim_core::{EpisodeConfig, PedestrianModel};
 
 /// The only sampling interval a world accepts by default, s.
 pub const DT: f64 = 0.5;
@@ -82,6 +83,18 @@ impl Rng {
     pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
         let u = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
         lo + (hi - lo) * u
+    }
+}
+
+/// Agent 0 driven by actions, CR-SFM pedestrians except the `model_overrides`, vehicles
+/// replaying: the mixed-model set-up of the determinism and threading tests.
+pub fn mixed_models(model_overrides: Vec<(u32, PedestrianModel)>) -> EpisodeConfig {
+    EpisodeConfig {
+        pedestrian_model: PedestrianModel::CrSfm,
+        model_overrides,
+        external: vec![0],
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
     }
 }
 

@@ -6,7 +6,7 @@
 use std::future::IntoFuture;
 use std::time::Duration;
 
-use protocol::KeySpace;
+use protocol::{KeySpace, StepResult};
 use serde_json::json;
 use sim_server::server::client::Client;
 use sim_server::server::{run, ServerConfig, ServerError};
@@ -21,6 +21,23 @@ pub async fn t<F: IntoFuture>(f: F) -> F::Output {
     tokio::time::timeout(T, f.into_future())
         .await
         .expect("timed out")
+}
+
+/// Whether the step ended the episode of any of its agents (terminated or truncated).
+pub fn episode_over(s: &StepResult) -> bool {
+    s.terminated
+        .iter()
+        .chain(s.truncated.iter())
+        .any(|v| v == 1)
+}
+
+/// The step's reward, terminated and truncated columns as their bytes: a bit-exact record of
+/// its outcome.
+pub fn outcome_bytes(s: &StepResult) -> Vec<u8> {
+    let mut bytes = s.reward.as_le_bytes().to_vec();
+    bytes.extend_from_slice(s.terminated.as_le_bytes());
+    bytes.extend_from_slice(s.truncated.as_le_bytes());
+    bytes
 }
 
 /// A free TCP port on 127.0.0.1.

@@ -2,38 +2,20 @@
 //! `sim-server serve` as child processes (the binary under test, on 127.0.0.1 random free ports,
 //! multicast scouting off, with the shipped `deploy/` configurations plus `--cfg` overrides),
 //! killed on drop; a scratch directory removed on drop; zenoh client sessions with or without
-//! credentials. Every wait is bounded by [`T`].
+//! credentials. Every wait is bounded by [`crate::common::T`].
 #![allow(dead_code)]
 
-use std::future::IntoFuture;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use serde_json::json;
 
-/// Upper bound of any single wait in the tests.
-pub const T: Duration = Duration::from_secs(20);
+pub use crate::common::{free_port, t};
 
 /// Credentials written to the router's dictionary by [`Scratch::new`].
 pub const SERVER_USER: (&str, &str) = ("server", "server-test-pw");
 pub const TRAINER_USER: (&str, &str) = ("trainer", "trainer-test-pw");
-
-/// Awaits `f` under [`T`].
-pub async fn t<F: IntoFuture>(f: F) -> F::Output {
-    tokio::time::timeout(T, f.into_future())
-        .await
-        .expect("timed out")
-}
-
-/// A free TCP port on 127.0.0.1.
-pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
 
 /// The repository's `deploy/` directory.
 pub fn deploy_dir() -> PathBuf {

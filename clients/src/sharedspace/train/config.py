@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import tomllib
@@ -132,6 +133,14 @@ def apply_overrides(cfg: TrainConfig, overrides: list[str] | dict[str, Any]) -> 
             raise KeyError(f"unknown config key {key!r}")
         data[key] = _parse_value(value, data[key]) if isinstance(value, str) else value
     return TrainConfig(**data)
+
+
+def command_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
+    """The argument parser of a ``python -m`` command: its module docstring ``doc`` as the
+    description, printed as written."""
+    return argparse.ArgumentParser(
+        prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
 
 
 def add_overrides_argument(

@@ -17,7 +17,6 @@ driver's in the same scenario.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -30,7 +29,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sharedspace.scene_plot import Frame, draw_scene, scene_rgb
-from sharedspace.train.config import add_overrides_argument
+from sharedspace.train.config import add_overrides_argument, command_parser
 
 __all__ = ["Episode", "record_episode", "write_gif", "write_mp4", "episode_figure", "main"]
 
@@ -211,11 +210,7 @@ def _human_profile(scenario: str, pool: Any = None) -> tuple[list[float], list[f
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m sharedspace.train.episode",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("python -m sharedspace.train.episode", __doc__)
     who = ap.add_mutually_exclusive_group(required=True)
     who.add_argument("--checkpoint", help="checkpoint or shipped policy (.pt)")
     who.add_argument("--driver", help="a scripted driver (sharedspace.train.drivers)")

@@ -21,7 +21,6 @@ gives Wilson 95 % intervals.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -35,7 +34,12 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from sharedspace.names import Feature
 from sharedspace.pool import load_pool, recorded_headings, split_indices
 from sharedspace.stats import wilson
-from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
+from sharedspace.train.config import (
+    TrainConfig,
+    add_overrides_argument,
+    apply_overrides,
+    command_parser,
+)
 from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.sac import make_actor, make_env
 
@@ -264,11 +268,7 @@ def evaluate_policy(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m sharedspace.train.evaluate",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("python -m sharedspace.train.evaluate", __doc__)
     who = ap.add_mutually_exclusive_group(required=True)
     who.add_argument("--checkpoint", help="checkpoint .pt written by the trainer")
     who.add_argument(

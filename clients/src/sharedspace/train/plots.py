@@ -7,7 +7,6 @@ and a scene with its risk graph.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -26,6 +25,7 @@ import numpy as np  # noqa: E402
 from sharedspace.local_server import rollout  # noqa: E402
 from sharedspace.models import DEFAULT_MODEL  # noqa: E402
 from sharedspace.pool import load_pool  # noqa: E402
+from sharedspace.train.config import command_parser  # noqa: E402
 
 __all__ = ["read_metrics", "plot_learning_curves", "plot_profiles", "plot_scene", "main"]
 
@@ -200,11 +200,7 @@ def plot_scene(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m sharedspace.train.plots",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("python -m sharedspace.train.plots", __doc__)
     ap.add_argument("--run", default="", help="run directory (its metrics.csv)")
     ap.add_argument("--eval-json", default="", help="JSON written by evaluate --json")
     ap.add_argument("--scene", type=int, default=-1, help="pool index of a scenario to draw")

@@ -22,7 +22,6 @@ and one that holds the test scenes fixed (how sure the mean over these scenes' v
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import sys
@@ -32,7 +31,12 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.stats import paired_clustered, wilson
-from sharedspace.train.config import TrainConfig, add_overrides_argument, apply_overrides
+from sharedspace.train.config import (
+    TrainConfig,
+    add_overrides_argument,
+    apply_overrides,
+    command_parser,
+)
 from sharedspace.train.drivers import DRIVERS, make_driver
 from sharedspace.train.evaluate import (
     BENCHMARK_VARIATIONS,
@@ -201,11 +205,7 @@ def checkpoints_of(paths: Sequence[str]) -> list[tuple[str | None, Path]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m sharedspace.train.powered",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("python -m sharedspace.train.powered", __doc__)
     ap.add_argument(
         "--policies",
         nargs="*",

@@ -26,7 +26,6 @@ The JSON goes to ``--json``; with ``--doc`` the block between ``<!-- table2:begi
 
 from __future__ import annotations
 
-import argparse
 import csv
 import gzip
 import itertools
@@ -45,7 +44,13 @@ import torch
 
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
-from sharedspace.train.config import VARIANTS, TrainConfig, add_overrides_argument, apply_overrides
+from sharedspace.train.config import (
+    VARIANTS,
+    TrainConfig,
+    add_overrides_argument,
+    apply_overrides,
+    command_parser,
+)
 from sharedspace.train.drivers import DRIVERS, make_driver, reachability
 from sharedspace.train.evaluate import (
     COLUMNS,
@@ -395,11 +400,7 @@ def replace_block(doc: Path, body: str) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m sharedspace.train.table2",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("python -m sharedspace.train.table2", __doc__)
     ap.add_argument("--runs", required=True, help="folder of {variant}-s{seed} run folders")
     ap.add_argument("--json", default="", help="write the table here")
     ap.add_argument("--doc", default="", help="markdown file with a table2 block to rewrite")

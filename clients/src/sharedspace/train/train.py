@@ -9,7 +9,6 @@ value; metrics namespaced ``train/`` and ``eval/``), TensorBoard events, and
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
@@ -29,6 +28,7 @@ from sharedspace.train.config import (
     _read_table,
     add_overrides_argument,
     apply_overrides,
+    command_parser,
     load_config,
 )
 from sharedspace.train.evaluate import evaluate_policy
@@ -283,11 +283,7 @@ def _checkpoint(log_dir, cfg, actor, update, counters, buffer) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m sharedspace.train",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    ap = command_parser("python -m sharedspace.train", __doc__)
     ap.add_argument("--config", default=None, help="TOML or JSON file of TrainConfig fields")
     add_overrides_argument(ap, "overrides")
     ap.add_argument("--resume", default=None, help="checkpoint to continue from")
