@@ -35,7 +35,6 @@ def pytest_terminal_summary(terminalreporter):
 
 import os  # noqa: E402
 import signal  # noqa: E402
-import subprocess  # noqa: E402
 import time  # noqa: E402
 import uuid  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -70,13 +69,7 @@ class SimServer(local_server.LocalServer):
         )
 
     def kill(self, sig: int = signal.SIGKILL) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
+        local_server.stop_process(self.proc, sig)
 
     def stop(self) -> None:
         self.close()

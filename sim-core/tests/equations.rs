@@ -4,7 +4,7 @@ mod common;
 
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
-use common::{line, scenario, track};
+use common::{line, paper_world, scenario, track};
 use sim_core::cognition::{kl_isotropic, posterior, Belief, VarianceSchedule, DIM};
 use sim_core::geometry::{clearance, clearance_and_normal, disc_rect_gap, Placed, Shape, Vec2};
 use sim_core::metrics::{
@@ -21,7 +21,7 @@ use sim_core::risk::adjacency;
 use sim_core::scenario::AgentKind;
 use sim_core::vehicle::{map_action, unicycle_step, wrap_angle, UnicycleState, VehicleCommand};
 use sim_core::world::{Event, RewardTerms};
-use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
+use sim_core::{PedestrianModel, World};
 
 const EPS: f64 = 1e-12;
 
@@ -587,59 +587,42 @@ fn interaction(vehicle: bool) -> Interaction {
     }
 }
 
+/// `model`'s repulsion weight for the `interaction(vehicle)` fixture under `sf_params()`.
+fn w_rep(model: PedestrianModel, vehicle: bool) -> f64 {
+    repulsion_weight(model, &sf_params(), &interaction(vehicle))
+}
+
+/// `model`'s goal weight under `sf_params()` when the largest perceived weight is `max_w`.
+fn w_goal(model: PedestrianModel, max_w: f64) -> f64 {
+    goal_weight(model, &sf_params(), max_w)
+}
+
 #[test]
 fn sfm_weights_are_all_one() {
-    let p = sf_params();
-    assert_eq!(
-        repulsion_weight(PedestrianModel::Sfm, &p, &interaction(true)),
-        1.0
-    );
-    assert_eq!(
-        repulsion_weight(PedestrianModel::Sfm, &p, &interaction(false)),
-        1.0
-    );
-    assert_eq!(goal_weight(PedestrianModel::Sfm, &p, 0.8), 1.0);
+    assert_eq!(w_rep(PedestrianModel::Sfm, true), 1.0);
+    assert_eq!(w_rep(PedestrianModel::Sfm, false), 1.0);
+    assert_eq!(w_goal(PedestrianModel::Sfm, 0.8), 1.0);
 }
 
 #[test]
 fn ra_sfm_weights_are_psi_and_goal_exp_minus_lambda3_max() {
-    let p = sf_params();
     // w_veh = w_ped = psi = 0.4
-    close(
-        repulsion_weight(PedestrianModel::RaSfm, &p, &interaction(true)),
-        0.4,
-    );
-    close(
-        repulsion_weight(PedestrianModel::RaSfm, &p, &interaction(false)),
-        0.4,
-    );
+    close(w_rep(PedestrianModel::RaSfm, true), 0.4);
+    close(w_rep(PedestrianModel::RaSfm, false), 0.4);
     // w_goal = exp(-2.0 * 0.4) = exp(-0.8)
-    close(
-        goal_weight(PedestrianModel::RaSfm, &p, 0.4),
-        (-0.8f64).exp(),
-    );
+    close(w_goal(PedestrianModel::RaSfm, 0.4), (-0.8f64).exp());
     // nobody perceived: exp(0) = 1
-    close(goal_weight(PedestrianModel::RaSfm, &p, 0.0), 1.0);
+    close(w_goal(PedestrianModel::RaSfm, 0.0), 1.0);
 }
 
 #[test]
 fn cr_sfm_weights_use_lambda1_for_vehicles_and_lambda2_for_pedestrians() {
-    let p = sf_params();
     // w_veh = 0.4 (1 + 2.0 * 0.5) = 0.8
-    close(
-        repulsion_weight(PedestrianModel::CrSfm, &p, &interaction(true)),
-        0.8,
-    );
+    close(w_rep(PedestrianModel::CrSfm, true), 0.8);
     // w_ped = 0.4 (1 + 3.0 * 0.5) = 1.0
-    close(
-        repulsion_weight(PedestrianModel::CrSfm, &p, &interaction(false)),
-        1.0,
-    );
+    close(w_rep(PedestrianModel::CrSfm, false), 1.0);
     // w_goal = exp(-2.0 * max(0.8, 1.0)) = exp(-2)
-    close(
-        goal_weight(PedestrianModel::CrSfm, &p, 1.0),
-        (-2.0f64).exp(),
-    );
+    close(w_goal(PedestrianModel::CrSfm, 1.0), (-2.0f64).exp());
 }
 
 #[test]
@@ -845,12 +828,7 @@ fn reward_world() -> World {
             line(AgentKind::Pedestrian, 0, [3.25, -2.0], [0.0, 0.2], 11),
         ],
     );
-    World::new(
-        sc.clone(),
-        WorldParams::default(),
-        EpisodeConfig::ego_external(&sc, PedestrianModel::Cv),
-    )
-    .unwrap()
+    paper_world(&sc, PedestrianModel::Cv)
 }
 
 #[test]
@@ -904,12 +882,7 @@ fn reward_success_on_arrival_within_two_metres() {
             vec![[4.0, 0.0], [4.0, 0.0]],
         )],
     );
-    let mut w = World::new(
-        sc.clone(),
-        WorldParams::default(),
-        EpisodeConfig::ego_external(&sc, PedestrianModel::CrSfm),
-    )
-    .unwrap();
+    let mut w = paper_world(&sc, PedestrianModel::CrSfm);
     // action [0, 0]: speed 4, x = (2, 0), d(1) = 1 <= 2 -> success
     let out = w.step(&[(0, [0.0, 0.0])]).unwrap();
     let r = terms(&out);
@@ -940,12 +913,7 @@ fn reward_collision_and_full_danger_on_overlap() {
             ),
         ],
     );
-    let mut w = World::new(
-        sc.clone(),
-        WorldParams::default(),
-        EpisodeConfig::ego_external(&sc, PedestrianModel::Cv),
-    )
-    .unwrap();
+    let mut w = paper_world(&sc, PedestrianModel::Cv);
     let out = w.step(&[(0, [0.0, 0.0])]).unwrap();
     let r = terms(&out);
     close(r.progress, 1.0); // 10 - 9

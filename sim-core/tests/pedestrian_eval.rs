@@ -2,13 +2,26 @@
 
 mod common;
 
+use std::sync::Arc;
+
 use common::{line, scenario, track};
 use sim_core::pedeval::{evaluate, evaluate_scenario};
-use sim_core::scenario::AgentKind;
+use sim_core::scenario::{AgentKind, Scenario};
 use sim_core::{PedestrianModel, WorldParams};
 
 fn close(got: f64, want: f64) {
     assert!((got - want).abs() <= 1e-12, "got {got}, want {want}");
+}
+
+/// A car far away (100 m) and pedestrian 1 walking at (1, 0) m/s from (0, 20) for 5 samples.
+fn straight_walker() -> Arc<Scenario> {
+    scenario(
+        0,
+        vec![
+            line(AgentKind::Vehicle, 0, [100.0, 0.0], [2.0, 0.0], 5),
+            line(AgentKind::Pedestrian, 0, [0.0, 20.0], [1.0, 0.0], 5),
+        ],
+    )
 }
 
 #[test]
@@ -17,13 +30,7 @@ fn cv_on_a_straight_walker_scores_by_hand() {
     // cv reproduces it until step 3, where it is 0.5 m from its goal and leaves; at step 4 its
     // last position 1.5 stands for it: errors at steps 1..=4 are 0, 0, 0, 0.5
     // ADE = 0.5 / 4 = 0.125, FDE = 0.5
-    let sc = scenario(
-        0,
-        vec![
-            line(AgentKind::Vehicle, 0, [100.0, 0.0], [2.0, 0.0], 5),
-            line(AgentKind::Pedestrian, 0, [0.0, 20.0], [1.0, 0.0], 5),
-        ],
-    );
+    let sc = straight_walker();
     let e = evaluate_scenario(sc.clone(), &WorldParams::default(), PedestrianModel::Cv).unwrap();
     close(e.errors.ade, 0.125);
     close(e.errors.fde, 0.5);
@@ -43,13 +50,7 @@ fn cv_on_a_straight_walker_scores_by_hand() {
 
 #[test]
 fn replay_model_simulates_nobody() {
-    let sc = scenario(
-        0,
-        vec![
-            line(AgentKind::Vehicle, 0, [100.0, 0.0], [2.0, 0.0], 5),
-            line(AgentKind::Pedestrian, 0, [0.0, 20.0], [1.0, 0.0], 5),
-        ],
-    );
+    let sc = straight_walker();
     let e = evaluate_scenario(sc, &WorldParams::default(), PedestrianModel::Replay).unwrap();
     assert!(e.simulated.is_empty());
     assert_eq!((e.errors.ade, e.errors.fde), (0.0, 0.0));

@@ -4,7 +4,7 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{line, scenario, track};
+use common::{line, scenario, track, with_external};
 use sim_core::geometry::Vec2;
 use sim_core::metrics::EpisodeStatus;
 use sim_core::observation::{buffer_lengths, ObservationError, NODE_FEATURES};
@@ -625,13 +625,7 @@ fn external_pedestrian_actions_are_clipped_and_reported() {
             line(AgentKind::Pedestrian, 0, [5.0, 3.0], [1.0, 0.0], 11),
         ],
     );
-    let config = EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
-        model_overrides: Vec::new(),
-        external: vec![1],
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
-    };
+    let config = with_external(vec![1]);
     let mut w = world(&sc, config);
     assert_eq!(w.control(0), Some(Control::Replay));
     let out = w.step(&[(1, [-5.0, 0.0])]).unwrap();
@@ -649,13 +643,7 @@ fn world_new_rejects_bad_configs() {
         vec![line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 3)],
     );
     let params = WorldParams::default();
-    let ext = |external| EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
-        model_overrides: Vec::new(),
-        external,
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
-    };
+    let ext = with_external;
     assert!(matches!(
         World::new(sc.clone(), params, ext(vec![3])),
         Err(WorldError::UnknownAgent { agent: 3, .. })
@@ -699,13 +687,7 @@ fn outcome_lists_active_externals_in_config_order() {
             line(AgentKind::Vehicle, 0, [0.0, 20.0], [2.0, 0.0], 11),
         ],
     );
-    let config = EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
-        model_overrides: Vec::new(),
-        external: vec![1, 0],
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
-    };
+    let config = with_external(vec![1, 0]);
     let mut w = world(&sc, config);
     let out: StepOutcome = w.step(&[(0, [0.0, 0.0]), (1, [0.0, 0.0])]).unwrap();
     let order: Vec<u32> = out.agents.iter().map(|a| a.agent).collect();

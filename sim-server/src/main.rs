@@ -118,14 +118,19 @@ struct ServeArgs {
     cfg: Vec<String>,
 }
 
+/// The runtime of `serve` and `router`: multi-threaded, as zenoh needs.
+fn multi_thread_runtime() -> Result<tokio::runtime::Runtime, String> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("starting the tokio runtime: {e}"))
+}
+
 fn run_serve(args: ServeArgs) -> Result<(), String> {
     let config = sim_server::server::ServerConfig::load(args.config.as_deref(), &args.cfg)
         .map_err(|e| e.to_string())?;
     sim_server::server::limit_allocator_arenas(config.malloc_arenas);
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-        .map_err(|e| format!("starting the tokio runtime: {e}"))?;
+    let runtime = multi_thread_runtime()?;
     runtime
         .block_on(sim_server::server::run(
             config,
@@ -149,10 +154,7 @@ struct RouterArgs {
 fn run_router(args: RouterArgs) -> Result<(), String> {
     let config = sim_server::router::load_config(args.config.as_deref(), &args.cfg)
         .map_err(|e| e.to_string())?;
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-        .map_err(|e| format!("starting the tokio runtime: {e}"))?;
+    let runtime = multi_thread_runtime()?;
     runtime
         .block_on(sim_server::router::run(
             &config,

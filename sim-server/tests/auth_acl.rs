@@ -53,6 +53,33 @@ async fn alive(s: &Session, key: &str) -> Vec<String> {
     out
 }
 
+/// Declares in session `s` what server `name` declares: a queryable on
+/// `sharedspace/server/{name}/info` (answering `name`) and the liveliness token
+/// `sharedspace/server/{name}/alive`.
+async fn declare_server(
+    s: &Session,
+    name: &'static str,
+) -> (
+    zenoh::query::Queryable<()>,
+    zenoh::liveliness::LivelinessToken,
+) {
+    let queryable = t(s
+        .declare_queryable(format!("sharedspace/server/{name}/info"))
+        .callback(move |q| {
+            tokio::spawn(async move {
+                let _ = q.reply(q.key_expr().clone(), name).await;
+            });
+        }))
+    .await
+    .unwrap();
+    let token = t(s
+        .liveliness()
+        .declare_token(format!("sharedspace/server/{name}/alive")))
+    .await
+    .unwrap();
+    (queryable, token)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn auth_and_access_control() {
     let scratch = Scratch::new("auth-acl");
@@ -117,35 +144,10 @@ async fn auth_and_access_control() {
     // --- Access control: a trainer declares a queryable and a liveliness token in the servers'
     // namespace; a session with the server credentials does the same on other keys.
     let evil = session(port, Some(TRAINER_USER)).await;
-    let _evil_q = t(evil
-        .declare_queryable("sharedspace/server/evil/info")
-        .callback(|q| {
-            tokio::spawn(async move {
-                let _ = q.reply(q.key_expr().clone(), "evil").await;
-            });
-        }))
-    .await
-    .expect("the declaration itself is accepted locally; the router drops it");
-    let _evil_token = t(evil
-        .liveliness()
-        .declare_token("sharedspace/server/evil/alive"))
-    .await
-    .unwrap();
+    // The declarations themselves are accepted locally; the router drops the trainer's.
+    let _evil = declare_server(&evil, "evil").await;
     let good = session(port, Some(SERVER_USER)).await;
-    let _good_q = t(good
-        .declare_queryable("sharedspace/server/good/info")
-        .callback(|q| {
-            tokio::spawn(async move {
-                let _ = q.reply(q.key_expr().clone(), "good").await;
-            });
-        }))
-    .await
-    .unwrap();
-    let _good_token = t(good
-        .liveliness()
-        .declare_token("sharedspace/server/good/alive"))
-    .await
-    .unwrap();
+    let _good = declare_server(&good, "good").await;
 
     // The server-credential declarations (made after the trainer's) become visible ...
     t(async {

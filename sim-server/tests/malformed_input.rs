@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{client, config, free_port, start, t};
+use common::{client, config, free_port, one_env, start, t};
 use protocol::{
     encode, BatchStep, CreateEnv, ErrorCode, F32Array, F64Array, Mode, Reply, Reset, Step, U32Array,
 };
@@ -48,11 +48,7 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
 
     // A healthy env of another trainer that must not be disturbed.
     let other = client(&server, "good-trainer").await;
-    let good = t(other.create(CreateEnv::new("x")))
-        .await
-        .unwrap()
-        .env_ids
-        .remove(0);
+    let good = one_env(&other).await;
     t(other.reset(
         &good,
         &Reset {

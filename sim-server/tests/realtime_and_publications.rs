@@ -8,7 +8,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{client, config, episode_over, free_port, session, start, t};
+use common::{client, config, episode_over, free_port, one_env, session, start, t};
 use protocol::{
     decode, encode, ActionMsg, CreateEnv, ErrorCode, EventsMsg, F32Array, Mode, Reset,
     RiskGraphMsg, StatesMsg, StepResult, UncertaintyMsg,
@@ -18,26 +18,15 @@ use protocol::{
 async fn observer_receives_states_uncertainty_and_risk_graph() {
     let server = start(config(free_port(), "srv-pub")).await;
     let c = client(&server, "trainer").await;
-    let env = t(c.create(CreateEnv::new("x")))
-        .await
-        .unwrap()
-        .env_ids
-        .remove(0);
+    let env = one_env(&c).await;
     let keys = c.keys().clone();
 
     let obs = session(server.port).await;
-    let states = t(obs.declare_subscriber(keys.env_states(&env).unwrap()))
-        .await
-        .unwrap();
-    let unc = t(obs.declare_subscriber(keys.env_uncertainty(&env).unwrap()))
-        .await
-        .unwrap();
-    let risk = t(obs.declare_subscriber(keys.env_risk_graph(&env).unwrap()))
-        .await
-        .unwrap();
-    let events = t(obs.declare_subscriber(keys.env_events(&env).unwrap()))
-        .await
-        .unwrap();
+    let subscribe = |key| async { t(obs.declare_subscriber(key)).await.unwrap() };
+    let states = subscribe(keys.env_states(&env).unwrap()).await;
+    let unc = subscribe(keys.env_uncertainty(&env).unwrap()).await;
+    let risk = subscribe(keys.env_risk_graph(&env).unwrap()).await;
+    let events = subscribe(keys.env_events(&env).unwrap()).await;
 
     // Publications are best-effort and the server learns of the subscribers asynchronously:
     // keep stepping until messages arrive.

@@ -7,8 +7,9 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{client, config, free_port, start, t};
+use common::{client, config, free_port, start, t, TestServer};
 use protocol::{BatchStep, CreateEnv, ErrorCode, F32Array, Reset};
+use sim_server::server::client::Client;
 
 async fn wait_load(
     c: &sim_server::server::client::Client,
@@ -32,12 +33,19 @@ async fn wait_load(
     t0.elapsed()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn vanished_trainer_is_reaped() {
-    let mut cfg = config(free_port(), "srv-reap");
-    cfg.trainer_grace_s = 1.0;
+/// A server that reaps a trainer `grace_s` seconds after its session is gone, and a watching
+/// client that stays.
+async fn server_with_grace(server_id: &str, grace_s: f64) -> (TestServer, Client) {
+    let mut cfg = config(free_port(), server_id);
+    cfg.trainer_grace_s = grace_s;
     let server = start(cfg).await;
     let watcher = client(&server, "watcher").await;
+    (server, watcher)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vanished_trainer_is_reaped() {
+    let (server, watcher) = server_with_grace("srv-reap", 1.0).await;
     let kept = t(watcher.create(CreateEnv::new("w")))
         .await
         .unwrap()
@@ -89,10 +97,7 @@ fn tables_without_pools(info: &protocol::ServerInfo) -> Vec<(String, u64)> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_table_is_back_to_its_idle_size_once_the_trainers_are_gone() {
-    let mut cfg = config(free_port(), "srv-tables");
-    cfg.trainer_grace_s = 0.5;
-    let server = start(cfg).await;
-    let watcher = client(&server, "watcher").await;
+    let (server, watcher) = server_with_grace("srv-tables", 0.5).await;
     let idle = t(watcher.info()).await.unwrap();
     for name in ["envs", "trainers", "fair_trainers", "watched_envs"] {
         assert!(

@@ -23,12 +23,15 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from .closing import Closing
+
 __all__ = [
     "LocalServer",
     "free_port",
     "rollout",
     "shared_server",
     "sim_server_binary",
+    "stop_process",
     "wait_port",
 ]
 
@@ -83,7 +86,19 @@ def die_with_parent() -> None:  # pragma: no cover - runs in the child
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
 
 
-class LocalServer:
+def stop_process(proc: subprocess.Popen, sig: int = signal.SIGTERM, grace_s: float = 10.0) -> None:
+    """Sends ``sig`` to ``proc`` if it still runs and waits for it to exit; SIGKILL after
+    ``grace_s`` seconds."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=grace_s)
+
+
+class LocalServer(Closing):
     """``sim-server serve`` on a free loopback port (multicast scouting off): ``endpoint`` and
     ``prefix`` are what a client connects with. ``cfg`` adds ``--cfg KEY:VALUE`` settings."""
 
@@ -127,20 +142,8 @@ class LocalServer:
 
     def close(self) -> None:
         """Stops the server (SIGTERM, then SIGKILL after 10 s)."""
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
+        stop_process(self.proc)
         self._log.close()
-
-    def __enter__(self) -> LocalServer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 _shared: dict[tuple[str, ...], LocalServer] = {}

@@ -24,6 +24,7 @@ from typing import Any
 import zenoh
 
 from . import codec
+from .closing import Closing
 from .errors import SharedspaceError
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, Transport, undeclare_all
 
@@ -35,7 +36,7 @@ log = logging.getLogger("sharedspace")
 TOPICS = ("states", "uncertainty", "risk_graph", "events", "result")
 
 
-class Observer:
+class Observer(Closing):
     """Subscribes to the publications of ``env_id`` (``"*"``: every env) on ``topics``.
 
     Args:
@@ -149,9 +150,3 @@ class Observer:
         undeclare_all(self._subs)
         if self._own:
             self.transport.close()
-
-    def __enter__(self) -> Observer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -112,41 +112,21 @@ class RemoteMultiAgentEnv(_ServerEnvs):
                 for key in ("done", "terminated", "truncated")
             }
 
-        self.observation_spec = Composite(
-            {
-                self.group: Composite(
-                    features=Unbounded((k, a, m, NODE_FEATURES), dtype=torch.float32, device=dev),
-                    adjacency=Unbounded((k, a, m, m), dtype=torch.float32, device=dev),
-                    mask=Binary(n=m, shape=(k, a, m), dtype=torch.bool, device=dev),
-                    shape=(k, a),
-                    device=dev,
-                )
-            },
-            shape=(k,),
-            device=dev,
+        def grouped(**specs) -> Composite:
+            """``specs`` (each ``[k, a, ...]``) under the agent group, as TorchRL's multi-agent
+            envs nest them: batch ``[k]`` outside, ``[k, a]`` inside."""
+            inner = Composite(specs, shape=(k, a), device=dev)
+            return Composite({self.group: inner}, shape=(k,), device=dev)
+
+        self.observation_spec = grouped(
+            features=Unbounded((k, a, m, NODE_FEATURES), dtype=torch.float32, device=dev),
+            adjacency=Unbounded((k, a, m, m), dtype=torch.float32, device=dev),
+            mask=Binary(n=m, shape=(k, a, m), dtype=torch.bool, device=dev),
         )
-        self.action_spec = Composite(
-            {
-                self.group: Composite(
-                    action=Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev),
-                    shape=(k, a),
-                    device=dev,
-                )
-            },
-            shape=(k,),
-            device=dev,
+        self.action_spec = grouped(
+            action=Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev)
         )
-        self.reward_spec = Composite(
-            {
-                self.group: Composite(
-                    reward=Unbounded((k, a, 1), dtype=torch.float32, device=dev),
-                    shape=(k, a),
-                    device=dev,
-                )
-            },
-            shape=(k,),
-            device=dev,
-        )
+        self.reward_spec = grouped(reward=Unbounded((k, a, 1), dtype=torch.float32, device=dev))
         self.done_spec = Composite(
             {**flags((k, 1)), self.group: Composite(flags((k, a, 1)), shape=(k, a), device=dev)},
             shape=(k,),

@@ -37,6 +37,7 @@ from typing import Any
 import zenoh
 
 from . import codec
+from .closing import Closing
 from .errors import NoServer, SharedspaceError, VersionMismatch
 
 __all__ = [
@@ -155,7 +156,7 @@ def undeclare_all(declarations) -> None:
             pass
 
 
-class Transport:
+class Transport(Closing):
     """One zenoh session talking to sharedspace servers under ``prefix``.
 
     Args:
@@ -432,12 +433,6 @@ class Transport:
             self.session.close()
         except Exception:  # noqa: BLE001
             pass
-
-    def __enter__(self) -> Transport:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __del__(self):
         try:

@@ -29,6 +29,7 @@ import numpy as np
 
 from . import codec
 from .client import SimClient
+from .closing import Closing
 from .decode import _OBS_KEYS, REWARD_TERMS, decode_batch_result
 from .errors import EnvClosed, SharedspaceError, WrongShape
 from .transport import (
@@ -77,7 +78,7 @@ def _stack_reset_obs(results: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarr
     }
 
 
-class VectorClient:
+class VectorClient(Closing):
     """K envs created by one ``CreateEnv``, stepped with one ``BatchStep`` per step.
 
     Args:
@@ -321,9 +322,3 @@ class VectorClient:
         finally:
             if self._own_client:
                 self.client.shutdown()
-
-    def __enter__(self) -> VectorClient:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

@@ -24,7 +24,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import urlencode
 
-from .local_server import die_with_parent, free_port, sim_server_binary, wait_port
+from .closing import Closing
+from .local_server import die_with_parent, free_port, sim_server_binary, stop_process, wait_port
 
 __all__ = ["VIEWER_DIST", "Viewer"]
 
@@ -56,7 +57,7 @@ class _Page(http.server.SimpleHTTPRequestHandler):
         pass
 
 
-class Viewer:
+class Viewer(Closing):
     """A router with the remote-api plugin connected to ``connect`` and an HTTP server of the
     page; a context manager (both stop on exit).
 
@@ -144,24 +145,12 @@ class Viewer:
         return f"http://{self.host}:{self.http_port}/index.html?{urlencode(query)}"
 
     def _stop_router(self) -> None:
-        if self._router.poll() is None:
-            self._router.send_signal(signal.SIGTERM)
-            try:
-                self._router.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self._router.kill()
-                self._router.wait(timeout=10)
+        stop_process(self._router)
 
     def close(self) -> None:
         self._http.shutdown()
         self._http.server_close()
         self._stop_router()
-
-    def __enter__(self) -> Viewer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _interrupt(signum, frame) -> None:

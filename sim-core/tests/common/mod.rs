@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use sim_core::scenario::{AgentKind, AgentRecord, Scenario, Split};
-use sim_core::{EpisodeConfig, PedestrianModel};
+use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
 
 /// The only sampling interval a world accepts by default, s.
 pub const DT: f64 = 0.5;
@@ -86,15 +86,30 @@ impl Rng {
     }
 }
 
+/// The paper's set-up of scenario `sc` with default parameters: its ego driven by actions,
+/// pedestrians moved by `model`.
+pub fn paper_world(sc: &Arc<Scenario>, model: PedestrianModel) -> World {
+    let config = EpisodeConfig::ego_external(sc, model);
+    World::new(sc.clone(), WorldParams::default(), config).unwrap()
+}
+
+/// CR-SFM pedestrians and replaying vehicles; the agents `external` driven by actions.
+pub fn with_external(external: Vec<u32>) -> EpisodeConfig {
+    EpisodeConfig {
+        pedestrian_model: PedestrianModel::CrSfm,
+        model_overrides: Vec::new(),
+        external,
+        vehicle_model: Default::default(),
+        vehicle_overrides: Vec::new(),
+    }
+}
+
 /// Agent 0 driven by actions, CR-SFM pedestrians except the `model_overrides`, vehicles
 /// replaying: the mixed-model set-up of the determinism and threading tests.
 pub fn mixed_models(model_overrides: Vec<(u32, PedestrianModel)>) -> EpisodeConfig {
     EpisodeConfig {
-        pedestrian_model: PedestrianModel::CrSfm,
         model_overrides,
-        external: vec![0],
-        vehicle_model: Default::default(),
-        vehicle_overrides: Vec::new(),
+        ..with_external(vec![0])
     }
 }
 

@@ -484,19 +484,17 @@ mod tests {
     fn errors_are_named() {
         let e = ServerConfig::from_json5_with("{capcity: 3}", "f.json5", &[]).unwrap_err();
         assert!(e.to_string().contains("capcity"), "{e}");
-        let e = ServerConfig::load(None, &["capacity".into()]).unwrap_err();
-        assert!(e.to_string().contains("KEY:VALUE"), "{e}");
-        let e = ServerConfig::load(None, &["capacity:0".into()]).unwrap_err();
-        assert!(e.to_string().contains("capacity"), "{e}");
-        let e = ServerConfig::load(None, &["capacity:-1".into()]).unwrap_err();
-        assert!(e.to_string().contains("capacity"), "{e}");
-        let e = ServerConfig::load(None, &["batch_threads:-1".into()]).unwrap_err();
-        assert!(e.to_string().contains("batch_threads"), "{e}");
-        let e = ServerConfig::load(None, &["memory_trim_s:-1".into()]).unwrap_err();
-        assert!(e.to_string().contains("memory_trim_s"), "{e}");
-        let e = ServerConfig::load(None, &["malloc_arenas:-2".into()]).unwrap_err();
-        assert!(e.to_string().contains("malloc_arenas"), "{e}");
-        let e = ServerConfig::load(None, &["prefix:a//b".into()]).unwrap_err();
-        assert!(e.to_string().contains("prefix"), "{e}");
+        for (setting, named) in [
+            ("capacity", "KEY:VALUE"),
+            ("capacity:0", "capacity"),
+            ("capacity:-1", "capacity"),
+            ("batch_threads:-1", "batch_threads"),
+            ("memory_trim_s:-1", "memory_trim_s"),
+            ("malloc_arenas:-2", "malloc_arenas"),
+            ("prefix:a//b", "prefix"),
+        ] {
+            let e = ServerConfig::load(None, &[setting.into()]).unwrap_err();
+            assert!(e.to_string().contains(named), "--cfg {setting}: {e}");
+        }
     }
 }

@@ -6,7 +6,7 @@
 use std::future::IntoFuture;
 use std::time::Duration;
 
-use protocol::{KeySpace, StepResult};
+use protocol::{CreateEnv, KeySpace, StepResult};
 use serde_json::json;
 use sim_server::server::client::Client;
 use sim_server::server::{run, ServerConfig, ServerError};
@@ -122,6 +122,12 @@ pub async fn session(port: u16) -> zenoh::Session {
     });
     let cfg = zenoh::Config::from_json5(&cfg.to_string()).unwrap();
     t(zenoh::open(cfg)).await.unwrap()
+}
+
+/// Creates one default env for trainer `c` and returns its id.
+pub async fn one_env(c: &Client) -> String {
+    let created = t(c.create(CreateEnv::new(c.client_id()))).await.unwrap();
+    created.env_ids.into_iter().next().expect("one env created")
 }
 
 /// A client with its own session; waits until the server answers `info`.
