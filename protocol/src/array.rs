@@ -117,6 +117,17 @@ pub fn shape_len(shape: &[u32]) -> Result<usize, ArrayError> {
         })
 }
 
+/// Elements and bytes of an array of `T` of `shape`, or an error on overflow.
+fn shape_bytes<T: Element>(shape: &[u32]) -> Result<(usize, usize), ArrayError> {
+    let n = shape_len(shape)?;
+    let bytes = n
+        .checked_mul(T::SIZE)
+        .ok_or_else(|| ArrayError::ShapeOverflow {
+            shape: shape.to_vec(),
+        })?;
+    Ok((n, bytes))
+}
+
 /// The number of elements of `shape`, or an error unless `len` values fill it exactly.
 fn checked_len<T: Element>(shape: &[u32], len: usize) -> Result<usize, ArrayError> {
     let n = shape_len(shape)?;
@@ -172,12 +183,7 @@ impl<T: Element> NdArray<T> {
 
     /// Builds an array from raw little-endian bytes; errors unless the byte length matches the shape.
     pub fn from_le_bytes(shape: Vec<u32>, data: Vec<u8>) -> Result<Self, ArrayError> {
-        let n = shape_len(&shape)?;
-        let expected_bytes = n
-            .checked_mul(T::SIZE)
-            .ok_or_else(|| ArrayError::ShapeOverflow {
-                shape: shape.clone(),
-            })?;
+        let (n, expected_bytes) = shape_bytes::<T>(&shape)?;
         if data.len() != expected_bytes {
             return Err(ArrayError::LengthMismatch {
                 dtype: T::DTYPE,
@@ -196,12 +202,7 @@ impl<T: Element> NdArray<T> {
 
     /// An array of the given shape filled with zeros.
     pub fn zeros(shape: Vec<u32>) -> Result<Self, ArrayError> {
-        let n = shape_len(&shape)?;
-        let bytes = n
-            .checked_mul(T::SIZE)
-            .ok_or_else(|| ArrayError::ShapeOverflow {
-                shape: shape.clone(),
-            })?;
+        let (_, bytes) = shape_bytes::<T>(&shape)?;
         Ok(Self {
             shape,
             data: vec![0u8; bytes],

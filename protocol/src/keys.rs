@@ -252,12 +252,17 @@ impl KeySpace {
         Ok(format!("{}/env/*/{}", self.server(server_id)?, op.as_str()))
     }
 
+    /// The rest of `key` after `{p}{section}`; `None` when it does not start so.
+    fn section<'k>(&self, key: &'k str, section: &str) -> Option<&'k str> {
+        key.strip_prefix(self.prefix.as_str())?
+            .strip_prefix(section)
+    }
+
     /// Parses `{p}/server/{server_id}/env/{env_id}/{op}` into `(env_id, op)`;
     /// `None` for any other key (including another server's).
     pub fn parse_env_op<'k>(&self, server_id: &str, key: &'k str) -> Option<(&'k str, EnvOp)> {
-        let rest = key
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix("/server/")?
+        let rest = self
+            .section(key, "/server/")?
             .strip_prefix(server_id)?
             .strip_prefix("/env/")?;
         let (env_id, op) = rest.split_once('/')?;
@@ -283,9 +288,7 @@ impl KeySpace {
 
     /// Parses `{p}/server/{server_id}/alive` into the server id.
     pub fn parse_server_alive<'k>(&self, key: &'k str) -> Option<&'k str> {
-        let rest = key
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix("/server/")?;
+        let rest = self.section(key, "/server/")?;
         let id = rest.strip_suffix("/alive")?;
         validate_server_id(id).ok()?;
         Some(id)
@@ -304,9 +307,7 @@ impl KeySpace {
 
     /// Parses `{p}/env/{env_id}/{topic}` into `(env_id, topic)`.
     pub fn parse_env_topic<'k>(&self, key: &'k str) -> Option<(&'k str, EnvTopic)> {
-        let rest = key
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix("/env/")?;
+        let rest = self.section(key, "/env/")?;
         let (env_id, topic) = rest.split_once('/')?;
         let topic = EnvTopic::parse(topic)?;
         validate_env_id(env_id).ok()?;
@@ -353,9 +354,7 @@ impl KeySpace {
 
     /// Parses `{p}/env/{env_id}/action/{agent_name}` into `(env_id, agent_name)`.
     pub fn parse_env_action<'k>(&self, key: &'k str) -> Option<(&'k str, &'k str)> {
-        let rest = key
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix("/env/")?;
+        let rest = self.section(key, "/env/")?;
         let (env_id, rest) = rest.split_once('/')?;
         let agent = rest.strip_prefix("action/")?;
         validate_env_id(env_id).ok()?;
@@ -376,9 +375,7 @@ impl KeySpace {
 
     /// Parses `{p}/trainer/{client_id}` into the client id.
     pub fn parse_trainer<'k>(&self, key: &'k str) -> Option<&'k str> {
-        let id = key
-            .strip_prefix(self.prefix.as_str())?
-            .strip_prefix("/trainer/")?;
+        let id = self.section(key, "/trainer/")?;
         validate_client_id(id).ok()?;
         Some(id)
     }
@@ -391,48 +388,33 @@ mod tests {
     #[test]
     fn builders() {
         let k = KeySpace::default();
-        assert_eq!(k.server_info("s1").unwrap(), "sharedspace/server/s1/info");
-        assert_eq!(
-            k.env_create("s1").unwrap(),
-            "sharedspace/server/s1/env/create"
-        );
-        assert_eq!(
-            k.env_reset("s1", "s1-0").unwrap(),
-            "sharedspace/server/s1/env/s1-0/reset"
-        );
-        assert_eq!(
-            k.env_step("s1", "s1-0").unwrap(),
-            "sharedspace/server/s1/env/s1-0/step"
-        );
-        assert_eq!(
-            k.env_close("s1", "s1-0").unwrap(),
-            "sharedspace/server/s1/env/s1-0/close"
-        );
-        assert_eq!(
-            k.env_op_wildcard("s1", EnvOp::Step).unwrap(),
-            "sharedspace/server/s1/env/*/step"
-        );
-        assert_eq!(
-            k.batch_step("s1").unwrap(),
-            "sharedspace/server/s1/batch/step"
-        );
-        assert_eq!(k.server_alive("s1").unwrap(), "sharedspace/server/s1/alive");
-        assert_eq!(k.env_states("s1-0").unwrap(), "sharedspace/env/s1-0/states");
-        assert_eq!(
-            k.env_uncertainty("s1-0").unwrap(),
-            "sharedspace/env/s1-0/uncertainty"
-        );
-        assert_eq!(
-            k.env_risk_graph("s1-0").unwrap(),
-            "sharedspace/env/s1-0/risk_graph"
-        );
-        assert_eq!(k.env_events("s1-0").unwrap(), "sharedspace/env/s1-0/events");
-        assert_eq!(k.env_result("s1-0").unwrap(), "sharedspace/env/s1-0/result");
-        assert_eq!(
-            k.env_action("s1-0", "vehicle_0").unwrap(),
-            "sharedspace/env/s1-0/action/vehicle_0"
-        );
-        assert_eq!(k.trainer("t-42").unwrap(), "sharedspace/trainer/t-42");
+        let (s, e) = ("s1", "s1-0");
+        let built = [
+            (k.server_info(s), "sharedspace/server/s1/info"),
+            (k.env_create(s), "sharedspace/server/s1/env/create"),
+            (k.env_reset(s, e), "sharedspace/server/s1/env/s1-0/reset"),
+            (k.env_step(s, e), "sharedspace/server/s1/env/s1-0/step"),
+            (k.env_close(s, e), "sharedspace/server/s1/env/s1-0/close"),
+            (
+                k.env_op_wildcard(s, EnvOp::Step),
+                "sharedspace/server/s1/env/*/step",
+            ),
+            (k.batch_step(s), "sharedspace/server/s1/batch/step"),
+            (k.server_alive(s), "sharedspace/server/s1/alive"),
+            (k.env_states(e), "sharedspace/env/s1-0/states"),
+            (k.env_uncertainty(e), "sharedspace/env/s1-0/uncertainty"),
+            (k.env_risk_graph(e), "sharedspace/env/s1-0/risk_graph"),
+            (k.env_events(e), "sharedspace/env/s1-0/events"),
+            (k.env_result(e), "sharedspace/env/s1-0/result"),
+            (
+                k.env_action(e, "vehicle_0"),
+                "sharedspace/env/s1-0/action/vehicle_0",
+            ),
+            (k.trainer("t-42"), "sharedspace/trainer/t-42"),
+        ];
+        for (got, want) in built {
+            assert_eq!(got.unwrap(), want);
+        }
         assert_eq!(k.trainer_all(), "sharedspace/trainer/*");
         assert_eq!(make_env_id("s1", 7), "s1-7");
     }

@@ -209,27 +209,24 @@ fn decode_error(
     let segments: Vec<&Segment> = e.path().iter().collect();
     let inner = e.inner();
     let message = inner.to_string();
-    let mut scenario = None;
-    let mut agent = None;
-    let mut rest = &segments[..];
-    if let [Segment::Map { key }, Segment::Seq { index }, tail @ ..] = rest {
-        if key == "scenarios" {
-            scenario = Some(ScenarioRef {
-                index: *index,
-                name: None,
-            });
-            rest = tail;
-            if let [Segment::Map { key }, Segment::Seq { index }, tail @ ..] = rest {
-                if key == "agents" {
-                    agent = Some(AgentRef {
-                        index: *index,
-                        record_id: None,
-                    });
-                    rest = tail;
-                }
-            }
+    // `key[index]` at the front of the path: the index, and the path moved past it.
+    let take_indexed = |rest: &mut &[&Segment], name: &str| match *rest {
+        [Segment::Map { key }, Segment::Seq { index }, tail @ ..] if key == name => {
+            *rest = tail;
+            Some(*index)
         }
-    }
+        _ => None,
+    };
+    let mut rest = &segments[..];
+    let mut scenario =
+        take_indexed(&mut rest, "scenarios").map(|index| ScenarioRef { index, name: None });
+    let mut agent = match scenario {
+        Some(_) => take_indexed(&mut rest, "agents").map(|index| AgentRef {
+            index,
+            record_id: None,
+        }),
+        None => None,
+    };
     let mut field = String::new();
     for seg in rest {
         match seg {

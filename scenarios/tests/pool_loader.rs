@@ -56,8 +56,12 @@ fn load_err(text: &str) -> (String, scenarios::PoolError) {
     (e.to_string(), e)
 }
 
-fn load_value_err(v: &Value) -> (String, scenarios::PoolError) {
-    load_err(&serde_json::to_string(v).unwrap())
+/// Loads the valid pool after `edit` has changed its JSON document: the error (as message and
+/// value) it must be rejected with.
+fn rejected(edit: impl FnOnce(&mut Value)) -> (String, scenarios::PoolError) {
+    let mut v = as_value(&valid_pool());
+    edit(&mut v);
+    load_err(&serde_json::to_string(&v).unwrap())
 }
 
 /// Asserts that the error message `msg` names the pool file and each `; `-separated part of
@@ -67,6 +71,16 @@ fn names(msg: &str, parts: &str) {
     eprintln!("{msg}");
     for p in std::iter::once(ORIGIN).chain(parts.split("; ")) {
         assert!(msg.contains(p), "error `{msg}` does not name `{p}`");
+    }
+}
+
+/// The other agent's index and the step of an overlap error; `None` for any other problem.
+fn overlap(e: &scenarios::PoolError) -> Option<(usize, u32)> {
+    match *e.problem {
+        Problem::Overlap {
+            other_index, step, ..
+        } => Some((other_index, step)),
+        _ => None,
     }
 }
 
@@ -100,37 +114,37 @@ fn malformed_json_names_file_and_position() {
 
 #[test]
 fn missing_field_is_named() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["agents"][2]
-        .as_object_mut()
-        .unwrap()
-        .remove("velocities");
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][1]["agents"][2]
+            .as_object_mut()
+            .unwrap()
+            .remove("velocities");
+    });
     names(
         &msg,
         "scenario #1 `s1`; agent #2 (record_id 8); field `velocities`; missing field",
     );
     assert_eq!(e.field, "velocities");
 
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0].as_object_mut().unwrap().remove("ego");
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0].as_object_mut().unwrap().remove("ego");
+    });
     names(&msg, "scenario #0 `s0`; field `ego`");
 }
 
 #[test]
 fn wrong_types_and_unknown_variants_are_named() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][1]["kind"] = json!("bicycle");
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"][1]["kind"] = json!("bicycle");
+    });
     names(
         &msg,
         "scenario #0 `s0`; agent #1 (record_id 7); field `kind`; bicycle",
     );
 
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][1]["start_step"] = json!(-1);
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"][1]["start_step"] = json!(-1);
+    });
     names(
         &msg,
         "scenario #0 `s0`; agent #1 (record_id 7); field `start_step`",
@@ -139,9 +153,9 @@ fn wrong_types_and_unknown_variants_are_named() {
 
 #[test]
 fn wrong_version_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["version"] = json!(2);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["version"] = json!(2);
+    });
     names(&msg, "field `version`; unsupported format version 2");
     assert_eq!(
         *e.problem,
@@ -154,9 +168,9 @@ fn wrong_version_is_rejected() {
 
 #[test]
 fn null_number_is_named() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][1]["positions"][2][0] = Value::Null;
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"][1]["positions"][2][0] = Value::Null;
+    });
     names(
         &msg,
         "scenario #0 `s0`; agent #1 (record_id 7); field `positions[2][0]`",
@@ -180,9 +194,9 @@ fn nan_literal_is_rejected() {
 
 #[test]
 fn huge_finite_value_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["agents"][2]["velocities"][3][1] = json!(1e300);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][1]["agents"][2]["velocities"][3][1] = json!(1e300);
+    });
     names(
         &msg,
         "scenario #1 `s1`; agent #2 (record_id 8); field `velocities[3][1]`; plausibility",
@@ -224,10 +238,10 @@ fn non_finite_in_memory_is_rejected() {
 
 #[test]
 fn empty_track_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][2]["positions"] = json!([]);
-    v["scenarios"][0]["agents"][2]["velocities"] = json!([]);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][0]["agents"][2]["positions"] = json!([]);
+        v["scenarios"][0]["agents"][2]["velocities"] = json!([]);
+    });
     names(
         &msg,
         "scenario #0 `s0`; agent #2 (record_id 8); field `positions`; empty track",
@@ -237,12 +251,12 @@ fn empty_track_is_rejected() {
 
 #[test]
 fn length_mismatch_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["agents"][1]["velocities"]
-        .as_array_mut()
-        .unwrap()
-        .pop();
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][1]["agents"][1]["velocities"]
+            .as_array_mut()
+            .unwrap()
+            .pop();
+    });
     names(&msg, "scenario #1 `s1`; agent #1 (record_id 7); field `velocities`; 5 velocities for 6 positions");
     assert!(matches!(
         *e.problem,
@@ -255,9 +269,9 @@ fn length_mismatch_is_rejected() {
 
 #[test]
 fn start_step_overflow_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][1]["start_step"] = json!(u32::MAX);
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"][1]["start_step"] = json!(u32::MAX);
+    });
     names(
         &msg,
         "scenario #0 `s0`; agent #1 (record_id 7); field `start_step`",
@@ -267,28 +281,21 @@ fn start_step_overflow_is_rejected() {
 #[test]
 fn overlap_at_initial_frame_is_rejected() {
     // Pedestrian 7 placed 1 m ahead of the vehicle's centre: inside the 4.0 x 1.8 rectangle.
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][1]["positions"][0] = json!([1.0, 0.0]);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][0]["agents"][1]["positions"][0] = json!([1.0, 0.0]);
+    });
     names(&msg, "scenario #0 `s0`; agent #1 (record_id 7); field `positions[0]`; overlaps agent #0 (record_id 100) at step 0");
-    assert!(matches!(
-        *e.problem,
-        Problem::Overlap {
-            other_index: 0,
-            step: 0,
-            ..
-        }
-    ));
+    assert_eq!(overlap(&e), Some((0, 0)));
 }
 
 #[test]
 fn pedestrian_pair_touching_is_an_overlap() {
     // Two discs of radius 0.3 exactly 0.6 m apart: clearance 0 counts as a collision.
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][1]["start_step"] = json!(2);
-    v["scenarios"][0]["agents"][1]["positions"][0] = json!([0.6, 5.0]);
-    v["scenarios"][0]["agents"][2]["positions"][0] = json!([0.0, 5.0]);
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"][1]["start_step"] = json!(2);
+        v["scenarios"][0]["agents"][1]["positions"][0] = json!([0.6, 5.0]);
+        v["scenarios"][0]["agents"][2]["positions"][0] = json!([0.0, 5.0]);
+    });
     names(
         &msg,
         "scenario #0 `s0`; field `positions[0]`; at step 2; overlaps agent",
@@ -298,21 +305,14 @@ fn pedestrian_pair_touching_is_an_overlap() {
 #[test]
 fn overlap_when_an_agent_enters_is_rejected() {
     // Agent 8 enters at step 2 on top of the vehicle (at x = 2.0 then).
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["agents"][2]["positions"][0] = json!([2.5, 0.5]);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][1]["agents"][2]["positions"][0] = json!([2.5, 0.5]);
+    });
     names(
         &msg,
         "scenario #1 `s1`; agent #2 (record_id 8); field `positions[0]`; at step 2",
     );
-    assert!(matches!(
-        *e.problem,
-        Problem::Overlap {
-            other_index: 0,
-            step: 2,
-            ..
-        }
-    ));
+    assert_eq!(overlap(&e), Some((0, 2)));
 }
 
 #[test]
@@ -332,18 +332,18 @@ fn later_overlap_passes_spawn_check_but_fails_all_steps() {
 
 #[test]
 fn wrong_dt_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["dt"] = json!(0.25);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][1]["dt"] = json!(0.25);
+    });
     names(&msg, "scenario #1 `s1`; field `dt`; 0.25");
     assert_eq!(*e.problem, Problem::WrongDt(0.25));
 }
 
 #[test]
 fn ego_out_of_range_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["ego"] = json!(3);
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["ego"] = json!(3);
+    });
     names(
         &msg,
         "scenario #0 `s0`; field `ego`; out of range (3 agents)",
@@ -352,43 +352,43 @@ fn ego_out_of_range_is_rejected() {
 
 #[test]
 fn ego_must_be_a_vehicle() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["ego"] = json!(1);
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][0]["ego"] = json!(1);
+    });
     names(&msg, "scenario #0 `s0`; field `ego`; must be a vehicle");
     assert_eq!(*e.problem, Problem::EgoNotVehicle { ego: 1 });
 }
 
 #[test]
 fn empty_scenario_is_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"] = json!([]);
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"] = json!([]);
+    });
     names(&msg, "scenario #0 `s0`; field `agents`; no agents");
 }
 
 #[test]
 fn duplicate_scenario_names_are_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["name"] = json!("s0");
-    let (msg, e) = load_value_err(&v);
+    let (msg, e) = rejected(|v| {
+        v["scenarios"][1]["name"] = json!("s0");
+    });
     names(
         &msg,
         "scenario #1 `s0`; field `name`; duplicate scenario name; scenario #0",
     );
     assert_eq!(*e.problem, Problem::DuplicateName { first_index: 0 });
 
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][1]["name"] = json!("");
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][1]["name"] = json!("");
+    });
     names(&msg, "scenario #1; field `name`; empty name");
 }
 
 #[test]
 fn duplicate_record_ids_are_rejected() {
-    let mut v = as_value(&valid_pool());
-    v["scenarios"][0]["agents"][2]["record_id"] = json!(7);
-    let (msg, _) = load_value_err(&v);
+    let (msg, _) = rejected(|v| {
+        v["scenarios"][0]["agents"][2]["record_id"] = json!(7);
+    });
     names(
         &msg,
         "scenario #0 `s0`; agent #2 (record_id 7); field `record_id`; duplicate",

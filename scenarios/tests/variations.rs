@@ -126,7 +126,7 @@ fn observations(scene: &Scenario, params: &WorldParams, action: [f64; 2], steps:
     for _ in 0..steps {
         let (mut feats, mut adj, mut mask) = (vec![0.0; M * f], vec![0.0; M * M], vec![0u8; M]);
         world
-            .fill_observation(ego, M, &mut feats, &mut adj, &mut mask)
+            .fill_observation(ego, M, (&mut feats, &mut adj, &mut mask))
             .expect("observation");
         out.extend(feats);
         out.extend(adj);

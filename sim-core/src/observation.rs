@@ -58,32 +58,30 @@ pub fn buffer_lengths(max_agents: usize) -> [usize; 3] {
     ]
 }
 
+/// The row-major buffers an observation is written into: `features` `[max_agents,
+/// NODE_FEATURES]`, `adjacency` `[max_agents, max_agents]` with `adjacency[a][b] = A(node a, node
+/// b)`, and `mask` `[max_agents]` (lengths: [`buffer_lengths`]).
+pub type ObservationBuffers<'a> = (&'a mut [f32], &'a mut [f32], &'a mut [u8]);
+
 impl World {
-    /// Writes agent `ego`'s observation into the given row-major buffers: `features`
-    /// `[max_agents, NODE_FEATURES]`, `adjacency` `[max_agents, max_agents]` with
-    /// `adjacency[a][b] = A(node a, node b)`, and `mask` `[max_agents]`. Returns `false` (and
-    /// zeroes everything) when `ego` is not present.
+    /// Writes agent `ego`'s observation of at most `max_agents` nodes into `buffers`. Returns
+    /// `false` (and zeroes everything) when `ego` is not present.
     pub fn fill_observation(
         &self,
         ego: AgentId,
         max_agents: usize,
-        features: &mut [f32],
-        adjacency: &mut [f32],
-        mask: &mut [u8],
+        buffers: ObservationBuffers,
     ) -> Result<bool, ObservationError> {
-        self.fill_observation_impl(ego, max_agents, features, adjacency, mask, None)
+        self.fill_observation_impl(ego, max_agents, buffers, None)
     }
 
     /// [`World::fill_observation`] that also writes the agent id of every node into `node_ids`
     /// (`[max_agents]`, `pad` for padding nodes; all `pad` when `ego` is not present).
-    #[allow(clippy::too_many_arguments)]
     pub fn fill_observation_with_ids(
         &self,
         ego: AgentId,
         max_agents: usize,
-        features: &mut [f32],
-        adjacency: &mut [f32],
-        mask: &mut [u8],
+        buffers: ObservationBuffers,
         node_ids: &mut [AgentId],
         pad: AgentId,
     ) -> Result<bool, ObservationError> {
@@ -94,16 +92,14 @@ impl World {
             });
         }
         node_ids.fill(pad);
-        self.fill_observation_impl(ego, max_agents, features, adjacency, mask, Some(node_ids))
+        self.fill_observation_impl(ego, max_agents, buffers, Some(node_ids))
     }
 
     fn fill_observation_impl(
         &self,
         ego: AgentId,
         max_agents: usize,
-        features: &mut [f32],
-        adjacency: &mut [f32],
-        mask: &mut [u8],
+        (features, adjacency, mask): ObservationBuffers,
         node_ids: Option<&mut [AgentId]>,
     ) -> Result<bool, ObservationError> {
         if max_agents == 0 {
@@ -140,7 +136,7 @@ impl World {
         &self,
         (ego, ego_slot): (AgentId, usize),
         max_agents: usize,
-        (features, adjacency, mask): (&mut [f32], &mut [f32], &mut [u8]),
+        (features, adjacency, mask): ObservationBuffers,
         node_ids: Option<&mut [AgentId]>,
         near: &mut Vec<(f64, AgentId, usize)>,
         slots: &mut Vec<usize>,

@@ -4,7 +4,7 @@ mod common;
 
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
-use common::{line, paper_world, scenario, track};
+use common::{line, paper_world, track};
 use sim_core::cognition::{kl_isotropic, posterior, Belief, VarianceSchedule, DIM};
 use sim_core::geometry::{clearance, clearance_and_normal, disc_rect_gap, Placed, Shape, Vec2};
 use sim_core::metrics::{
@@ -820,15 +820,14 @@ fn terms(out: &sim_core::StepOutcome) -> RewardTerms {
 /// Ego car 0 at (0, 0) driving (2, 0), goal (10, 0); pedestrian 1 (`cv`) at (3.25, -2) walking
 /// (0, 0.2).
 fn reward_world() -> World {
-    let sc = scenario(
-        0,
+    paper_world(
         vec![
             // 11 samples at 2 m/s: (0,0) .. (10,0); goal (10, 0)
             line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
             line(AgentKind::Pedestrian, 0, [3.25, -2.0], [0.0, 0.2], 11),
         ],
-    );
-    paper_world(&sc, PedestrianModel::Cv)
+        PedestrianModel::Cv,
+    )
 }
 
 #[test]
@@ -873,16 +872,15 @@ fn reward_progress_danger_and_comfort_of_two_steps() {
 #[test]
 fn reward_success_on_arrival_within_two_metres() {
     // car at (0,0) with speed 4 along x, goal (3, 0): d(0) = 3
-    let sc = scenario(
-        0,
+    let mut w = paper_world(
         vec![track(
             AgentKind::Vehicle,
             0,
             vec![[0.0, 0.0], [3.0, 0.0]],
             vec![[4.0, 0.0], [4.0, 0.0]],
         )],
+        PedestrianModel::CrSfm,
     );
-    let mut w = paper_world(&sc, PedestrianModel::CrSfm);
     // action [0, 0]: speed 4, x = (2, 0), d(1) = 1 <= 2 -> success
     let out = w.step(&[(0, [0.0, 0.0])]).unwrap();
     let r = terms(&out);
@@ -901,8 +899,7 @@ fn reward_collision_and_full_danger_on_overlap() {
     // car at (0,0) speed 2; a standing pedestrian (cv with zero velocity) at (3.2, 0) whose goal
     // is elsewhere (so it does not leave): after one step the car's front is at 1 + 2 = 3.0,
     // gap 3.2 - 3.0 - 0.3 = -0.1 -> clearance 0 -> collision
-    let sc = scenario(
-        0,
+    let mut w = paper_world(
         vec![
             line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
             track(
@@ -912,8 +909,8 @@ fn reward_collision_and_full_danger_on_overlap() {
                 vec![[0.0, 0.0], [0.0, 0.0]],
             ),
         ],
+        PedestrianModel::Cv,
     );
-    let mut w = paper_world(&sc, PedestrianModel::Cv);
     let out = w.step(&[(0, [0.0, 0.0])]).unwrap();
     let r = terms(&out);
     close(r.progress, 1.0); // 10 - 9

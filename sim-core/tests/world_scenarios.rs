@@ -4,7 +4,7 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{line, scenario, track, with_external};
+use common::{line, paper_world, scenario, track, with_external};
 use sim_core::geometry::Vec2;
 use sim_core::metrics::EpisodeStatus;
 use sim_core::observation::{buffer_lengths, ObservationError, NODE_FEATURES};
@@ -406,16 +406,10 @@ fn two_vehicles_one_external_one_replayed() {
 
 // ---------------------------------------------------------------- episode ends (model.md 7)
 
-fn ego_world(agents: Vec<AgentRecord>, model: PedestrianModel) -> (Arc<Scenario>, World) {
-    let sc = scenario(0, agents);
-    let w = world(&sc, EpisodeConfig::ego_external(&sc, model));
-    (sc, w)
-}
-
 #[test]
 fn episode_terminates_on_goal_with_success() {
     // goal (10, 0); full throttle: speeds 3, 4, 5, 6 -> x = 1.5, 3.5, 6.0, 9.0 -> d = 1 <= 2 at 4
-    let (_, mut w) = ego_world(
+    let mut w = paper_world(
         vec![line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11)],
         PedestrianModel::CrSfm,
     );
@@ -447,7 +441,7 @@ fn episode_terminates_on_goal_with_success() {
 fn episode_terminates_on_av_pedestrian_collision() {
     // standing pedestrian (cv, zero velocity, goal elsewhere) at (5.2, 0); car front at 2 + 1 t:
     // t = 3: 5.2 - 5.0 - 0.3 = -0.1 -> overlap
-    let (_, mut w) = ego_world(
+    let mut w = paper_world(
         vec![
             line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
             track(
@@ -482,7 +476,7 @@ fn episode_terminates_on_av_pedestrian_collision() {
 fn episode_truncates_at_recorded_duration_plus_fifteen_seconds() {
     // 11 samples: recorded duration 10 * 0.5 = 5 s; horizon (5 + 15)/0.5 = 40 steps. The car
     // stands still (recorded velocity 0) 10 m from its goal.
-    let (_, mut w) = ego_world(
+    let mut w = paper_world(
         vec![track(
             AgentKind::Vehicle,
             0,
@@ -513,7 +507,7 @@ fn episode_truncates_at_recorded_duration_plus_fifteen_seconds() {
 #[test]
 fn external_agent_entering_later_keeps_the_episode_running() {
     // the ego car's record starts at step 2: the episode must wait for it
-    let (_, mut w) = ego_world(
+    let mut w = paper_world(
         vec![
             line(AgentKind::Vehicle, 2, [0.0, 0.0], [2.0, 0.0], 11),
             line(AgentKind::Pedestrian, 0, [5.0, 10.0], [0.0, 1.0], 20),
@@ -536,14 +530,13 @@ fn external_agent_entering_later_keeps_the_episode_running() {
 // ---------------------------------------------------------------- step errors
 
 fn error_world() -> World {
-    let (_, w) = ego_world(
+    paper_world(
         vec![
             line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
             line(AgentKind::Pedestrian, 0, [5.0, 3.0], [0.0, -1.0], 11),
         ],
         PedestrianModel::CrSfm,
-    );
-    w
+    )
 }
 
 /// `bad` is refused with an error matching `check`, and the world is as before: same
@@ -699,7 +692,7 @@ fn outcome_lists_active_externals_in_config_order() {
 /// Ego car at (0,0) heading 0 with goal (10,0); pedestrian 1 at (3,3) walking (0,-1);
 /// pedestrian 2 at (-4,0) walking (1,0); pedestrian 3 at (40,0), out of range.
 fn observation_world() -> World {
-    let (_, w) = ego_world(
+    paper_world(
         vec![
             line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
             line(AgentKind::Pedestrian, 0, [3.0, 3.0], [0.0, -1.0], 11),
@@ -707,8 +700,7 @@ fn observation_world() -> World {
             line(AgentKind::Pedestrian, 0, [40.0, 0.0], [0.0, 1.0], 11),
         ],
         PedestrianModel::CrSfm,
-    );
-    w
+    )
 }
 
 fn buffers(max_agents: usize) -> (Vec<f32>, Vec<f32>, Vec<u8>) {
@@ -732,7 +724,7 @@ fn close32(got: f32, want: f64) {
 fn observation_ego_first_then_nearest_with_padding_mask() {
     let w = observation_world();
     let (mut f, mut a, mut m) = buffers(5);
-    assert_eq!(w.fill_observation(0, 5, &mut f, &mut a, &mut m), Ok(true));
+    assert_eq!(w.fill_observation(0, 5, (&mut f, &mut a, &mut m)), Ok(true));
     assert_eq!(m, vec![1, 1, 1, 0, 0]);
     // ego: rel 0, rel v 0, speed 2, heading diff 0, radius 0.5 sqrt(4^2 + 1.8^2), vehicle,
     // goal offset (10, 0), distance 10
@@ -794,7 +786,7 @@ fn observation_ego_first_then_nearest_with_padding_mask() {
 #[test]
 fn observation_is_in_the_ego_frame() {
     // car heading pi/2 (driving (0, 2)) with goal (0, 10); pedestrian 5 m ahead at (0, 5)
-    let (_, w) = ego_world(
+    let w = paper_world(
         vec![
             line(AgentKind::Vehicle, 0, [0.0, 0.0], [0.0, 2.0], 11),
             line(AgentKind::Pedestrian, 0, [0.0, 5.0], [1.0, 0.0], 11),
@@ -802,7 +794,7 @@ fn observation_is_in_the_ego_frame() {
         PedestrianModel::CrSfm,
     );
     let (mut f, mut a, mut m) = buffers(3);
-    assert_eq!(w.fill_observation(0, 3, &mut f, &mut a, &mut m), Ok(true));
+    assert_eq!(w.fill_observation(0, 3, (&mut f, &mut a, &mut m)), Ok(true));
     assert_eq!(m, vec![1, 1, 0]);
     // goal (0, 10) is straight ahead: (10, 0), distance 10
     close32(f[8], 10.0);
@@ -822,7 +814,7 @@ fn observation_is_in_the_ego_frame() {
 fn observation_keeps_only_the_nearest_when_full() {
     let w = observation_world();
     let (mut f, mut a, mut m) = buffers(2);
-    assert_eq!(w.fill_observation(0, 2, &mut f, &mut a, &mut m), Ok(true));
+    assert_eq!(w.fill_observation(0, 2, (&mut f, &mut a, &mut m)), Ok(true));
     assert_eq!(m, vec![1, 1]);
     close32(row(&f, 1)[0], -4.0); // pedestrian 2, the nearer
     assert_eq!(a[1], edge(&w, 0, 2).unwrap().a as f32);
@@ -836,23 +828,26 @@ fn observation_errors_and_absent_ego() {
     let (mut f, mut a, mut m) = buffers(4);
     let mut short = vec![0.0f32; 3];
     assert_eq!(
-        w.fill_observation(0, 4, &mut short, &mut a, &mut m),
+        w.fill_observation(0, 4, (&mut short, &mut a, &mut m)),
         Err(ObservationError::BufferSize {
             got: [3, 16, 4],
             want: [44, 16, 4]
         })
     );
     assert_eq!(
-        w.fill_observation(0, 0, &mut [], &mut [], &mut []),
+        w.fill_observation(0, 0, (&mut [], &mut [], &mut [])),
         Err(ObservationError::NoRoom)
     );
     // an agent that is not present: Ok(false) and zeroed buffers
-    assert_eq!(w.fill_observation(99, 4, &mut f, &mut a, &mut m), Ok(false));
+    assert_eq!(
+        w.fill_observation(99, 4, (&mut f, &mut a, &mut m)),
+        Ok(false)
+    );
     assert!(f.iter().all(|&x| x == 0.0));
     assert!(a.iter().all(|&x| x == 0.0));
     assert!(m.iter().all(|&x| x == 0));
     // a pedestrian can be observed from too (ego of its own observation)
     let (mut f, mut a, mut m) = buffers(4);
-    assert_eq!(w.fill_observation(3, 4, &mut f, &mut a, &mut m), Ok(true));
+    assert_eq!(w.fill_observation(3, 4, (&mut f, &mut a, &mut m)), Ok(true));
     assert_eq!(m, vec![1, 0, 0, 0]); // nobody within 15 m of (40, 0)
 }

@@ -64,6 +64,14 @@ where
     (t0.elapsed().as_secs_f64() / n as f64, n)
 }
 
+/// [`time_it`] of the server's round trip: `payload` sent to `key` by client `c`.
+async fn time_raw(c: &Client, key: &str, payload: &[u8], secs: f64) -> (f64, u64) {
+    time_it(secs, || async move {
+        c.raw(key, payload.to_vec()).await.unwrap();
+    })
+    .await
+}
+
 const T: Duration = Duration::from_secs(30);
 
 /// Per thread name (numbered suffixes merged, e.g. `rx-0` and `rx-1` into `rx`): seconds on a
@@ -228,15 +236,7 @@ async fn bench(secs: f64) {
     let step_req = encode(&Step::from_rows(&[[0.2, 0.01]]));
     let step_key = c.keys().env_step("bench", &env).unwrap();
     let reply_len = c.raw(&step_key, step_req.clone()).await.unwrap().len();
-    let (t_srv, n_srv) = time_it(secs, || {
-        let c = &c;
-        let k = step_key.clone();
-        let p = step_req.clone();
-        async move {
-            c.raw(&k, p).await.unwrap();
-        }
-    })
-    .await;
+    let (t_srv, n_srv) = time_raw(&c, &step_key, &step_req, secs).await;
     let (t_bare, n_bare) = time_it(secs, bare_call(step_req.len(), reply_len)).await;
     println!(
         "single-env step: server {:.1} us/round trip ({n_srv} calls), bare zenoh get/reply {:.1} us ({n_bare} calls; request {} B, reply {} B), ratio {:.2}x",
@@ -269,15 +269,7 @@ async fn bench(secs: f64) {
         let key = c.keys().batch_step("bench").unwrap();
         let reply_len = c.raw(&key, b.clone()).await.unwrap().len();
         let th0 = threads_sched();
-        let (t_srv, n_srv) = time_it(secs, || {
-            let c = &c;
-            let k = key.clone();
-            let p = b.clone();
-            async move {
-                c.raw(&k, p).await.unwrap();
-            }
-        })
-        .await;
+        let (t_srv, n_srv) = time_raw(&c, &key, &b, secs).await;
         let th_srv = threads_delta(&th0, &threads_sched(), n_srv + 50);
         let th0 = threads_sched();
         let (t_bare, n_bare) = time_it(secs, bare_call(b.len(), reply_len)).await;

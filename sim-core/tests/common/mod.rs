@@ -86,11 +86,12 @@ impl Rng {
     }
 }
 
-/// The paper's set-up of scenario `sc` with default parameters: its ego driven by actions,
-/// pedestrians moved by `model`.
-pub fn paper_world(sc: &Arc<Scenario>, model: PedestrianModel) -> World {
-    let config = EpisodeConfig::ego_external(sc, model);
-    World::new(sc.clone(), WorldParams::default(), config).unwrap()
+/// The paper's set-up with default parameters in a scenario of `agents` (agent 0 the ego):
+/// the ego driven by actions, pedestrians moved by `model`.
+pub fn paper_world(agents: Vec<AgentRecord>, model: PedestrianModel) -> World {
+    let sc = scenario(0, agents);
+    let config = EpisodeConfig::ego_external(&sc, model);
+    World::new(sc, WorldParams::default(), config).unwrap()
 }
 
 /// CR-SFM pedestrians and replaying vehicles; the agents `external` driven by actions.
@@ -119,17 +120,10 @@ pub fn fingerprint(w: &sim_core::World, out: Option<&sim_core::StepOutcome>) -> 
     let mut f = vec![u64::from(w.step_index()), w.len() as u64];
     for a in w.agents() {
         f.push(u64::from(a.id));
-        for x in [
-            a.position.x,
-            a.position.y,
-            a.velocity.x,
-            a.velocity.y,
-            a.acceleration.x,
-            a.acceleration.y,
-            a.heading,
-        ] {
-            f.push(x.to_bits());
+        for v in [a.position, a.velocity, a.acceleration] {
+            f.extend([v.x.to_bits(), v.y.to_bits()]);
         }
+        f.push(a.heading.to_bits());
     }
     for e in w.graph_edges() {
         f.push(u64::from(e.observer) << 32 | u64::from(e.target));

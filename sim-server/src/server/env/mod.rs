@@ -155,7 +155,7 @@ fn write_obs(world: &World, ext_ids: &[AgentId], m: usize, s: &mut Slots<'_>) {
         let mask = &mut s.mask[e * m..(e + 1) * m];
         let ids = &mut s.node_ids[e * m..(e + 1) * m];
         // Buffer sizes are right by construction and m >= 1 is checked at creation.
-        let _ = world.fill_observation_with_ids(ego, m, feats, adj, mask, ids, PAD_NODE_ID);
+        let _ = world.fill_observation_with_ids(ego, m, (feats, adj, mask), ids, PAD_NODE_ID);
     }
 }
 
