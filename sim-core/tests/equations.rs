@@ -18,10 +18,10 @@ use sim_core::pedestrian::{
     Interaction,
 };
 use sim_core::risk::adjacency;
-use sim_core::scenario::AgentKind;
+use sim_core::scenario::{AgentKind, AgentRecord};
 use sim_core::vehicle::{map_action, unicycle_step, wrap_angle, UnicycleState, VehicleCommand};
 use sim_core::world::{Event, RewardTerms};
-use sim_core::{PedestrianModel, World};
+use sim_core::{PedestrianModel, StepOutcome, World};
 
 const EPS: f64 = 1e-12;
 
@@ -327,6 +327,14 @@ struct Hand {
     post3: f64,
 }
 
+/// u written out for isotropic 2-D Gaussians (model.md 4): prior variance `prior`, observation
+/// noise variance 0.25 (the default), squared distance `miss2` between prediction and
+/// observation.
+fn kl_by_hand(prior: f64, miss2: f64) -> f64 {
+    let s2o = 0.25;
+    0.5 * (2.0 * prior / s2o + miss2 / s2o - 2.0 + 2.0 * (s2o / prior).ln())
+}
+
 fn hand_variances() -> Hand {
     // post0 = s0^2 = 1; prior1 = 1 + 0.3^2 = 1.09
     let prior1 = 1.09;
@@ -392,10 +400,7 @@ fn belief_update_constant_velocity_over_three_steps() {
         v(1.5, 0.0),
         &sched,
     );
-    close(
-        u1,
-        0.5 * (2.0 * h.prior1 / s2o + 0.25 / s2o - 2.0 + 2.0 * (s2o / h.prior1).ln()),
-    );
+    close(u1, kl_by_hand(h.prior1, 0.25));
     // mu1 = post1 ((1, 0)/1.09 + (1.5, 0)/0.25) = post1 (1/1.09 + 6, 0)
     let mu1x = h.post1 * (1.0 / h.prior1 + 6.0);
     close_v(b.mu, [mu1x, 0.0]);
@@ -408,10 +413,7 @@ fn belief_update_constant_velocity_over_three_steps() {
         &sched,
     );
     let d2 = (1.5 - mu1x).powi(2) + 0.25;
-    close(
-        u2,
-        0.5 * (2.0 * h.prior2 / s2o + d2 / s2o - 2.0 + 2.0 * (s2o / h.prior2).ln()),
-    );
+    close(u2, kl_by_hand(h.prior2, d2));
     // mu2 = post2 (mu1/prior2 + o/0.25)
     let mu2 = [
         h.post2 * (mu1x / h.prior2 + 1.5 / s2o),
@@ -422,10 +424,7 @@ fn belief_update_constant_velocity_over_three_steps() {
     // step 3: observation equal to the belief mean: only the variance part of the KL remains
     let obs = b.mu;
     let u3 = b.update(obs, obs, &sched);
-    close(
-        u3,
-        0.5 * (2.0 * h.prior3 / s2o - 2.0 + 2.0 * (s2o / h.prior3).ln()),
-    );
+    close(u3, kl_by_hand(h.prior3, 0.0));
     // mu3 = post3 (mu2/prior3 + mu2/0.25) = mu2 * post3 (1/prior3 + 4) = mu2
     close_v(b.mu, mu2);
     assert_eq!(b.updates, 3);
@@ -435,7 +434,6 @@ fn belief_update_constant_velocity_over_three_steps() {
 fn belief_update_constant_acceleration_over_three_steps() {
     let sched = VarianceSchedule::new(&CognitionParams::default());
     let h = hand_variances();
-    let s2o = 0.25;
     let ca = PredictionModel::ConstantAcceleration;
     // observations accelerate by 0.5 m/s per step along x: 1.0 (first sight), 1.5, 2.0, 2.5
     let mut b = Belief::first_sight(v(1.0, 0.0));
@@ -443,10 +441,7 @@ fn belief_update_constant_acceleration_over_three_steps() {
     // step 1: no change observed yet: mu_p = mu0 = (1, 0); |(1.5,0) - (1,0)|^2 = 0.25
     // the observed change of velocity is the target's history, supplied by the caller
     let u1 = b.update(b.predict(ca, Vec2::zeros()), v(1.5, 0.0), &sched);
-    close(
-        u1,
-        0.5 * (2.0 * h.prior1 / s2o + 0.25 / s2o - 2.0 + 2.0 * (s2o / h.prior1).ln()),
-    );
+    close(u1, kl_by_hand(h.prior1, 0.25));
     // mu1 = post1 (1/1.09 + 1.5/0.25) = post1 (1/1.09 + 6)
     let mu1 = h.post1 * (1.0 / h.prior1 + 6.0);
     close_v(b.mu, [mu1, 0.0]);
@@ -454,11 +449,7 @@ fn belief_update_constant_acceleration_over_three_steps() {
     // step 2: mu_p = mu1 + (1.5 - 1.0) = mu1 + 0.5; o = 2.0
     let u2 = b.update(b.predict(ca, v(0.5, 0.0)), v(2.0, 0.0), &sched);
     let mp2 = mu1 + 0.5;
-    close(
-        u2,
-        0.5 * (2.0 * h.prior2 / s2o + (2.0 - mp2).powi(2) / s2o - 2.0
-            + 2.0 * (s2o / h.prior2).ln()),
-    );
+    close(u2, kl_by_hand(h.prior2, (2.0 - mp2).powi(2)));
     // mu2 = post2 (mp2/prior2 + 2.0/0.25)
     let mu2 = h.post2 * (mp2 / h.prior2 + 8.0);
     close_v(b.mu, [mu2, 0.0]);
@@ -466,11 +457,7 @@ fn belief_update_constant_acceleration_over_three_steps() {
     // step 3: mu_p = mu2 + (2.0 - 1.5) = mu2 + 0.5; o = 2.5
     let u3 = b.update(b.predict(ca, v(0.5, 0.0)), v(2.5, 0.0), &sched);
     let mp3 = mu2 + 0.5;
-    close(
-        u3,
-        0.5 * (2.0 * h.prior3 / s2o + (2.5 - mp3).powi(2) / s2o - 2.0
-            + 2.0 * (s2o / h.prior3).ln()),
-    );
+    close(u3, kl_by_hand(h.prior3, (2.5 - mp3).powi(2)));
     // mu3 = post3 (mp3/prior3 + 2.5/0.25)
     close_v(b.mu, [h.post3 * (mp3 / h.prior3 + 10.0), 0.0]);
 
@@ -817,6 +804,14 @@ fn terms(out: &sim_core::StepOutcome) -> RewardTerms {
     out.agents[0].reward
 }
 
+/// The ego's step outcome and reward terms after one step with action [0, 0] (speed and
+/// heading kept) in the paper's set-up of `agents`.
+fn coasting_step(agents: Vec<AgentRecord>, model: PedestrianModel) -> (StepOutcome, RewardTerms) {
+    let out = paper_world(agents, model).step(&[(0, [0.0, 0.0])]).unwrap();
+    let r = terms(&out);
+    (out, r)
+}
+
 /// Ego car 0 at (0, 0) driving (2, 0), goal (10, 0); pedestrian 1 (`cv`) at (3.25, -2) walking
 /// (0, 0.2).
 fn reward_world() -> World {
@@ -872,18 +867,10 @@ fn reward_progress_danger_and_comfort_of_two_steps() {
 #[test]
 fn reward_success_on_arrival_within_two_metres() {
     // car at (0,0) with speed 4 along x, goal (3, 0): d(0) = 3
-    let mut w = paper_world(
-        vec![track(
-            AgentKind::Vehicle,
-            0,
-            vec![[0.0, 0.0], [3.0, 0.0]],
-            vec![[4.0, 0.0], [4.0, 0.0]],
-        )],
-        PedestrianModel::CrSfm,
-    );
+    let positions = vec![[0.0, 0.0], [3.0, 0.0]];
+    let car = track(AgentKind::Vehicle, 0, positions, vec![[4.0, 0.0]; 2]);
     // action [0, 0]: speed 4, x = (2, 0), d(1) = 1 <= 2 -> success
-    let out = w.step(&[(0, [0.0, 0.0])]).unwrap();
-    let r = terms(&out);
+    let (out, r) = coasting_step(vec![car], PedestrianModel::CrSfm);
     close(r.progress, 2.0); // 3 - 1
     assert_eq!(r.success, 10.0);
     assert_eq!(r.collision, 0.0);
@@ -899,20 +886,10 @@ fn reward_collision_and_full_danger_on_overlap() {
     // car at (0,0) speed 2; a standing pedestrian (cv with zero velocity) at (3.2, 0) whose goal
     // is elsewhere (so it does not leave): after one step the car's front is at 1 + 2 = 3.0,
     // gap 3.2 - 3.0 - 0.3 = -0.1 -> clearance 0 -> collision
-    let mut w = paper_world(
-        vec![
-            line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
-            track(
-                AgentKind::Pedestrian,
-                0,
-                vec![[3.2, 0.0], [3.2, 5.0]],
-                vec![[0.0, 0.0], [0.0, 0.0]],
-            ),
-        ],
-        PedestrianModel::Cv,
-    );
-    let out = w.step(&[(0, [0.0, 0.0])]).unwrap();
-    let r = terms(&out);
+    let car = line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11);
+    let positions = vec![[3.2, 0.0], [3.2, 5.0]];
+    let standing = track(AgentKind::Pedestrian, 0, positions, vec![[0.0, 0.0]; 2]);
+    let (out, r) = coasting_step(vec![car, standing], PedestrianModel::Cv);
     close(r.progress, 1.0); // 10 - 9
     assert_eq!(r.collision, -20.0);
     assert_eq!(r.danger, -20.0); // 20 (0 - 1)
@@ -1029,7 +1006,7 @@ fn belief_update_count_saturates_instead_of_overflowing() {
         v(1.0, 0.0),
         &sched,
     );
-    close(u, 0.5 * (2.0 * sp / 0.25 - 2.0 + 2.0 * (0.25 / sp).ln()));
+    close(u, kl_by_hand(sp, 0.0));
     assert_eq!(b.updates, u32::MAX);
 }
 

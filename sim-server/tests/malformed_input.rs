@@ -62,14 +62,12 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
 
     // --- info
     let info = keys.server_info(sid).unwrap();
-    assert_eq!(
-        code(&c, &info, garbage.clone()).await,
-        ErrorCode::BadRequest
-    );
-    assert_eq!(
-        code(&c, &info, json_msgpack(json!({"protocol_version": "one"}))).await,
-        ErrorCode::BadRequest
-    );
+    for payload in [
+        garbage.clone(),
+        json_msgpack(json!({"protocol_version": "one"})),
+    ] {
+        assert_eq!(code(&c, &info, payload).await, ErrorCode::BadRequest);
+    }
 
     // --- create
     let create = keys.env_create(sid).unwrap();
@@ -175,44 +173,37 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
 
     // --- reset
     let reset = keys.env_reset(sid, &env).unwrap();
-    assert_eq!(
-        code(&c, &reset, garbage.clone()).await,
-        ErrorCode::BadRequest
-    );
-    assert_eq!(
-        code(&c, &reset, json_msgpack(json!({"seed": "x"}))).await,
-        ErrorCode::BadRequest
-    );
-    assert_eq!(
-        code(&c, &reset, json_msgpack(json!({"seed": -3}))).await,
-        ErrorCode::BadRequest
-    );
-    assert_eq!(
-        code(
-            &c,
-            &reset,
-            encode(&Reset {
-                seed: None,
-                scenario: Some("nope".into()),
-                variation: None,
-            })
-        )
-        .await,
-        ErrorCode::BadRequest
-    );
-    assert_eq!(
-        code(&c, &keys.env_reset(sid, "srv-bad-999").unwrap(), Vec::new()).await,
-        ErrorCode::UnknownEnv
-    );
-    assert_eq!(
-        code(
-            &c,
-            &keys.env_reset(sid, "someone-else-0").unwrap(),
-            Vec::new()
-        )
-        .await,
-        ErrorCode::UnknownEnv
-    );
+    let unknown_scenario = Reset {
+        scenario: Some("nope".into()),
+        ..Reset::default()
+    };
+    let reset_cases = [
+        (reset.clone(), garbage.clone(), ErrorCode::BadRequest),
+        (
+            reset.clone(),
+            json_msgpack(json!({"seed": "x"})),
+            ErrorCode::BadRequest,
+        ),
+        (
+            reset.clone(),
+            json_msgpack(json!({"seed": -3})),
+            ErrorCode::BadRequest,
+        ),
+        (reset, encode(&unknown_scenario), ErrorCode::BadRequest),
+        (
+            keys.env_reset(sid, "srv-bad-999").unwrap(),
+            Vec::new(),
+            ErrorCode::UnknownEnv,
+        ),
+        (
+            keys.env_reset(sid, "someone-else-0").unwrap(),
+            Vec::new(),
+            ErrorCode::UnknownEnv,
+        ),
+    ];
+    for (i, (key, payload, want)) in reset_cases.into_iter().enumerate() {
+        assert_eq!(code(&c, &key, payload).await, want, "reset case {i}");
+    }
 
     // --- step
     let step = keys.env_step(sid, &env).unwrap();
