@@ -228,7 +228,8 @@ fn non_finite_in_memory_is_rejected() {
         let mut pool = valid_pool();
         pool.scenarios[0].agents[2].positions[1][1] = bad;
         let e = validate_pool(&pool, ORIGIN, OverlapCheck::Spawn).unwrap_err();
-        names(&e.to_string(), "scenario #0 `s0`; agent #2 (record_id 8); field `positions[1][1]`; not a finite number");
+        let at = "scenario #0 `s0`; agent #2 (record_id 8); field `positions[1][1]`";
+        names(&e.to_string(), &format!("{at}; not a finite number"));
     }
     let mut pool = valid_pool();
     pool.scenarios[1].dt = f64::NAN;
@@ -257,7 +258,8 @@ fn length_mismatch_is_rejected() {
             .unwrap()
             .pop();
     });
-    names(&msg, "scenario #1 `s1`; agent #1 (record_id 7); field `velocities`; 5 velocities for 6 positions");
+    let at = "scenario #1 `s1`; agent #1 (record_id 7); field `velocities`";
+    names(&msg, &format!("{at}; 5 velocities for 6 positions"));
     assert!(matches!(
         *e.problem,
         Problem::LengthMismatch {
@@ -284,7 +286,11 @@ fn overlap_at_initial_frame_is_rejected() {
     let (msg, e) = rejected(|v| {
         v["scenarios"][0]["agents"][1]["positions"][0] = json!([1.0, 0.0]);
     });
-    names(&msg, "scenario #0 `s0`; agent #1 (record_id 7); field `positions[0]`; overlaps agent #0 (record_id 100) at step 0");
+    let at = "scenario #0 `s0`; agent #1 (record_id 7); field `positions[0]`";
+    names(
+        &msg,
+        &format!("{at}; overlaps agent #0 (record_id 100) at step 0"),
+    );
     assert_eq!(overlap(&e), Some((0, 0)));
 }
 
