@@ -3,16 +3,18 @@ viewer, local server): ``with x:`` calls ``x.close()`` on leaving the block."""
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Self
 
 __all__ = ["Closing"]
 
 
-class Closing:
+class Closing(ABC):
     """Base of a resource closed by ``close()``: ``with`` returns it and closes it at the end."""
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Releases the resource; each subclass says what that means."""
 
     def __enter__(self) -> Self:
         return self
