@@ -334,3 +334,10 @@ def test_a_trainer_flooding_the_server_with_batches_does_not_starve_another(serv
         assert np.isfinite(out["reward"]).all()
         assert len(done) == 7
         assert done.index("small") <= 2, done
+
+
+def test_an_unknown_client_option_is_refused_by_name():
+    # SimClient forwards its connection options to Transport: a misspelt one is named, before
+    # any connection is opened.
+    with pytest.raises(TypeError, match="multicats"):
+        SimClient("tcp/127.0.0.1:1", multicats=True)
