@@ -64,13 +64,15 @@ test: $(VENV)/.installed $(VIEWER_PAGE) browser ## every test: Rust (fmt, clippy
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server SHAREDSPACE_REQUIRE_BROWSER=1 timeout --kill-after=30 1800 $(PY) -m pytest clients/tests -q -p no:cacheprovider \
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
 	$(PY) -m ruff check clients calibration bench
+	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 
-lint-py: $(VENV)/.installed ## ruff on the Python code
+lint-py: $(VENV)/.installed ## ruff and the import contracts (clients/pyproject.toml) on the Python code
 	$(PY) -m ruff check clients calibration bench
+	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 fmt: ## format the Rust code
 	$(CARGO) fmt --all
@@ -121,10 +123,10 @@ TRAIN_ARGS ?= --set variant=g_sac_cog total_frames=200000 log_dir=runs/g_sac_cog
 CKPT ?= runs/g_sac_cog/checkpoints/last.pt
 
 train: $(SERVER) $(VENV)/.installed ## train against a fresh local server (TRAIN_ARGS='--set variant=s_sac ...')
-	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.train $(TRAIN_ARGS) --set env_backend=remote server_endpoint=$$SHAREDSPACE_ENDPOINT'
+	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.train $(TRAIN_ARGS) --set server_endpoint=$$SHAREDSPACE_ENDPOINT'
 
 eval: $(SERVER) $(VENV)/.installed ## evaluate CKPT on the test split (Table II columns and the human driver)
-	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.train.evaluate --checkpoint $(CKPT) --split test --set env_backend=remote server_endpoint=$$SHAREDSPACE_ENDPOINT'
+	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.paper.evaluate --checkpoint $(CKPT) --split test --set server_endpoint=$$SHAREDSPACE_ENDPOINT'
 
 table2: $(SERVER) $(VENV)/.installed ## paper Table II: three variants trained at once against one server, evaluated (docs/RESULTS.md)
 	./scripts/table2.sh
@@ -132,7 +134,7 @@ table2: $(SERVER) $(VENV)/.installed ## paper Table II: three variants trained a
 POWERED_ARGS ?= --variations 128 --planner 32 --by-m 8,16,32,64,128
 table2v: $(SERVER) $(VENV)/.installed ## Table II on seeded variations: the shipped policies, scripts and planner bound, paired (docs/RESULTS.md)
 	mkdir -p results/variations
-	$(PY) -m sharedspace.train.powered --policies results/table2/policies \
+	$(PY) -m sharedspace.paper.powered --policies results/table2/policies \
 		--drivers pursuit_3 pursuit_5 hold stop $(POWERED_ARGS) \
 		--json results/variations/baseline.json --markdown results/variations/baseline.md
 

@@ -37,7 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "clients" / "src"))
 
-from sharedspace import codec  # noqa: E402
+from sharedspace.wire import envelope, requests  # noqa: E402
 from sharedspace.client import SimClient  # noqa: E402
 from sharedspace.vector import VectorClient  # noqa: E402
 from sharedspace.local_server import free_port, wait_port  # noqa: E402, F401 - soak, viewer_cost
@@ -118,11 +118,11 @@ def bench_single(client: SimClient, seconds: float) -> tuple[dict, dict]:
     act = np.zeros((1, 2), np.float32)
     for _ in range(50):
         client.step(env, act)
-    step_payload = codec.encode({"actions": act})
+    step_payload = envelope.encode({"actions": act})
     key = client.transport.key("server", client.env_server[env], "env", env, "step")
     reply_size = len(client.transport.query(key, step_payload))
     info_key = client.transport.key("server", client.env_server[env], "info")
-    info_payload = codec.encode_info_request()
+    info_payload = requests.encode_info_request()
     proc, session, bare_get = start_bare(reply_size)
     bare_payload = os.urandom(len(step_payload))
     fns = {

@@ -96,11 +96,12 @@ def trainer(args: argparse.Namespace) -> None:
     """Steps ``args.envs`` envs until killed or ``args.until`` (epoch seconds); one JSON line a
     second on stdout: ``{"t", "steps", "lat_ms": [...], "errors": [...], "load_ops"}``."""
     from sharedspace.client import SimClient
+    from sharedspace.vector import VectorClient
 
     rng = random.Random(args.seed)
     np_rng = np.random.default_rng(args.seed)
     client = SimClient(args.endpoint, timeout=30.0)
-    vec = client.vector(args.envs, seed=args.seed, autoreset=True)
+    vec = VectorClient(args.envs, client=client, seed=args.seed, autoreset=True)
     vec.reset()
     next_churn = time.time() + rng.uniform(0.5, 1.5) * args.churn_s
     tick = time.time() + 1.0
@@ -115,8 +116,11 @@ def trainer(args: argparse.Namespace) -> None:
             if time.time() >= next_churn:
                 if rng.random() < 0.5:
                     vec.close()
-                    vec = client.vector(
-                        args.envs, seed=rng.randrange(1 << 30), autoreset=True
+                    vec = VectorClient(
+                        args.envs,
+                        client=client,
+                        seed=rng.randrange(1 << 30),
+                        autoreset=True,
                     )
                     vec.reset()
                     ops["recreate"] += 1
@@ -127,8 +131,11 @@ def trainer(args: argparse.Namespace) -> None:
         except Exception as exc:  # noqa: BLE001 - every error is reported, then we go on
             errors.append(f"{type(exc).__name__}: {exc}")
             try:
-                vec = client.vector(
-                    args.envs, seed=rng.randrange(1 << 30), autoreset=True
+                vec = VectorClient(
+                    args.envs,
+                    client=client,
+                    seed=rng.randrange(1 << 30),
+                    autoreset=True,
                 )
                 vec.reset()
             except Exception as exc2:  # noqa: BLE001
@@ -241,7 +248,7 @@ def main() -> int:
         return 0
 
     from sharedspace.client import SimClient
-    from sharedspace.errors import NoServer
+    from sharedspace.wire.errors import NoServer
 
     out = Path(args.out)
     logs = out.parent / "trainers"

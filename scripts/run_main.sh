@@ -29,19 +29,19 @@ server_pid=$!
 trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
 echo "== sim-server serving on $endpoint (log: $out/server.log)"
 
-remote=(env_backend=remote "server_endpoint=$endpoint" server_prefix=sharedspace)
+remote=("server_endpoint=$endpoint" server_prefix=sharedspace)
 echo "== training G-SAC-Cog for $frames frames against the server"
 "$py" -m sharedspace.train --set variant=g_sac_cog "total_frames=$frames" init_random_frames=2000 \
     num_envs=8 eval_interval=0 "checkpoint_interval=$frames" "log_dir=$out" "${remote[@]}"
 
 echo
 echo "== evaluation on the test split (paper Table II columns)"
-"$py" -m sharedspace.train.evaluate --checkpoint "$out/checkpoints/last.pt" --split test \
+"$py" -m sharedspace.paper.evaluate --checkpoint "$out/checkpoints/last.pt" --split test \
     --json "$out/eval.json" --set "${remote[@]}"
 
 echo
 echo "== plots -> $out/plots"
-"$py" -m sharedspace.train.plots --run "$out" --eval-json "$out/eval.json" --scene 2 --out "$out/plots"
+"$py" -m sharedspace.paper.plots --run "$out" --eval-json "$out/eval.json" --scene 2 --out "$out/plots"
 ls "$out/plots"
 
 shipped=results/table2/policies/g_sac_cog-s0.pt
@@ -50,7 +50,7 @@ if [ -f "$shipped" ]; then
     echo "== the shipped G-SAC-Cog policy of the Table II runs ($shipped, $("$py" -c \
         "import torch, sys; print(torch.load(sys.argv[1], weights_only=False)['counters']['frames'])" \
         "$shipped") frames) on the test split"
-    "$py" -m sharedspace.train.evaluate --checkpoint "$shipped" --split test \
+    "$py" -m sharedspace.paper.evaluate --checkpoint "$shipped" --split test \
         --json "$out/shipped_eval.json" --set "${remote[@]}"
 else
     echo "no shipped policy at $shipped: \`make table2\` trains and ships it" >&2

@@ -3,7 +3,7 @@
 #
 # Trains every variant (g_sac_cog, g_sac_nocog, s_sac) for every seed with the same budget, all
 # trainers AT THE SAME TIME against ONE server and its one scenario pool, evaluates each on the
-# test split, then writes the table (python -m sharedspace.train.table2): per variant the mean
+# test split, then writes the table (python -m sharedspace.paper.table2): per variant the mean
 # and spread over seeds, pooled Wilson intervals, paired per-scenario comparisons, the scripted
 # drivers, the human driver and the paper's rows.
 #
@@ -23,7 +23,7 @@
 #   TABLE2_TRAIN     0 = skip training, only evaluate and tabulate what is there (default 1)
 #   TABLE2_POOL      training pool: "" = the paper pool (default); "paper+general" = the paper's train
 #                    scenes plus every general-pool scene sharing no agent with a test scene
-#                    (sharedspace.train.pools), tested on the paper's test split; "general" = the
+#                    (sharedspace.paper.pools), tested on the paper's test split; "general" = the
 #                    crowded benchmark, Table II-G: `hbs-general`'s train split, tested on its 76
 #                    test scenes, its other cars reactive (the pool's `idm`; `make table2g`)
 #   TABLE2_SET       more TrainConfig overrides for new runs, space-separated KEY=VALUE (no spaces
@@ -67,7 +67,7 @@ case "${TABLE2_POOL:-}" in
         pool_file="$out/pool-paper-plus-general.json"
         if [ ! -f "$pool_file" ]; then
             extract_general "$out/pool-general.json"
-            "$py" -m sharedspace.train.pools --general "$out/pool-general.json" --out "$pool_file"
+            "$py" -m sharedspace.paper.pools --general "$out/pool-general.json" --out "$pool_file"
         fi
         pools=(--cfg "pools:[\"embedded:hbs-paper\",\"$pool_file\"]")
         train_pool=("scenario_pool=$pool_file")
@@ -94,7 +94,7 @@ cleanup() {
     wait 2>/dev/null || true
 }
 trap cleanup EXIT
-remote=(env_backend=remote "server_endpoint=$endpoint" server_prefix=sharedspace)
+remote=("server_endpoint=$endpoint" server_prefix=sharedspace)
 
 if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
     start=$(date +%s)
@@ -130,6 +130,6 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
     [ "$status" = 0 ] || { echo "a trainer failed: see $out/*.log"; exit 1; }
 fi
 
-"$py" -m sharedspace.train.table2 --runs "$out" --frames "$frames" --params "$params" \
+"$py" -m sharedspace.paper.table2 --runs "$out" --frames "$frames" --params "$params" \
     --search-rounds "${TABLE2_SEARCH_ROUNDS:-8}" \
     --json "$json" ${doc:+--doc "$doc"} ${ship:+--ship "$ship"} --set "${remote[@]}" "${eval_pool[@]}"

@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from sharedspace.codec import FEATURE_NAMES
 from sharedspace.models import PEDESTRIAN_MODELS as _MODELS
+from sharedspace.names import FEATURE_NAMES
 from sharedspace.pool import recorded_headings
 
 __all__ = [

@@ -79,7 +79,7 @@ def main() -> int:
             args.envs,
             endpoint=args.endpoint,
             prefix=args.prefix,
-            mode="client",
+            zenoh_mode="client",
             timeout=3.0,
             failover=True,
             seed=args.seed,

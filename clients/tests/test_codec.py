@@ -1,4 +1,4 @@
-"""The codec against the golden wire samples (tests/golden/, described in its README.md)."""
+"""The wire modules against the golden wire samples (tests/golden/, described in its README.md)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from sharedspace import codec, errors
+from sharedspace.wire import EnvSpec, envelope, errors, replies, requests
 
 GOLDEN = Path(__file__).resolve().parents[2] / "tests" / "golden"
 FILES = sorted(p.name for p in GOLDEN.glob("*.msgpack"))
@@ -132,21 +132,21 @@ def test_golden_decodes_to_documented_values(name):
     payload = (GOLDEN / name).read_bytes()
     size, documented = SAMPLES[name]
     assert len(payload) == size
-    _assert_matches(codec.decode(payload), documented)
+    _assert_matches(envelope.decode(payload), documented)
 
 
 @pytest.mark.parametrize("name", FILES)
 def test_golden_reencodes_byte_identically(name):
     payload = (GOLDEN / name).read_bytes()
-    assert codec.encode(codec.decode(payload)) == payload
+    assert envelope.encode(envelope.decode(payload)) == payload
 
 
 def test_arrays_are_zero_copy_views():
     payload = (GOLDEN / "states.msgpack").read_bytes()
-    m = codec.decode(payload)
+    m = envelope.decode(payload)
     pos = m["positions"]
     assert not pos.flags.owndata and not pos.flags.writeable
-    raw = codec.decode(payload, arrays=False)["positions"]["data"]
+    raw = envelope.decode(payload, arrays=False)["positions"]["data"]
     assert pos.tobytes() == raw
     assert pos.dtype == np.float64 and pos.shape == (3, 2)
     assert m["kinds"].dtype == np.uint8 and m["ids"].dtype == np.uint32
@@ -157,49 +157,120 @@ def _golden(name):
 
 
 def test_request_builders_reproduce_golden_bytes():
-    assert codec.encode_info_request() == _golden("info_request.msgpack")
-    assert codec.encode_create_env(
-        "trainer-a",
-        count=2,
+    assert requests.encode_info_request() == _golden("info_request.msgpack")
+    spec = EnvSpec(
         pool="hbs_3ped",
         seed=42,
         pedestrian_params={"lambda1": 1.5, "tau": 0.5},
         reward_weights={"collision": -25.0},
         max_agents=4,
         autoreset=True,
-    ) == _golden("create_env.msgpack")
-    assert codec.encode_reset(seed=7) == _golden("reset.msgpack")
+    )
+    assert requests.encode_create_env(spec, "trainer-a", count=2) == _golden("create_env.msgpack")
+    assert requests.encode_reset(seed=7) == _golden("reset.msgpack")
     act = np.array([[0.5, -1.25]], dtype=np.float32)
-    assert codec.encode_step(act, n_ext=1) == _golden("step.msgpack")
-    assert codec.encode_step(act.astype(np.float64)) == _golden("step_f64.msgpack")
-    assert codec.encode_step([0.5, -1.25]) == _golden("step_f64.msgpack")  # [2] -> [1, 2]
+    assert requests.encode_step(act, n_ext=1) == _golden("step.msgpack")
+    assert requests.encode_step(act.astype(np.float64)) == _golden("step_f64.msgpack")
+    assert requests.encode_step([0.5, -1.25]) == _golden("step_f64.msgpack")  # [2] -> [1, 2]
     batch = np.array([[[0.5, -1.25]], [[-0.25, 0.0]]], dtype=np.float32)
-    assert codec.encode_batch_step(["s1-0", "s1-1"], batch) == _golden("batch_step.msgpack")
-    assert codec.encode_close() == _golden("close.msgpack")
-    assert codec.encode_action_msg(np.float32([0.25, 0.0]), seq=17) == _golden("action.msgpack")
+    assert requests.encode_batch_step(["s1-0", "s1-1"], batch) == _golden("batch_step.msgpack")
+    assert requests.encode_close() == _golden("close.msgpack")
+    assert requests.encode_action_msg(np.float32([0.25, 0.0]), seq=17) == _golden("action.msgpack")
+
+
+def test_env_spec_holds_the_fields_of_the_rust_create_env():
+    """EnvSpec and protocol's CreateEnv hold the same fields, in the same order and of the same
+    wire types: a spec with every optional field set encodes to the Rust sample's bytes
+    (create_env_full.msgpack), and the request's own fields are the rest."""
+    spec = EnvSpec(
+        split="test",
+        external_agents=("vehicle_0", "vehicle_1"),
+        mode="realtime",
+        scenario="synthetic-counter_flow-n12-v2-seed3",
+        realtime_factor=2.0,
+        synthetic={
+            "layout": "counter_flow",
+            "pedestrians": 12,
+            "vehicles": 2,
+            "density": 0.5,
+            "seed": 3,
+            "scenes": 4,
+        },
+        variations={
+            "position_sigma": 0.25,
+            "start_offset_steps": 1,
+            "desired_speed_scale": 0.1,
+            "param_noise": {"tau": 0.2},
+            "mirror": True,
+            "rotation_deg": 15.0,
+        },
+        vehicle_model="idm",
+        pedestrian_params={"lambda1": 1.5, "tau": 0.5},
+        reward_weights={"collision": -25.0},
+        max_agents=4,
+        autoreset=True,
+        seed=42,
+    )
+    golden = _golden("create_env_full.msgpack")
+    assert requests.encode_create_env(spec, "trainer-a", count=2) == golden
+    rust_fields = list(msgspec.msgpack.decode(golden))
+    assert rust_fields == ["protocol_version", "client_id", "count", *EnvSpec.fields()]
+
+
+@pytest.mark.parametrize(
+    "fields, names",
+    [
+        ({"vehicle_model": "teleport"}, "EnvSpec.vehicle_model"),
+        ({"max_agents": "8"}, "EnvSpec.max_agents"),
+        ({"seed": -1}, "EnvSpec.seed"),
+        ({"variations": {"positon_sigma": 0.5}}, "positon_sigma"),
+        ({"synthetic": {"layout": "grid"}}, "EnvSpec.synthetic"),
+    ],
+)
+def test_an_ill_typed_env_field_is_refused_where_it_is_written(fields, names):
+    with pytest.raises(ValueError, match=re.escape(names)):
+        EnvSpec(**fields)
+    with pytest.raises(ValueError, match=re.escape(names)):
+        EnvSpec().replace(**fields)
+
+
+def test_a_misspelt_env_field_is_refused_by_name():
+    with pytest.raises(TypeError, match="vehicle_modle"):
+        EnvSpec(vehicle_modle="idm")
+    from sharedspace.client import env_options
+
+    with pytest.raises(TypeError, match="max_agent'.*EnvSpec.*max_agents"):
+        env_options({"max_agent": 4})
+
+
+def test_an_env_spec_survives_pickling():
+    import pickle
+
+    spec = EnvSpec(pool="hbs-general", vehicle_model="idm", variations={"mirror": True})
+    assert pickle.loads(pickle.dumps(spec)) == spec
 
 
 def test_wrong_action_shapes_raise_wrong_shape():
     with pytest.raises(errors.WrongShape):
-        codec.step(np.zeros((2, 3)))
+        requests.step(np.zeros((2, 3)))
     with pytest.raises(errors.WrongShape):
-        codec.step(np.zeros((2, 2)), n_ext=1)
+        requests.step(np.zeros((2, 2)), n_ext=1)
     with pytest.raises(errors.WrongShape):
-        codec.batch_step(["a", "b"], np.zeros((3, 1, 2), dtype=np.float32))
+        requests.batch_step(["a", "b"], np.zeros((3, 1, 2), dtype=np.float32))
     with pytest.raises(errors.WrongShape):
-        codec.action_msg([1.0, 2.0, 3.0])
+        requests.action_msg([1.0, 2.0, 3.0])
     # Integer actions are sent as float64 (the server refuses integer dtypes).
-    assert codec.step([[1, 0]])["actions"].dtype == np.float64
+    assert requests.step([[1, 0]])["actions"].dtype == np.float64
 
 
 def test_reply_envelope():
-    info = codec.decode_reply(_golden("reply_server_info.msgpack"))
+    info = replies.decode_result(_golden("reply_server_info.msgpack"))
     assert info["server_id"] == "s1" and info["pools"][0]["name"] == "hbs_3ped"
-    step = codec.decode_reply(_golden("reply_step.msgpack"))
+    step = replies.decode_result(_golden("reply_step.msgpack"))
     assert step["obs"]["features"].shape == (1, 4, 11)
     assert step["reward"].dtype == np.float32 and step["reward"][0] == np.float32(-1.125)
     with pytest.raises(errors.NonFiniteAction) as e:
-        codec.decode_reply(_golden("reply_error.msgpack"))
+        replies.decode_result(_golden("reply_error.msgpack"))
     assert isinstance(e.value, errors.ServerError) and isinstance(e.value, errors.SharedspaceError)
     assert e.value.code == "non_finite_action" and e.value.env_id == "s1-1"
     assert "component 1 is NaN" in e.value.message
@@ -215,26 +286,26 @@ def test_reply_envelope():
     ],
 )
 def test_error_codes_map_to_exceptions(code, cls):
-    payload = codec.encode(codec.error(code, "msg"))
+    payload = envelope.encode(envelope.error(code, "msg"))
     with pytest.raises(cls) as e:
-        codec.decode_reply(payload)
+        replies.decode_result(payload)
     assert type(e.value) is cls and e.value.code == code and e.value.env_id is None
 
 
 def test_bad_payloads_raise_protocol_error():
     with pytest.raises(errors.ProtocolError):
-        codec.decode_reply(codec.encode({"ok": 1, "error": {"code": "x", "message": "y"}}))
+        replies.decode_result(envelope.encode({"ok": 1, "error": {"code": "x", "message": "y"}}))
     with pytest.raises(errors.ProtocolError):
-        codec.decode_reply(codec.encode({"neither": 1}))
+        replies.decode_result(envelope.encode({"neither": 1}))
     with pytest.raises(errors.ProtocolError):
-        codec.decode(_golden("close.msgpack") + b"\x00")  # trailing bytes
+        envelope.decode(_golden("close.msgpack") + b"\x00")  # trailing bytes
     bad_len = {"dtype": "<f4", "shape": [3], "data": b"\x00" * 8}
     with pytest.raises(errors.ProtocolError):
-        codec.decode(msgspec.msgpack.encode({"a": bad_len}))
+        envelope.decode(msgspec.msgpack.encode({"a": bad_len}))
     bad_dtype = {"dtype": "<i8", "shape": [1], "data": b"\x00" * 8}
     with pytest.raises(errors.ProtocolError):
-        codec.decode(msgspec.msgpack.encode({"a": bad_dtype}))
-    assert codec.decode(b"") == {}
+        envelope.decode(msgspec.msgpack.encode({"a": bad_dtype}))
+    assert envelope.decode(b"") == {}
 
 
 def test_no_server_error():
@@ -274,11 +345,11 @@ MALFORMED_ARRAYS = [
 
 
 @pytest.mark.parametrize("name", ["reply_step", "reply_reset", "reply_batch_step"])
-def test_client_decode_result_equals_codec_decode_reply(name):
-    from sharedspace.decode import decode_result
-
+def test_client_decode_result_equals_the_generic_decoding(name):
+    """The reply decoder's arrays and maps are the generic decoder's (every map, every array)."""
     payload = (GOLDEN / f"{name}.msgpack").read_bytes()
-    assert _same(decode_result(payload), codec.decode_reply(payload))
+    generic = envelope.unwrap_reply(envelope.decode(payload))
+    assert _same(replies.decode_result(payload), generic)
 
 
 @pytest.mark.parametrize(
@@ -286,7 +357,7 @@ def test_client_decode_result_equals_codec_decode_reply(name):
     MALFORMED_ARRAYS,
 )
 def test_client_decode_result_names_a_malformed_array(field, value, says):
-    from sharedspace.decode import decode_result
+    from sharedspace.wire.replies import decode_result
 
     reply = msgspec.msgpack.decode((GOLDEN / "reply_step.msgpack").read_bytes())
     reply["ok"][field] = value
@@ -300,7 +371,7 @@ def test_client_decode_result_names_a_malformed_array(field, value, says):
 )
 @pytest.mark.parametrize("name", ["reply_step", "reply_batch_step"])
 def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
-    from sharedspace.decode import decode_batch_result, decode_step_result
+    from sharedspace.wire.replies import decode_batch_result, decode_step_result
 
     decode = decode_step_result if name == "reply_step" else decode_batch_result
     reply = msgspec.msgpack.decode((GOLDEN / f"{name}.msgpack").read_bytes())
@@ -319,7 +390,7 @@ def test_client_typed_decoders_name_a_malformed_array(name, field, value, says):
     ],
 )
 def test_client_decode_result_refuses_undecodable_bytes(mangle, says):
-    from sharedspace.decode import decode_result
+    from sharedspace.wire.replies import decode_result
 
     with pytest.raises(errors.ProtocolError, match=says):
         decode_result(mangle((GOLDEN / "reply_step.msgpack").read_bytes()))
@@ -329,38 +400,38 @@ def test_client_decode_result_refuses_undecodable_bytes(mangle, says):
 def test_batch_step_head_plus_actions_is_the_whole_request(k):
     ids = [f"srv-{i}" for i in range(k)]
     actions = np.random.default_rng(k).uniform(-1, 1, (k, 1, 2)).astype(np.float32)
-    head = codec.batch_step_head(ids)
-    assert head + codec.encode(actions) == codec.encode_batch_step(ids, actions)
+    head = requests.batch_step_head(ids)
+    assert head + envelope.encode(actions) == requests.encode_batch_step(ids, actions)
 
 
-def test_client_batch_decoder_equals_codec_decode_reply():
-    from sharedspace.decode import decode_batch_result
+def test_client_batch_decoder_equals_decode_result():
+    from sharedspace.wire.replies import decode_batch_result
 
     payload = (GOLDEN / "reply_batch_step.msgpack").read_bytes()
     typed = decode_batch_result(payload)
-    assert _same(typed, codec.decode_reply(payload))
+    assert _same(typed, replies.decode_result(payload))
     # the arrays are views of the payload itself, not copies
     assert typed["obs"]["features"].base is not None
     assert not typed["obs"]["features"].flags.writeable
     # env ids known to the caller are taken as they are only when the reply says the same
     ids = ["s1-0", "s1-1"]
-    known = decode_batch_result(payload, (codec.encode(ids), ids))
+    known = decode_batch_result(payload, (envelope.encode(ids), ids))
     assert known["env_ids"] == ids and known["env_ids"] is not ids
     other = ["s1-0", "s1-9"]
-    assert decode_batch_result(payload, (codec.encode(other), other))["env_ids"] == ids
+    assert decode_batch_result(payload, (envelope.encode(other), other))["env_ids"] == ids
 
 
-def test_client_step_decoder_equals_codec_decode_reply():
-    from sharedspace.decode import decode_step_result
+def test_client_step_decoder_equals_decode_result():
+    from sharedspace.wire.replies import decode_step_result
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
-    assert _same(decode_step_result(payload), codec.decode_reply(payload))
+    assert _same(decode_step_result(payload), replies.decode_result(payload))
     # with an autoreset (the generic path) and as an error reply
     reply = msgspec.msgpack.decode((GOLDEN / "reply_reset.msgpack").read_bytes())
     step = msgspec.msgpack.decode(payload)
     step["ok"]["reset"] = reply["ok"]
     with_reset = msgspec.msgpack.encode(step)
-    assert _same(decode_step_result(with_reset), codec.decode_reply(with_reset))
+    assert _same(decode_step_result(with_reset), replies.decode_result(with_reset))
     with pytest.raises(errors.NonFiniteAction):
         decode_step_result((GOLDEN / "reply_error.msgpack").read_bytes())
     step["ok"]["reward"] = {"dtype": "<f4", "shape": [2], "data": b"\0" * 4}
@@ -369,7 +440,7 @@ def test_client_step_decoder_equals_codec_decode_reply():
 
 
 def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
-    from sharedspace.decode import decode_batch_result
+    from sharedspace.wire.replies import decode_batch_result
 
     with pytest.raises(errors.NonFiniteAction):
         decode_batch_result((GOLDEN / "reply_error.msgpack").read_bytes())
@@ -387,13 +458,13 @@ def test_client_batch_decoder_raises_what_the_generic_decoder_raises():
 @pytest.mark.parametrize("shape", [(1, 1, 2), (16, 3, 2), (300, 1, 2), (0, 1, 2)])
 def test_f32_array_head_plus_data_is_the_encoded_array(shape):
     a = np.random.default_rng(len(shape)).uniform(-1, 1, shape).astype(np.float32)
-    assert codec.f32_array_head(shape) + a.tobytes() == codec.encode(a)
+    assert envelope.f32_array_head(shape) + a.tobytes() == envelope.encode(a)
 
 
 @pytest.mark.parametrize("n_ext", [0, 1, 3])
 def test_step_head_plus_action_bytes_is_the_whole_request(n_ext):
     actions = np.random.default_rng(n_ext).uniform(-1, 1, (n_ext, 2)).astype(np.float32)
-    assert codec.step_head(n_ext) + actions.tobytes() == codec.encode_step(actions)
+    assert requests.step_head(n_ext) + actions.tobytes() == requests.encode_step(actions)
 
 
 @pytest.mark.parametrize(
@@ -404,21 +475,21 @@ def test_step_head_plus_action_bytes_is_the_whole_request(n_ext):
         {"dtype": "|u1", "shape": [2, 3], "data": bytes(range(6))},
     ],
 )
-def test_client_array_views_equal_codec_decode_array(m):
-    from sharedspace.decode import _array
+def test_client_array_views_equal_decode_array(m):
+    from sharedspace.wire.replies import _array
 
-    assert _same(_array(m), codec.decode_array(m))
+    assert _same(_array(m), envelope.decode_array(m))
 
 
 def test_client_array_refuses_negative_dims_of_a_matching_size():
-    from sharedspace.decode import _array
+    from sharedspace.wire.replies import _array
 
     with pytest.raises(errors.ProtocolError, match="non-negative"):
         _array({"dtype": "<f4", "shape": [-1, -1], "data": b"\0" * 4})
 
 
 def test_client_layout_decoder_equals_the_typed_step_decoder():
-    from sharedspace.decode import _StepLayout, decode_step_result, step_decoder_for
+    from sharedspace.wire.replies import _StepLayout, decode_step_result, step_decoder_for
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     first = decode_step_result(payload)
@@ -426,7 +497,7 @@ def test_client_layout_decoder_equals_the_typed_step_decoder():
     assert isinstance(layout, _StepLayout)
     assert step_decoder_for(decode_step_result(payload)) is layout  # one per layout
     out = layout(payload)
-    assert _same(out, first) and _same(out, codec.decode_reply(payload))
+    assert _same(out, first) and _same(out, replies.decode_result(payload))
     assert out["obs"]["features"].base is not None  # a view of the payload
     assert not out["reward"].flags.writeable
 
@@ -447,7 +518,7 @@ def test_client_layout_decoder_equals_the_typed_step_decoder():
     ids=["other_shape", "other_dtype", "other_obs_shape", "other_term_shape", "autoreset"],
 )
 def test_client_layout_decoder_hands_replies_off_its_layout_to_the_typed_decoder(mangle):
-    from sharedspace.decode import decode_step_result, step_decoder_for
+    from sharedspace.wire.replies import decode_step_result, step_decoder_for
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     layout = step_decoder_for(decode_step_result(payload))
@@ -467,7 +538,7 @@ def test_client_layout_decoder_hands_replies_off_its_layout_to_the_typed_decoder
     ],
 )
 def test_client_layout_decoder_names_a_malformed_array(field, value, says):
-    from sharedspace.decode import decode_step_result, step_decoder_for
+    from sharedspace.wire.replies import decode_step_result, step_decoder_for
 
     payload = (GOLDEN / "reply_step.msgpack").read_bytes()
     layout = step_decoder_for(decode_step_result(payload))

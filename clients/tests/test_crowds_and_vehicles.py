@@ -18,6 +18,7 @@ from sharedspace.client import SimClient
 from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
 from sharedspace.torchrl_env import RemoteBatchedEnv
 from sharedspace.torchrl_multiagent import RemoteMultiAgentEnv
+from sharedspace.vector import VectorClient
 
 GENERAL = "hbs-general"
 #: The general pool's crowd: 52 pedestrians (and 6 cars) pass through this car's 84 steps.
@@ -158,8 +159,8 @@ def test_two_controlled_vehicles_in_the_torchrl_multi_agent_env(sim_server):
 
 def test_two_controlled_vehicles_in_pettingzoo_pass_the_parallel_api_test(sim_server):
     env = SharedSpaceParallelEnv(
-        sim_server.endpoint,
-        sim_server.prefix,
+        endpoint=sim_server.endpoint,
+        prefix=sim_server.prefix,
         external_agents=("vehicle_0", "vehicle_1"),
         pool=GENERAL,
         seed=3,
@@ -177,7 +178,7 @@ def test_a_list_of_scenarios_is_played_in_turn(sim_server):
         _, names = client.scenarios(GENERAL)
     train = [n for n, split in names if split == "train"][:3]
     env = SharedSpaceParallelEnv(
-        sim_server.endpoint, sim_server.prefix, pool=GENERAL, scenario=train
+        endpoint=sim_server.endpoint, prefix=sim_server.prefix, pool=GENERAL, scenario=train
     )
     played = []
     for _ in range(4):
@@ -253,7 +254,7 @@ def test_the_synth_command_writes_a_pool_a_server_serves(tmp_path, server_factor
     srv = server_factory(f"synth{free_port()}", "s0", f'pools:["{out}"]')
     with SimClient(srv.endpoint, srv.prefix) as client:
         assert [p["name"] for p in client.pools()] == ["crowds"]
-        with client.vector(1, pool="crowds", split="test", max_agents=M) as vec:
+        with VectorClient(1, client=client, pool="crowds", split="test", max_agents=M) as vec:
             first = vec.reset()[0]
             assert len(first["agents"]) == 57
 

@@ -1,18 +1,21 @@
-"""A played episode as pictures (sharedspace.train.episode) against a live server."""
+"""A played episode as pictures (sharedspace.paper.episode) against a live server."""
 
 from __future__ import annotations
 
 import pytest
 from PIL import Image
 
+from sharedspace.paper.drivers import make_driver
+from sharedspace.paper.episode import episode_figure, record_episode, write_gif, write_mp4
 from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
-from sharedspace.train.drivers import make_driver
-from sharedspace.train.episode import episode_figure, record_episode, write_gif, write_mp4
 
 
 def test_an_episode_becomes_a_gif_an_mp4_and_the_four_snapshot_figure(sim_server, tmp_path):
     env = SharedSpaceParallelEnv(
-        sim_server.endpoint, sim_server.prefix, split="test", render_mode="rgb_array"
+        endpoint=sim_server.endpoint,
+        prefix=sim_server.prefix,
+        split="test",
+        render_mode="rgb_array",
     )
     try:
         ep = record_episode(env, make_driver("pursuit_3"), "hbs-car1301")

@@ -4,13 +4,14 @@ and so is the list a live server reports."""
 
 from __future__ import annotations
 
-import inspect
 import sys
 from pathlib import Path
 
-from sharedspace import codec, models
+from sharedspace import models
+from sharedspace.client import Connection
 from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
 from sharedspace.train.config import TrainConfig
+from sharedspace.wire import EnvSpec
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
@@ -36,9 +37,8 @@ def test_calibration_lists_derive_from_the_table():
 def test_client_defaults_are_the_tables_default():
     assert models.DEFAULT_MODEL in models.PEDESTRIAN_MODELS
     assert TrainConfig().pedestrian_model == models.DEFAULT_MODEL
-    for fn in (codec.create_env, SharedSpaceParallelEnv.__init__):
-        default = inspect.signature(fn).parameters["pedestrian_model"].default
-        assert default == models.DEFAULT_MODEL, fn
+    assert EnvSpec().pedestrian_model == models.DEFAULT_MODEL
+    assert SharedSpaceParallelEnv(client=Connection()).spec.pedestrian_model == models.DEFAULT_MODEL
 
 
 def test_feature_and_reward_term_names_are_the_servers(sim_client):

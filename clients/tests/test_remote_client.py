@@ -11,12 +11,12 @@ import pytest
 from conftest import REPO_ROOT, free_port
 from reference import ReferenceWorld
 
-from sharedspace import codec
 from sharedspace.client import SimClient
-from sharedspace.errors import EnvClosed, NoServer, VersionMismatch, WrongShape
 from sharedspace.observer import Observer
 from sharedspace.transport import Transport
 from sharedspace.vector import VectorClient
+from sharedspace.wire import envelope, requests
+from sharedspace.wire.errors import EnvClosed, NoServer, VersionMismatch, WrongShape
 
 POOL = json.loads((REPO_ROOT / "scenarios" / "data" / "hbs-paper.json").read_text())["scenarios"]
 
@@ -29,7 +29,7 @@ def test_discovery_and_info(sim_server, sim_client):
     servers = sim_client.servers()
     assert [s["server_id"] for s in servers] == [sim_server.server_id]
     info = servers[0]
-    assert info["protocol_version"] == codec.PROTOCOL_VERSION and info["capacity"] > 0
+    assert info["protocol_version"] == envelope.PROTOCOL_VERSION and info["capacity"] > 0
     assert sim_client.pick_server()["server_id"] == sim_server.server_id
     assert sim_client.info(sim_server.server_id)["server_id"] == sim_server.server_id
     assert sim_server.server_id in sim_client.transport.alive_servers()
@@ -133,7 +133,7 @@ def test_wrong_action_shape(sim_client):
     t = sim_client.transport
     key = t.key("server", sim_client.env_server[env], "env", env, "step")
     with pytest.raises(WrongShape):
-        t.request(key, codec.encode({"actions": np.zeros((3, 2), np.float32)}))
+        t.request(key, envelope.encode({"actions": np.zeros((3, 2), np.float32)}))
     sim_client.close(env)
 
 
@@ -147,7 +147,7 @@ def test_closed_env(sim_client):
     t = sim_client.transport
     sid = sim_client.pick_server()["server_id"]
     with pytest.raises(EnvClosed):
-        t.request(t.key("server", sid, "env", env, "step"), codec.encode_step(np.zeros((1, 2))))
+        t.request(t.key("server", sid, "env", env, "step"), requests.encode_step(np.zeros((1, 2))))
 
 
 def test_version_mismatch(sim_server):
@@ -253,7 +253,7 @@ def test_observation_matches_reference(sim_client, server_params, scenario):
         ref = world.observation(ego, m)
         np.testing.assert_array_equal(obs["mask"][0].astype(bool), ref["mask"], err_msg=when)
         ids = obs["node_ids"][0].astype(np.int64)
-        ids[ids == codec.PADDING_ID] = -1
+        ids[ids == envelope.PADDING_ID] = -1
         np.testing.assert_array_equal(ids, ref["node_ids"], err_msg=when)
         np.testing.assert_allclose(obs["features"][0], ref["features"], atol=1e-5, err_msg=when)
         np.testing.assert_allclose(obs["adjacency"][0], ref["adjacency"], atol=1e-5, err_msg=when)
@@ -270,7 +270,7 @@ def test_observation_matches_reference(sim_client, server_params, scenario):
 
 
 def test_oversized_request_is_refused_and_the_server_serves_on(sim_server, sim_client):
-    from sharedspace.errors import LimitExceeded
+    from sharedspace.wire.errors import LimitExceeded
 
     t = sim_client.transport
     sid = sim_client.pick_server()["server_id"]
@@ -283,7 +283,7 @@ def test_oversized_request_is_refused_and_the_server_serves_on(sim_server, sim_c
 
 
 def test_per_trainer_quota_names_itself_and_spares_other_trainers(server_factory):
-    from sharedspace.errors import LimitExceeded
+    from sharedspace.wire.errors import LimitExceeded
 
     srv = server_factory(f"quota{free_port()}", "q0", "max_envs_per_trainer:2")
     with (

@@ -7,8 +7,8 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 import sharedspace
-from sharedspace.errors import EnvClosed, WrongShape
 from sharedspace.names import Feature
+from sharedspace.wire.errors import EnvClosed, WrongShape
 
 
 @pytest.fixture

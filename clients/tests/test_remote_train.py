@@ -1,4 +1,4 @@
-"""The trainer's tiny smoke run on the remote env (env_backend=remote): checkpoint + evaluate."""
+"""The trainer's tiny smoke run on the remote env: checkpoint + evaluate."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ pytest.importorskip("torchrl")
 
 from conftest import TINY_TRAIN  # noqa: E402
 
+from sharedspace.paper.evaluate import main as evaluate_main  # noqa: E402
 from sharedspace.train.config import load_config  # noqa: E402
-from sharedspace.train.evaluate import main as evaluate_main  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
 TINY = [*TINY_TRAIN, "eval_interval=0", "checkpoint_interval=64"]
@@ -21,7 +21,6 @@ TINY = [*TINY_TRAIN, "eval_interval=0", "checkpoint_interval=64"]
 def test_remote_train_and_evaluate(sim_server, tmp_path, capsys):
     log_dir = tmp_path / "run"
     remote = [
-        "env_backend=remote",
         f"server_endpoint={sim_server.endpoint}",
         f"server_prefix={sim_server.prefix}",
     ]
@@ -69,7 +68,6 @@ def test_remote_train_with_a_zenoh_config_file(sim_server, tmp_path):
         None,
         [
             *TINY,
-            "env_backend=remote",
             f"zenoh_config={zcfg}",
             f"server_prefix={sim_server.prefix}",
             "total_frames=32",
@@ -86,7 +84,6 @@ def test_same_seed_same_machine_trains_bit_identical_weights(sim_server, tmp_pat
     import torch
 
     remote = [
-        "env_backend=remote",
         f"server_endpoint={sim_server.endpoint}",
         f"server_prefix={sim_server.prefix}",
     ]

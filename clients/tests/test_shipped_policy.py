@@ -13,7 +13,7 @@ pytest.importorskip("torchrl")
 
 from conftest import REPO_ROOT, start_server, unique_prefix  # noqa: E402
 
-from sharedspace.train.evaluate import evaluate_policy, load_checkpoint_actor  # noqa: E402
+from sharedspace.paper.evaluate import evaluate_policy, load_checkpoint_actor  # noqa: E402
 
 POLICIES = REPO_ROOT / "results" / "table2" / "policies"
 
@@ -40,7 +40,6 @@ def table2_server():
 def test_shipped_policy_loads_and_scores_as_recorded(path, table2_server):
     recorded = json.loads(path.with_suffix(".json").read_text())
     remote = [
-        "env_backend=remote",
         f"server_endpoint={table2_server.endpoint}",
         f"server_prefix={table2_server.prefix}",
     ]

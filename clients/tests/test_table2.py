@@ -1,5 +1,5 @@
 """Table II machinery: the statistics, the scripted drivers and reachability, and the whole
-`python -m sharedspace.train.table2` over a tiny real run against a live server."""
+`python -m sharedspace.paper.table2` over a tiny real run against a live server."""
 
 from __future__ import annotations
 
@@ -15,14 +15,14 @@ pytest.importorskip("torchrl")
 
 from conftest import TINY_TRAIN  # noqa: E402
 
-from sharedspace.stats import paired_bootstrap, sign_test, wilson  # noqa: E402
-from sharedspace.train.config import load_config  # noqa: E402
-from sharedspace.train.drivers import (  # noqa: E402
+from sharedspace.paper.drivers import (  # noqa: E402
     PursuitDriver,
     VehicleLimits,
     reachability,
 )
-from sharedspace.train.table2 import main as table2_main  # noqa: E402
+from sharedspace.paper.table2 import main as table2_main  # noqa: E402
+from sharedspace.stats import paired_bootstrap, sign_test, wilson  # noqa: E402
+from sharedspace.train.config import load_config  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
 
@@ -90,7 +90,6 @@ def test_pursuit_driver_steers_to_the_goal_and_brakes_for_a_pedestrian_ahead():
 
 def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     remote = [
-        "env_backend=remote",
         f"server_endpoint={sim_server.endpoint}",
         f"server_prefix={sim_server.prefix}",
     ]

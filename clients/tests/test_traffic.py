@@ -13,12 +13,14 @@ import pytest
 from conftest import sim_server_binary, unique_prefix
 
 from sharedspace.client import SimClient
-from sharedspace.errors import BadRequest
 from sharedspace.models import DEFAULT_VEHICLE_MODEL, VEHICLE_MODELS
 from sharedspace.observer import Observer
 from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
 from sharedspace.scene_plot import frame_from_publications
 from sharedspace.train.config import TrainConfig
+from sharedspace.wire import EnvSpec, requests
+from sharedspace.wire.envelope import encode
+from sharedspace.wire.errors import BadRequest
 
 GENERAL = "hbs-general"
 #: A general-pool test scene with other cars from the first step.
@@ -72,8 +74,15 @@ def test_the_paper_pool_replays_its_cars(sim_client):
 
 
 def test_a_bad_vehicle_model_is_refused_naming_the_field(sim_client):
-    with pytest.raises(BadRequest, match="vehicle_model"):
+    # by the client's spec, where it is written ...
+    with pytest.raises(ValueError, match="EnvSpec.vehicle_model"):
         sim_client.create(1, pool=GENERAL, vehicle_model="teleport")
+    # ... and by the server, for a client that sends it anyway
+    request = requests.create_env(EnvSpec(pool=GENERAL), sim_client.client_id)
+    sid = str(sim_client.pick_server()["server_id"])
+    key = sim_client.transport.key("server", sid, "env", "create")
+    with pytest.raises(BadRequest, match="vehicle_model"):
+        sim_client.request(sid, key, encode(request | {"vehicle_model": "teleport"}))
 
 
 def test_scene_plots_mark_reactive_cars():

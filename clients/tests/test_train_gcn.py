@@ -9,6 +9,8 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from sac_reference import make_loss  # noqa: E402
+
 from sharedspace.train.config import (  # noqa: E402
     VARIANTS,
     TrainConfig,
@@ -21,7 +23,7 @@ from sharedspace.train.gcn import (  # noqa: E402
     normalized_adjacency,
     uniform_adjacency,
 )
-from sharedspace.train.sac import make_actor, make_critic, make_env, make_loss  # noqa: E402
+from sharedspace.train.sac import make_actor, make_critic, make_env  # noqa: E402
 
 
 def test_normalisation_by_hand_with_masking():
@@ -115,11 +117,12 @@ def test_config_file_and_overrides(tmp_path):
         load_config(None, ["variant=foo"])
 
 
-def test_the_removed_local_backend_is_refused_by_name():
-    """``env_backend=local`` (the numpy world, now a test oracle) is refused with a message that
-    says what replaced it; anything but ``remote`` is refused too."""
-    with pytest.raises(ValueError, match="env_backend=local was removed.*local sim-server"):
-        load_config(None, ["env_backend=local"])
-    with pytest.raises(ValueError, match="env_backend must be remote"):
-        load_config(None, ["env_backend=gpu"])
-    assert load_config(None, []).server_endpoint == ""  # the trainer starts its own server
+def test_a_retired_field_of_an_old_config_is_ignored_and_an_env_field_is_checked():
+    """``env_backend`` (configs of shipped checkpoints have it; the Rust server is the only
+    backend) is ignored; an env field is checked as the EnvSpec checks it, by name."""
+    assert "env_backend" not in TrainConfig.from_dict({"env_backend": "remote"}).to_dict()
+    assert load_config(None, ["env_backend=remote"]).server_endpoint == ""  # a local server
+    with pytest.raises(ValueError, match="EnvSpec.vehicle_model"):
+        load_config(None, ["vehicle_model=teleport"])
+    with pytest.raises(ValueError, match="positon_sigma"):
+        load_config(None, ['variations={"positon_sigma": 0.5}'])

@@ -4,8 +4,8 @@ import json
 
 import pytest
 
+from sharedspace.paper.pools import main, paper_plus_general, record_ids, validation_pool
 from sharedspace.pool import DEFAULT_POOL_PATH
-from sharedspace.train.pools import main, paper_plus_general, record_ids, validation_pool
 
 
 def _paper():

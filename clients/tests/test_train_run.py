@@ -10,8 +10,8 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from sharedspace.paper.evaluate import main as evaluate_main  # noqa: E402
 from sharedspace.train.config import load_config  # noqa: E402
-from sharedspace.train.evaluate import main as evaluate_main  # noqa: E402
 from sharedspace.train.train import main as train_main  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
@@ -78,7 +78,7 @@ def test_evaluate_checkpoint(run, tmp_path, capsys):
     ep = rec["episodes"][0]
     assert len(ep["speeds"]) == ep["steps"] + 1 == len(ep["actions"]) + 1
 
-    from sharedspace.train.plots import main as plots_main
+    from sharedspace.paper.plots import main as plots_main
 
     assert (
         plots_main(

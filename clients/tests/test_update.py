@@ -10,11 +10,12 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from sac_reference import make_loss  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.data import Bounded  # noqa: E402
 
 from sharedspace.train.config import VARIANTS, TrainConfig  # noqa: E402
-from sharedspace.train.sac import make_actor, make_critic, make_loss  # noqa: E402
+from sharedspace.train.sac import make_actor, make_critic  # noqa: E402
 from sharedspace.train.update import SACUpdate  # noqa: E402
 
 B, M, F = 48, 8, 11

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 
 import gymnasium as gym
@@ -15,13 +16,13 @@ import pytest
 from conftest import sim_server_binary, unique_prefix
 
 import sharedspace
-from sharedspace import codec
 from sharedspace.client import SimClient
-from sharedspace.errors import BadRequest
+from sharedspace.paper.evaluate import BENCHMARK_VARIATIONS
 from sharedspace.stats import cluster_bootstrap, paired_clustered
 from sharedspace.torchrl_env import RemoteBatchedEnv
 from sharedspace.train.config import TrainConfig, apply_overrides
-from sharedspace.train.evaluate import BENCHMARK_VARIATIONS
+from sharedspace.wire import envelope, requests
+from sharedspace.wire.errors import BadRequest
 
 STRONG = {
     "position_sigma": 0.5,
@@ -133,8 +134,6 @@ def test_an_env_draws_a_new_variation_each_episode_and_replays_with_its_seed(sim
         ({"param_noise": {"tau": -0.5}}, "variations.param_noise.tau"),
         ({"rotation_deg": 190.0}, "variations.rotation_deg"),
         ({"rotation_deg": float("inf")}, "variations.rotation_deg"),
-        ({"rotate": 10.0}, "rotate"),
-        ({"start_offset_steps": -1}, "variations"),
     ],
 )
 def test_every_refused_value_is_named_and_the_server_serves_on(sim_client, variations, field):
@@ -144,6 +143,17 @@ def test_every_refused_value_is_named_and_the_server_serves_on(sim_client, varia
     env = sim_client.create(1)["env_ids"][0]
     sim_client.reset(env)
     sim_client.close(env)
+
+
+@pytest.mark.parametrize(
+    "variations,field",
+    [({"rotate": 10.0}, "rotate"), ({"start_offset_steps": -1}, "variations.start_offset_steps")],
+)
+def test_a_misspelt_or_ill_typed_variation_is_refused_before_it_is_sent(
+    sim_client, variations, field
+):
+    with pytest.raises(ValueError, match=re.escape(field)):
+        sim_client.create(1, variations=variations)
 
 
 def test_a_variation_seed_without_variations_is_refused(sim_client):
@@ -235,8 +245,8 @@ def test_train_config_takes_variations_as_json():
 
 
 def test_a_variation_seed_in_a_reset_request_is_encoded_only_when_given():
-    assert codec.encode_reset(7, None) == codec.encode({"seed": 7, "scenario": None})
-    assert msgspec.msgpack.decode(codec.encode_reset(None, None, 5))["variation"] == 5
+    assert requests.encode_reset(7, None) == envelope.encode({"seed": 7, "scenario": None})
+    assert msgspec.msgpack.decode(requests.encode_reset(None, None, 5))["variation"] == 5
 
 
 def test_the_clustered_interval_is_as_wide_as_the_scenes_warrant():

@@ -122,6 +122,38 @@ pub fn create_env() -> CreateEnv {
     }
 }
 
+/// The sample `CreateEnv` with every optional field set: a client's typed spec of the same
+/// values encodes to these bytes (clients/tests/test_codec.py), so both sides hold the same
+/// fields in the same order.
+pub fn create_env_full() -> CreateEnv {
+    CreateEnv {
+        pool: None,
+        split: Split::Test,
+        external_agents: vec!["vehicle_0".to_string(), "vehicle_1".to_string()],
+        mode: Mode::Realtime,
+        scenario: Some("synthetic-counter_flow-n12-v2-seed3".to_string()),
+        realtime_factor: 2.0,
+        synthetic: Some(SyntheticScenes {
+            layout: "counter_flow".to_string(),
+            pedestrians: 12,
+            vehicles: 2,
+            density: 0.5,
+            seed: 3,
+            scenes: 4,
+        }),
+        variations: Some(VariationSpec {
+            position_sigma: 0.25,
+            start_offset_steps: 1,
+            desired_speed_scale: 0.1,
+            param_noise: BTreeMap::from([("tau".to_string(), 0.2)]),
+            mirror: true,
+            rotation_deg: 15.0,
+        }),
+        vehicle_model: Some(VehicleModel::Idm),
+        ..create_env()
+    }
+}
+
 /// The sample observation of one env (n_ext = 1, M = 4): ego id 0, pedestrian id 2
 /// (nearest), pedestrian id 1, one padding node.
 pub fn obs(offset: f32) -> ObsBatch {
@@ -470,6 +502,12 @@ pub fn all() -> Vec<Sample> {
             "sharedspace/server/s1/env/create",
             "CreateEnv: 2 envs from pool hbs_3ped split train, seed 42, cr_sfm with two parameter overrides, one reward-weight override, max_agents 4, autoreset.",
             create_env(),
+        ),
+        Sample::new(
+            "create_env_full",
+            "sharedspace/server/s1/env/create",
+            "CreateEnv with every optional field set: generated counter-flow scenes, seeded variations, reactive traffic, two controlled vehicles, realtime.",
+            create_env_full(),
         ),
         Sample::new(
             "reset",

@@ -1,24 +1,25 @@
 """sharedspace: Python clients of the sharedspace AV/pedestrian simulation server.
 
-- :mod:`sharedspace.codec`: MessagePack wire codec (protocol/SPEC.md);
-- :mod:`sharedspace.errors`: the exceptions;
-- :mod:`sharedspace.models`: the pedestrian models (sim-core's one list);
-- :mod:`sharedspace.pool`: scenario pools and what their records say;
-- :mod:`sharedspace.local_server`: ``sim-server`` on this machine (a local server, a rollout);
-- :mod:`sharedspace.transport`: the zenoh session, server discovery, liveliness;
-- :mod:`sharedspace.decode`: the server's messages decoded into NumPy arrays;
-- :mod:`sharedspace.client`: :class:`SimClient`, one connection to a server;
-- :mod:`sharedspace.vector`: the batched :class:`VectorClient` (failover);
-- :mod:`sharedspace.pettingzoo_env`: :func:`parallel_env`, a PettingZoo ``ParallelEnv``, and
-  :func:`env`, the same as an AEC env;
-- :mod:`sharedspace.gym_env`: ``SharedSpaceEnv``, registered with Gymnasium as
-  ``sharedspace/SharedSpace-v0`` on import;
-- :mod:`sharedspace.torchrl_env`: ``RemoteBatchedEnv`` (imported lazily: needs torch/torchrl);
-- :mod:`sharedspace.torchrl_multiagent`: ``RemoteMultiAgentEnv``, several cars per scene (lazily);
-- :mod:`sharedspace.observer`: :class:`Observer` of the envs' publications.
+Layers, each importing only those below it (``.importlinter`` checks it):
+
+- wire: :mod:`sharedspace.wire` (envelope and arrays, requests with :class:`EnvSpec`, replies,
+  errors), over :mod:`sharedspace.names` and :mod:`sharedspace.models` (sim-core's lists);
+- client: :mod:`sharedspace.transport` (the zenoh session, discovery, liveliness),
+  :mod:`sharedspace.client` (:class:`SimClient`, :class:`Connection`),
+  :mod:`sharedspace.vector` (the batched :class:`VectorClient`, failover),
+  :mod:`sharedspace.local_server` (``sim-server`` on this machine), :mod:`sharedspace.pool`,
+  :mod:`sharedspace.observer` (:class:`Observer` of the envs' publications);
+- envs: :mod:`sharedspace.pettingzoo_env` (:func:`parallel_env`, :func:`env`),
+  :mod:`sharedspace.gym_env` (``sharedspace/SharedSpace-v0``, registered on import),
+  :mod:`sharedspace.torchrl_env` (``RemoteBatchedEnv``), :mod:`sharedspace.torchrl_multiagent`
+  (``RemoteMultiAgentEnv``), and the pictures they draw (render, scene_plot, spaces);
+- :mod:`sharedspace.train`: the SAC-GCN trainer (``python -m sharedspace.train``);
+- :mod:`sharedspace.paper`: the paper's tooling (evaluation, powered test, tables, planner,
+  scripted drivers, plots), and :mod:`sharedspace.viewer`, the live viewer.
 """
 
-from .errors import (
+from .wire import EnvSpec
+from .wire.errors import (
     EnvClosed,
     NoServer,
     ProtocolError,
@@ -33,6 +34,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "ServerLost": ("transport", "ServerLost"),
     "Transport": ("transport", "Transport"),
+    "Connection": ("client", "Connection"),
     "SimClient": ("client", "SimClient"),
     "VectorClient": ("vector", "VectorClient"),
     "RemoteMultiAgentEnv": ("torchrl_multiagent", "RemoteMultiAgentEnv"),
@@ -61,6 +63,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "EnvSpec",
+    "Connection",
     "SharedspaceError",
     "ServerError",
     "ProtocolError",

@@ -1,36 +1,42 @@
 """One trainer's connection to the sharedspace servers (protocol/SPEC.md section 5).
 
-:class:`SimClient` (a :class:`~sharedspace.transport.Transport` with its liveliness token)
-creates envs (K in one ``CreateEnv``) on the least-loaded server and remembers which server owns
-each env; ``reset``, ``step``, ``batch_step`` and ``close`` take and return numpy arrays (the
-decoded messages of the spec, :mod:`sharedspace.decode`). :class:`~sharedspace.vector.VectorClient`
-steps K envs together over one of these, with failover.
+:class:`Connection` says where the servers are (an endpoint, a zenoh configuration file, or a
+server this process starts on loopback: :meth:`Connection.resolve`); :meth:`Connection.open`
+gives a :class:`SimClient` (a :class:`~sharedspace.transport.Transport` with its liveliness
+token), which creates envs (K of one :class:`~sharedspace.wire.EnvSpec` in one ``CreateEnv``) on
+the least-loaded server and remembers which server owns each env; ``reset``, ``step``,
+``batch_step`` and ``close`` take and return numpy arrays (the decoded messages of the spec,
+:mod:`sharedspace.wire.replies`); :meth:`SimClient.request` sends any request.
+:class:`~sharedspace.vector.VectorClient` steps K envs together over one of these, with
+failover. :func:`env_options` sorts an env adapter's keyword arguments into the two.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
-from . import codec
-from .decode import _F4, decode_result, decode_step_result, step_decoder_for
-from .errors import EnvClosed, NoServer, SharedspaceError, WrongShape
 from .transport import (
     CREATE_TIMEOUT,
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
+    DEFAULT_TIMEOUT,
     QueryFailed,
     ServerLost,
     Transport,
+    zenoh_file_settings,
 )
+from .wire import requests
+from .wire.envelope import encode
+from .wire.errors import EnvClosed, NoServer, SharedspaceError, WrongShape
+from .wire.replies import F4, decode_result, decode_step_result, step_decoder_for
+from .wire.requests import Checked, EnvSpec
 
-if TYPE_CHECKING:
-    from .vector import VectorClient
-
-__all__ = ["SimClient"]
+__all__ = ["Connection", "SimClient", "env_options"]
 
 log = logging.getLogger("sharedspace")
 
@@ -92,10 +98,10 @@ class SimClient:
 
     def info(self, server_id: str) -> dict[str, Any]:
         """``ServerInfo`` of one server."""
-        return self._request(
+        return self.request(
             server_id,
             self.transport.key("server", server_id, "info"),
-            codec.encode_info_request(self.transport.protocol_version),
+            requests.encode_info_request(self.transport.protocol_version),
         )
 
     def pick_server(self, exclude: Sequence[str] = (), need: int = 1) -> dict[str, Any]:
@@ -143,7 +149,7 @@ class SimClient:
         if not self.transport.is_alive(server_id, max_age=_ALIVE_MAX_AGE):
             raise self._lost(server_id, "its liveliness token disappeared")
 
-    def _request(
+    def request(
         self,
         server_id: str,
         key: str,
@@ -151,6 +157,9 @@ class SimClient:
         timeout: float | None = None,
         decode=decode_result,
     ):
+        """Sends ``payload`` to ``key`` of server ``server_id`` and returns the reply decoded by
+        ``decode``; raises :class:`~sharedspace.transport.ServerLost` when that server is gone
+        (its liveliness token disappeared, or the query got no reply)."""
         transport = self.transport
         if transport.closed:
             raise SharedspaceError("the client is closed")
@@ -165,7 +174,7 @@ class SimClient:
                 raise self._lost(server_id, "its liveliness token disappeared") from e
             raise self._lost(server_id, str(e)) from e
 
-    def _request_many(self, server_id: str, calls: Sequence[tuple[str, bytes]]) -> list[Any]:
+    def request_many(self, server_id: str, calls: Sequence[tuple[str, bytes]]) -> list[Any]:
         """Several queries to one server in flight at once; replies in order."""
         self._check_alive(server_id)
         pending = [self.transport.get_async(k, p) for k, p in calls]
@@ -191,23 +200,28 @@ class SimClient:
     # Requests
 
     def create(
-        self, count: int = 1, *, server_id: str | None = None, **params: Any
+        self,
+        count: int = 1,
+        spec: EnvSpec | None = None,
+        *,
+        server_id: str | None = None,
+        protocol_version: int | None = None,
+        **fields: Any,
     ) -> dict[str, Any]:
-        """``CreateEnv`` of ``count`` envs (SPEC 5.2; ``params`` are its fields: ``seed``,
-        ``split``, ``pool``, ``pedestrian_model``, ``external_agents``, ``max_agents``,
-        ``autoreset``, ...) on ``server_id`` or the least-loaded server. Returns ``EnvCreated``
-        with ``server_id`` added."""
-        params = dict(params)
-        version = int(params.pop("protocol_version", self.transport.protocol_version))
+        """``CreateEnv`` of ``count`` envs of ``spec`` with ``fields`` over it
+        (:class:`~sharedspace.wire.EnvSpec`, SPEC 5.2) on ``server_id`` or the least-loaded
+        server. Returns ``EnvCreated`` with ``server_id`` added."""
+        spec = EnvSpec.of(spec, **fields)
+        version = self.transport.protocol_version if protocol_version is None else protocol_version
         sid = server_id or self.server_id
         if sid is None:
             sid = str(self.pick_server(need=int(count))["server_id"])
-        msg = codec.create_env(self.client_id, count=count, protocol_version=version, **params)
+        payload = requests.encode_create_env(spec, self.client_id, count, int(version))
         try:
-            created = self._request(
+            created = self.request(
                 sid,
                 self.transport.key("server", sid, "env", "create"),
-                codec.encode(msg),
+                payload,
                 max(self.timeout, CREATE_TIMEOUT),
             )
         except ServerLost as e:
@@ -220,7 +234,7 @@ class SimClient:
                 f"on {self.transport.endpoint!r}: {e.reason}",
             ) from e
         created["server_id"] = sid
-        n_ext = len(created.get("external_agents") or msg["external_agents"])
+        n_ext = len(created.get("external_agents") or spec.external_agents)
         for env_id in created["env_ids"]:
             self.env_server[env_id] = sid
             self.env_n_ext[env_id] = n_ext
@@ -236,10 +250,10 @@ class SimClient:
         """``Reset`` (SPEC 5.3) → ``ResetResult``; ``variation``: play the scene variation of
         this seed (an env with variations)."""
         sid = self._server_of(env_id)
-        return self._request(
+        return self.request(
             sid,
             self.transport.key("server", sid, "env", env_id, "reset"),
-            codec.encode_reset(seed, scenario, variation),
+            requests.encode_reset(seed, scenario, variation),
         )
 
     def reset_many(
@@ -264,10 +278,10 @@ class SimClient:
             calls.append(
                 (
                     self.transport.key("server", sid, "env", env_id, "reset"),
-                    codec.encode_reset(seed, scen, var),
+                    requests.encode_reset(seed, scen, var),
                 )
             )
-        return self._request_many(sid, calls)
+        return self.request_many(sid, calls)
 
     def step(self, env_id: str, actions: Any) -> dict[str, Any]:
         """``Step`` (SPEC 5.4): ``actions`` ``[n_ext, 2]`` (float32/64) → ``StepResult``."""
@@ -275,13 +289,13 @@ class SimClient:
         if (
             fast is not None
             and type(actions) is np.ndarray
-            and actions.dtype == _F4
+            and actions.dtype == F4
             and actions.shape == fast[3]
         ):
             # The common case (a float32 array of the right shape, an env stepped before): one
             # lookup, no conversion; a step's client work is a share of its round trip.
             sid, key, head, _, decode = fast
-            return self._request(sid, key, head + actions.tobytes(), decode=decode)
+            return self.request(sid, key, head + actions.tobytes(), decode=decode)
         sid = self._server_of(env_id)
         n_ext = self.env_n_ext.get(env_id)
         arr = np.asarray(actions, dtype="<f4")
@@ -295,9 +309,9 @@ class SimClient:
             )
         head = self._step_heads.get(n_ext)
         if head is None:
-            head = self._step_heads[n_ext] = codec.step_head(n_ext)
+            head = self._step_heads[n_ext] = requests.step_head(n_ext)
         key = self.transport.key("server", sid, "env", env_id, "step")
-        res = self._request(sid, key, head + arr.tobytes(), decode=decode_step_result)
+        res = self.request(sid, key, head + arr.tobytes(), decode=decode_step_result)
         # Later steps of this env take the fast path above, with a decoder of this layout.
         self._step_keys[env_id] = (sid, key, head, (n_ext, 2), step_decoder_for(res))
         return res
@@ -321,10 +335,10 @@ class SimClient:
         for env_id in env_ids:
             if self._server_of(env_id) != sid:
                 raise ValueError("batch_step: every env must live on the same server")
-        return self._request(
+        return self.request(
             sid,
             self.transport.key("server", sid, "batch", "step"),
-            codec.encode({"env_ids": env_ids, "actions": arr}),
+            encode({"env_ids": env_ids, "actions": arr}),
             timeout,
         )
 
@@ -332,10 +346,10 @@ class SimClient:
         """``Close`` (SPEC 5.6)."""
         sid = self._server_of(env_id)
         try:
-            return self._request(
+            return self.request(
                 sid,
                 self.transport.key("server", sid, "env", env_id, "close"),
-                codec.encode_close(),
+                requests.encode_close(),
             )
         finally:
             self.forget(env_id)
@@ -355,7 +369,7 @@ class SimClient:
                 pending = [
                     self.transport.get_async(
                         self.transport.key("server", sid, "env", e, "close"),
-                        codec.encode_close(),
+                        requests.encode_close(),
                         min(self.timeout, 2.0),
                     )
                     for e in ids
@@ -375,12 +389,6 @@ class SimClient:
         self._step_keys.pop(env_id, None)
         self._closed_envs.add(env_id)
 
-    def vector(self, num_envs: int, **params: Any) -> VectorClient:
-        """A :class:`~sharedspace.vector.VectorClient` of ``num_envs`` envs on this connection."""
-        from .vector import VectorClient  # it builds on this module
-
-        return VectorClient(num_envs, client=self, **params)
-
     def shutdown(self) -> None:
         """Closes every env of this client and the transport (if this client opened it)."""
         if not self.transport.closed:
@@ -393,3 +401,112 @@ class SimClient:
 
     def __exit__(self, *exc) -> None:
         self.shutdown()
+
+
+class Connection(Checked):
+    """Where the servers are and how to reach them: what :meth:`open` connects with, and what
+    an env keeps to connect again when it is copied or unpickled."""
+
+    #: zenoh ``connect`` endpoint(s) of the servers or of a router (``[]``: none, scouting).
+    endpoint: str | list[str] | None = DEFAULT_ENDPOINT
+    #: Key prefix of the servers (SPEC section 1).
+    prefix: str = DEFAULT_PREFIX
+    #: Query timeout, s (``env/create`` waits at least ``CREATE_TIMEOUT``).
+    timeout: float = DEFAULT_TIMEOUT
+    #: zenoh mode of the session: ``peer``, or ``client`` of a router.
+    zenoh_mode: Literal["peer", "client"] = "peer"
+    #: Extra zenoh configuration entries, ``{"path/to/key": value}``.
+    config: dict[str, Any] = {}
+    #: Re-create the envs on a surviving server when theirs dies (VectorClient's failover).
+    failover: bool = False
+
+    def open(self) -> SimClient:
+        """A new :class:`SimClient` on this connection."""
+        return SimClient(
+            self.endpoint,
+            self.prefix,
+            timeout=self.timeout,
+            mode=self.zenoh_mode,
+            config=self.config,
+        )
+
+    @classmethod
+    def of_client(cls, client: SimClient, failover: bool = False) -> Connection:
+        """The connection an open client was made with (what a copy of an env reopens)."""
+        t = client.transport
+        return cls(
+            endpoint=list(t.endpoints),
+            prefix=t.prefix,
+            timeout=t.timeout,
+            zenoh_mode=t.mode,
+            config=t.config,
+            failover=failover,
+        )
+
+    @classmethod
+    def resolve(
+        cls,
+        endpoint: str = "",
+        prefix: str = DEFAULT_PREFIX,
+        zenoh_config: str | Path = "",
+        local_pools: Sequence[str | Path] = (),
+        local_params: str | Path | None = None,
+    ) -> Connection:
+        """A trainer's connection: the zenoh configuration file ``zenoh_config`` if given
+        (deploy/trainer.json5: its ``mode``, endpoints, TLS, credentials), else ``endpoint``,
+        else a ``sim-server`` this process starts on a free loopback port, serving
+        ``local_pools`` with ``local_params`` (:func:`sharedspace.local_server.shared_server`;
+        it stops when the process exits)."""
+        if zenoh_config:
+            settings = zenoh_file_settings(zenoh_config)
+            return cls(endpoint=None, prefix=prefix, zenoh_mode=settings.pop("mode", "client"),
+                       config=settings)  # fmt: skip
+        if endpoint:
+            return cls(endpoint=endpoint, prefix=prefix)
+        from .local_server import shared_server
+
+        server = shared_server(local_pools, local_params)
+        return cls(endpoint=server.endpoint, prefix=server.prefix)
+
+
+class EnvOptions(NamedTuple):
+    """What :func:`env_options` sorted."""
+
+    #: The envs to make.
+    spec: EnvSpec
+    #: A shared client, or the connection to open.
+    client: SimClient | Connection
+    #: Re-create the envs on a surviving server when theirs dies.
+    failover: bool
+
+
+def env_options(
+    options: Mapping[str, Any],
+    spec: EnvSpec | None = None,
+    client: SimClient | Connection | None = None,
+) -> EnvOptions:
+    """Sorts an env adapter's keyword ``options``: :class:`~sharedspace.wire.EnvSpec` fields
+    (over ``spec``) and :class:`Connection` fields (over ``client``'s, when it is a
+    Connection). Any other name raises ``TypeError`` naming it; connection fields beside a
+    shared :class:`SimClient` raise ``ValueError`` (that client says where it is connected;
+    ``failover`` alone may be given)."""
+    spec_fields = {k: v for k, v in options.items() if k in EnvSpec.__struct_fields__}
+    conn_fields = {k: v for k, v in options.items() if k in Connection.__struct_fields__}
+    unknown = sorted(set(options) - set(spec_fields) - set(conn_fields))
+    if unknown:
+        raise TypeError(
+            f"unknown env option(s) {', '.join(map(repr, unknown))}: not a field of EnvSpec "
+            f"({', '.join(EnvSpec.__struct_fields__)}) nor of Connection "
+            f"({', '.join(Connection.__struct_fields__)})"
+        )
+    spec = EnvSpec.of(spec, **spec_fields)
+    if isinstance(client, SimClient):
+        where = sorted(set(conn_fields) - {"failover"})
+        if where:
+            raise ValueError(
+                f"{where}: a shared client is already connected (pass one or the other)"
+            )
+        return EnvOptions(spec, client, bool(conn_fields.get("failover", False)))
+    connection = (client or Connection()).replace(**conn_fields) if conn_fields else client
+    connection = connection or Connection()
+    return EnvOptions(spec, connection, connection.failover)

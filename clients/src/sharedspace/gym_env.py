@@ -37,29 +37,40 @@ __all__ = ["SharedSpaceEnv", "ENV_ID", "register"]
 #: The registered id (``gymnasium.make(ENV_ID, endpoint=...)``).
 ENV_ID = "sharedspace/SharedSpace-v0"
 _AGENT = "vehicle_0"
+#: Options of the parallel env that are neither spec nor connection fields.
+_PARALLEL_ONLY = ("scenario", "max_cycles", "render_size")
 
 
 class SharedSpaceEnv(gymnasium.Env):
     """One server env's controlled vehicle as a Gymnasium env (see the module docstring).
 
-    Takes the keyword arguments of :class:`~sharedspace.pettingzoo_env.SharedSpaceParallelEnv`
-    (``endpoint``, ``prefix``, ``max_agents``, ``split``, ``pool``, ``scenario``,
-    ``pedestrian_model``, ``pedestrian_params``, ``reward_weights``, ``seed``, ``timeout``,
-    ...) but ``external_agents`` (always the scenario's car) and ``client`` (a copy must be
-    able to connect on its own).
+    Takes what :class:`~sharedspace.pettingzoo_env.SharedSpaceParallelEnv` takes (a
+    :class:`~sharedspace.wire.EnvSpec` and options naming its fields or ``Connection`` fields;
+    ``scenario``, ``max_cycles``, ``render_size``) but ``external_agents`` (always the
+    scenario's car) and ``client`` (a copy must be able to connect on its own). The options
+    become the spec and the connection here, where they are checked.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
-    def __init__(self, render_mode: str | None = None, **kwargs: Any):
+    def __init__(self, render_mode: str | None = None, spec=None, **options: Any):
+        from .client import env_options
+
         for fixed in ("external_agents", "client"):
-            if fixed in kwargs:
+            if fixed in options:
                 raise TypeError(f"SharedSpaceEnv does not take {fixed!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
-        self._kwargs: dict[str, Any] = {**kwargs, "render_mode": render_mode}
-        self.observation_space = observation_space(int(kwargs.get("max_agents", 8)))
+        own = {k: options.pop(k) for k in _PARALLEL_ONLY if k in options}
+        spec, connection, _ = env_options(options, spec)
+        self._args: dict[str, Any] = {
+            **own,
+            "spec": spec.replace(external_agents=(_AGENT,)),
+            "client": connection,
+            "render_mode": render_mode,
+        }
+        self.observation_space = observation_space(spec.max_agents)
         self.action_space = action_space()
         self._parallel = None
 
@@ -67,7 +78,7 @@ class SharedSpaceEnv(gymnasium.Env):
         if self._parallel is None:
             from .pettingzoo_env import SharedSpaceParallelEnv
 
-            self._parallel = SharedSpaceParallelEnv(external_agents=(_AGENT,), **self._kwargs)
+            self._parallel = SharedSpaceParallelEnv(**self._args)
         return self._parallel
 
     @property

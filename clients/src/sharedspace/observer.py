@@ -23,10 +23,10 @@ from typing import Any
 
 import zenoh
 
-from . import codec
 from .closing import Closing
-from .errors import SharedspaceError
 from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, Transport, undeclare_all
+from .wire.envelope import decode
+from .wire.errors import SharedspaceError
 
 __all__ = ["Observer", "TOPICS"]
 
@@ -84,7 +84,7 @@ class Observer(Closing):
         parts = key.split("/")
         topic, env_id = parts[-1], parts[-2]
         try:
-            msg = codec.decode(sample.payload.to_bytes())
+            msg = decode(sample.payload.to_bytes())
         except SharedspaceError as e:
             log.warning("sharedspace observer: undecodable publication on %s: %s", key, e)
             return

@@ -47,12 +47,13 @@ from pettingzoo import ParallelEnv
 
 from . import names
 from . import spaces as _spaces
-from .client import SimClient
-from .errors import EnvClosed, WrongShape
-from .models import DEFAULT_MODEL
+from .client import Connection, SimClient, env_options
 from .render import render_observation
-from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT, undeclare_all
-from .vector import VectorClient, adapter_params
+from .transport import undeclare_all
+from .vector import VectorClient
+from .wire.envelope import decode
+from .wire.errors import EnvClosed, WrongShape
+from .wire.requests import EnvSpec
 
 __all__ = ["SharedSpaceParallelEnv", "env", "parallel_env", "ENV_NAME", "INFO_KEYS"]
 
@@ -92,33 +93,25 @@ class SharedSpaceParallelEnv(ParallelEnv):
     """One server env as a PettingZoo ``ParallelEnv`` (see the module docstring).
 
     Args:
-        endpoint, prefix, timeout: where the server is.
-        external_agents: the learner's vehicles (``vehicle_0`` = the scenario's ego).
-        max_agents: M, nodes per observation.
-        split, pool, pedestrian_model, pedestrian_params, reward_weights: the ``CreateEnv``
-            fields (SPEC 5.2); ``pool`` by name (``SimClient.pools()``: ``hbs-paper``, the
-            default, and ``hbs-general``, every pedestrian and car in each car's window).
+        spec: the server env (:class:`~sharedspace.wire.EnvSpec`: pool, split, seed, crowd
+            model, ``max_agents`` M, ``external_agents`` (the learner's vehicles, ``vehicle_0``
+            the scenario's ego), variations, traffic model, ...). ``**options`` naming its
+            fields (``pool="hbs-general"``, ``variations={"position_sigma": 0.25}``) or
+            :class:`~sharedspace.client.Connection` fields (``endpoint``, ``prefix``,
+            ``timeout``, ``failover``: re-create the env on a surviving server when its server
+            dies, the step returning every agent truncated) apply over it and ``client``.
         scenario: a scenario name (every episode plays it) or a list of names (each reset
             plays the next, cycling); ``reset(options={"scenario": name})`` overrides once.
-        synthetic: generated scenes instead of a pool (SPEC 5.2 ``CreateEnv.synthetic``), e.g.
-            ``{"layout": "crossing", "pedestrians": 60, "vehicles": 2, "seed": 0, "scenes": 4}``.
-        variations: seeded scene variations, one per episode (SPEC 5.2.1
-            ``CreateEnv.variations``), e.g. ``{"position_sigma": 0.25, "start_offset_steps": 1,
-            "desired_speed_scale": 0.1}``; ``env.variation`` is the episode's (seed and values),
-            ``reset(options={"variation": seed})`` replays one.
-        vehicle_model: how the cars nobody controls move, ``"replay"`` or ``"idm"`` (reactive,
-            docs/MODEL.md "Traffic"); None: the pool's (``hbs-general``: ``idm``).
-        seed: seed of the env at creation (``reset(seed=...)`` re-seeds).
-        render_mode: ``None`` or ``"rgb_array"``.
-        failover: re-create the env on a surviving server when its server dies (the step
-            returns every agent truncated).
-        client: an existing :class:`~sharedspace.client.SimClient` to share.
+        render_mode: ``None`` or ``"rgb_array"``; render_size: its picture's ``(H, W)``.
         max_cycles: truncate every agent after this many steps of an episode (PettingZoo's
             convention; ``None``: only the scenario's horizon, which the server enforces).
+        client: a :class:`~sharedspace.client.SimClient` to share, or the ``Connection`` to
+            open (default: ``tcp/127.0.0.1:7447``).
 
-    ``state()`` is the global state for centralised critics: every possible agent's
-    observation flattened (``features``, ``adjacency``, ``mask``) and concatenated, zeros for
-    an agent that has left; ``state_space`` is its ``Box``.
+    ``env.variation`` is the episode's variation (seed and values; ``reset(options={"variation":
+    seed})`` replays one). ``state()`` is the global state for centralised critics: every
+    possible agent's observation flattened (``features``, ``adjacency``, ``mask``) and
+    concatenated, zeros for an agent that has left; ``state_space`` is its ``Box``.
     """
 
     metadata = {
@@ -130,27 +123,14 @@ class SharedSpaceParallelEnv(ParallelEnv):
 
     def __init__(
         self,
-        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
-        prefix: str = DEFAULT_PREFIX,
+        spec: EnvSpec | None = None,
         *,
-        external_agents: Sequence[str] = ("vehicle_0",),
-        max_agents: int = 8,
-        split: str = "train",
-        pool: str | None = None,
         scenario: str | Sequence[str] | None = None,
-        pedestrian_model: str = DEFAULT_MODEL,
-        pedestrian_params: Mapping[str, float] | None = None,
-        reward_weights: Mapping[str, float] | None = None,
-        seed: int = 0,
         render_mode: str | None = None,
         render_size: tuple[int, int] = (480, 480),
-        timeout: float = DEFAULT_TIMEOUT,
-        failover: bool = False,
-        client: SimClient | None = None,
         max_cycles: int | None = None,
-        synthetic: Mapping[str, Any] | None = None,
-        variations: Mapping[str, Any] | None = None,
-        vehicle_model: str | None = None,
+        client: SimClient | Connection | None = None,
+        **options: Any,
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -163,20 +143,17 @@ class SharedSpaceParallelEnv(ParallelEnv):
         if self._scenario_list == []:
             raise ValueError("scenario: an empty list")
         self._resets = 0
-        create = adapter_params(
-            locals(),
-            pool=pool,
-            scenario=scenario if isinstance(scenario, str) else None,
-            autoreset=False,
+        spec, self._client, self._failover = env_options(options, spec, client)
+        self.spec = spec.replace(
+            scenario=scenario if isinstance(scenario, str) else None, autoreset=False
         )
-        self._create, self._failover, self._client = create, failover, client
         self._vec: VectorClient | None = None  # connected on first use (see _connected)
-        self.max_agents = int(max_agents)
+        self.max_agents = self.spec.max_agents
         if max_cycles is not None and int(max_cycles) < 1:
             raise ValueError(f"max_cycles must be at least 1, got {max_cycles}")
         self.max_cycles = None if max_cycles is None else int(max_cycles)
         self._cycles = 0
-        self.possible_agents = list(external_agents)
+        self.possible_agents = list(self.spec.external_agents)
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         self._closed = False
@@ -204,29 +181,25 @@ class SharedSpaceParallelEnv(ParallelEnv):
         connection until it is reset or asked for its ``env_id``."""
         if self._vec is None:
             self._check_open()
-            self._vec = VectorClient(
-                1, client=self._client, failover=self._failover, **self._create
-            )
+            self._vec = VectorClient(1, self.spec, client=self._client, failover=self._failover)
         return self._vec
 
     def __getstate__(self) -> dict[str, Any]:
         """The constructor's arguments and settings only: a copy creates its own server env
         (and its own connection) when first reset. A shared ``client`` is replaced by its
-        endpoints and prefix."""
+        :class:`~sharedspace.client.Connection`."""
         state = {k: v for k, v in self.__dict__.items() if k not in _LIVE_STATE}
-        if self._client is not None:
-            t = self._client.transport
-            state["_create"] = {
-                **self._create,
-                "endpoint": list(t.endpoints),
-                "prefix": t.prefix,
-                "timeout": t.timeout,
-            }
-        state["_client"] = None
+        client = self._client
+        state["_connection"] = (
+            Connection.of_client(client, self._failover)
+            if isinstance(client, SimClient)
+            else client
+        )
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
+        self._client = self.__dict__.pop("_connection")
         self._vec = None
         self._closed = False
         self.agents = []
@@ -335,8 +308,7 @@ class SharedSpaceParallelEnv(ParallelEnv):
 
     def _info(self, t: float = 0.0) -> dict[str, float | int | bool]:
         if not self._scenario_index:
-            pool = self._create.get("pool")
-            _, names = self._connected.client.scenarios(pool, self.server_id)
+            _, names = self._connected.client.scenarios(self.spec.pool, self.server_id)
             self._scenario_index = {name: i for i, (name, _) in enumerate(names)}
         info = _blank_info()
         info["step"], info["t"] = self._step, t
@@ -447,11 +419,9 @@ class SharedSpaceParallelEnv(ParallelEnv):
         self._sub_env = env_id
 
     def _on_pub(self, sample) -> None:
-        from . import codec
-
         topic = str(sample.key_expr).rsplit("/", 1)[-1]
         try:
-            msg = codec.decode(sample.payload.to_bytes())
+            msg = decode(sample.payload.to_bytes())
         except Exception:  # noqa: BLE001 - best effort
             return
         with self._latest_lock:

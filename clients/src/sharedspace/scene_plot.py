@@ -78,22 +78,7 @@ def _strongest(edges: Sequence[tuple[int, int, float]], top_k: int) -> list[tupl
     return out
 
 
-def draw_scene(
-    ax,
-    frame: Frame,
-    *,
-    top_k: int = 2,
-    view: tuple[float, float, float, float] | None = None,
-    legend: bool = True,
-    a_max: float | None = None,
-) -> None:
-    """Draws ``frame`` on ``ax`` (equal aspect, metres). ``view`` = (x0, x1, y0, y1) fixes the
-    window (default: every agent and goal with a margin); ``a_max`` fixes the edge colour scale
-    (default: this frame's largest ``A``)."""
-    import matplotlib.patches as mpatches
-    from matplotlib import colormaps
-    from matplotlib.lines import Line2D
-
+def _set_window(ax, frame: Frame, view) -> None:
     x0, x1, y0, y1 = view or _bounds(frame)
     # Square-ish window so that rectangles are not distorted.
     span = max(x1 - x0, y1 - y0)
@@ -103,8 +88,10 @@ def draw_scene(
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
-    pos = {a.id: a for a in frame.agents}
-    cmap = colormaps[EDGE_CMAP]
+
+
+def _draw_edges(ax, frame: Frame, pos: dict, cmap, top_k: int, a_max: float | None) -> None:
+    """Each agent's ``top_k`` strongest risk edges, darker and wider the larger ``A``."""
     edges = _strongest(frame.edges, top_k)
     amax = a_max or max((e[2] for e in edges), default=1.0) or 1.0
     for src, dst, a in sorted(edges, key=lambda e: e[2]):
@@ -118,50 +105,39 @@ def draw_scene(
                 alpha=0.35 + 0.6 * s,
                 zorder=1,
             )
-    for aid, trail in frame.trails.items():
-        if len(trail) > 1 and aid in pos:
-            xy = np.asarray(trail)
-            color = CONTROLLED if pos[aid].controlled else "#777777"
-            ax.plot(xy[:, 0], xy[:, 1], color=color, lw=1.0, alpha=0.5, zorder=2)
-    for gx, gy in frame.goals:
-        ax.plot(gx, gy, marker="*", ms=14, color=GOAL, mec="white", zorder=5)
-        ax.add_patch(mpatches.Circle((gx, gy), 2.0, fill=False, ec=GOAL, ls="--", lw=0.8))
-    for a in frame.agents:
-        if a.kind == "vehicle":
-            length, width = a.length or 4.5, a.width or 1.8
-            color = CONTROLLED if a.controlled else REACTIVE if a.reactive else VEHICLE
-            c, s = np.cos(a.heading), np.sin(a.heading)
-            corner = (a.x - (c * length - s * width) / 2, a.y - (s * length + c * width) / 2)
-            ax.add_patch(
-                mpatches.Rectangle(
-                    corner,
-                    length,
-                    width,
-                    angle=np.degrees(a.heading),
-                    fc=color,
-                    ec="black",
-                    lw=0.6,
-                    zorder=4,
-                )
-            )
-            ax.plot(
-                [a.x, a.x + c * length * 0.5],
-                [a.y, a.y + s * length * 0.5],
-                color="white",
-                lw=1.0,
-                zorder=4,
-            )
-        else:
-            ax.add_patch(
-                mpatches.Circle((a.x, a.y), a.radius, fc=PEDESTRIAN, ec="black", lw=0.4, zorder=4)
-            )
-            # A dot of a few pixels, so that a pedestrian stays visible in a wide view.
-            ax.plot(a.x, a.y, "o", ms=3.5, color=PEDESTRIAN, zorder=4)
-            if abs(a.vx) + abs(a.vy) > 1e-3:
-                ax.arrow(
-                    a.x, a.y, a.vx, a.vy, width=0.05, head_width=0.3, color=PEDESTRIAN, zorder=3
-                )
-    # Scale bar: a round number of metres, about a fifth of the window.
+
+
+def _draw_vehicle(ax, a: Agent) -> None:
+    import matplotlib.patches as mpatches
+
+    length, width = a.length or 4.5, a.width or 1.8
+    color = CONTROLLED if a.controlled else REACTIVE if a.reactive else VEHICLE
+    c, s = np.cos(a.heading), np.sin(a.heading)
+    corner = (a.x - (c * length - s * width) / 2, a.y - (s * length + c * width) / 2)
+    ax.add_patch(
+        mpatches.Rectangle(
+            corner, length, width, angle=np.degrees(a.heading), fc=color, ec="black", lw=0.6,
+            zorder=4,
+        )
+    )  # fmt: skip
+    ax.plot(
+        [a.x, a.x + c * length * 0.5], [a.y, a.y + s * length * 0.5], color="white", lw=1.0,
+        zorder=4,
+    )  # fmt: skip
+
+
+def _draw_pedestrian(ax, a: Agent) -> None:
+    import matplotlib.patches as mpatches
+
+    ax.add_patch(mpatches.Circle((a.x, a.y), a.radius, fc=PEDESTRIAN, ec="black", lw=0.4, zorder=4))
+    # A dot of a few pixels, so that a pedestrian stays visible in a wide view.
+    ax.plot(a.x, a.y, "o", ms=3.5, color=PEDESTRIAN, zorder=4)
+    if abs(a.vx) + abs(a.vy) > 1e-3:
+        ax.arrow(a.x, a.y, a.vx, a.vy, width=0.05, head_width=0.3, color=PEDESTRIAN, zorder=3)
+
+
+def _draw_scale_and_label(ax, frame: Frame) -> None:
+    """A scale bar of a round number of metres (about a fifth of the window), the time."""
     lo_x, hi_x = ax.get_xlim()
     lo_y, _ = ax.get_ylim()
     bar = max(1.0, float(10 ** np.floor(np.log10((hi_x - lo_x) / 5))))
@@ -184,20 +160,59 @@ def draw_scene(
             fontsize=9,
             bbox=dict(fc="white", ec="none", alpha=0.8),
         )
+
+
+def _draw_legend(ax, frame: Frame, cmap, top_k: int) -> None:
+    import matplotlib.patches as mpatches
+    from matplotlib.lines import Line2D
+
+    handles = [
+        mpatches.Patch(color=CONTROLLED, label="controlled vehicle"),
+        mpatches.Patch(color=VEHICLE, label="replayed vehicle"),
+        *(
+            [mpatches.Patch(color=REACTIVE, label="reactive vehicle")]
+            if any(a.reactive for a in frame.agents)
+            else []
+        ),
+        Line2D([], [], marker="o", ls="", color=PEDESTRIAN, label="pedestrian"),
+        Line2D([], [], marker="*", ls="", ms=10, color=GOAL, label="goal"),
+        Line2D([], [], color=cmap(0.9), lw=2.5, label=f"risk A (top {top_k} per agent)"),
+    ]
+    ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.85)
+
+
+def draw_scene(
+    ax,
+    frame: Frame,
+    *,
+    top_k: int = 2,
+    view: tuple[float, float, float, float] | None = None,
+    legend: bool = True,
+    a_max: float | None = None,
+) -> None:
+    """Draws ``frame`` on ``ax`` (equal aspect, metres). ``view`` = (x0, x1, y0, y1) fixes the
+    window (default: every agent and goal with a margin); ``a_max`` fixes the edge colour scale
+    (default: this frame's largest ``A``)."""
+    import matplotlib.patches as mpatches
+    from matplotlib import colormaps
+
+    _set_window(ax, frame, view)
+    pos = {a.id: a for a in frame.agents}
+    cmap = colormaps[EDGE_CMAP]
+    _draw_edges(ax, frame, pos, cmap, top_k, a_max)
+    for aid, trail in frame.trails.items():
+        if len(trail) > 1 and aid in pos:
+            xy = np.asarray(trail)
+            color = CONTROLLED if pos[aid].controlled else "#777777"
+            ax.plot(xy[:, 0], xy[:, 1], color=color, lw=1.0, alpha=0.5, zorder=2)
+    for gx, gy in frame.goals:
+        ax.plot(gx, gy, marker="*", ms=14, color=GOAL, mec="white", zorder=5)
+        ax.add_patch(mpatches.Circle((gx, gy), 2.0, fill=False, ec=GOAL, ls="--", lw=0.8))
+    for a in frame.agents:
+        (_draw_vehicle if a.kind == "vehicle" else _draw_pedestrian)(ax, a)
+    _draw_scale_and_label(ax, frame)
     if legend:
-        handles = [
-            mpatches.Patch(color=CONTROLLED, label="controlled vehicle"),
-            mpatches.Patch(color=VEHICLE, label="replayed vehicle"),
-            *(
-                [mpatches.Patch(color=REACTIVE, label="reactive vehicle")]
-                if any(a.reactive for a in frame.agents)
-                else []
-            ),
-            Line2D([], [], marker="o", ls="", color=PEDESTRIAN, label="pedestrian"),
-            Line2D([], [], marker="*", ls="", ms=10, color=GOAL, label="goal"),
-            Line2D([], [], color=cmap(0.9), lw=2.5, label=f"risk A (top {top_k} per agent)"),
-        ]
-        ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.85)
+        _draw_legend(ax, frame, cmap, top_k)
 
 
 def scene_rgb(frame: Frame, size: tuple[int, int] = (480, 480), **kw) -> np.ndarray:

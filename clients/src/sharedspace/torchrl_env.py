@@ -17,9 +17,9 @@ Scenario order:
   created without autoreset, and each reset names its scenario (one ``Reset`` query per reset
   sub-env, all in flight at once).
 
-``split="all"`` is not served remotely (a server env draws from one split): ``ValueError``.
-``params`` (world-parameter overrides) are a server setting, not a per-env one: only ``None``
-or ``{}`` is accepted.
+The envs are one :class:`~sharedspace.wire.EnvSpec` (``split`` ``train`` or ``test``: a server
+env draws from one split); world parameters are a server setting (``sim-server --cfg params:``),
+not a per-env one.
 
 Failover (``failover=True``): when the server dies, the step returns every sub-env
 ``truncated`` (reward 0, observation = the last one received) and the envs are re-created on a
@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,12 +40,11 @@ from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from . import names
-from .client import SimClient
-from .errors import SharedspaceError
-from .models import DEFAULT_MODEL
+from .client import Connection, EnvOptions, SimClient, env_options
 from .pool import listed_scenarios
-from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
-from .vector import VectorClient, adapter_params
+from .vector import VectorClient
+from .wire.errors import SharedspaceError
+from .wire.requests import EnvSpec, SyntheticScenes
 
 __all__ = [
     "EPISODE_FLAG_KEYS",
@@ -113,35 +111,38 @@ def contract_tensordict(
     )
 
 
-def synthetic_names(synthetic: Mapping[str, Any], split: str) -> list[tuple[str, str]]:
+def synthetic_names(synthetic: SyntheticScenes, split: str) -> list[tuple[str, str]]:
     """The scenes a ``CreateEnv.synthetic`` request makes, as ``(name, split)`` in order (the
     server names them ``synthetic-{layout}-n{N}[-v{V}]-seed{seed}``, SPEC 5.2)."""
-    layout = synthetic.get("layout", "crossing")
-    n, v = int(synthetic.get("pedestrians", 10)), int(synthetic.get("vehicles", 1))
-    seed, scenes = int(synthetic.get("seed", 0)), int(synthetic.get("scenes", 1))
-    vehicles = f"-v{v}" if v > 1 else ""
-    return [(f"synthetic-{layout}-n{n}{vehicles}-seed{seed + i}", split) for i in range(scenes)]
+    s = synthetic
+    vehicles = f"-v{s.vehicles}" if s.vehicles > 1 else ""
+    return [
+        (f"synthetic-{s.layout}-n{s.pedestrians}{vehicles}-seed{s.seed + i}", split)
+        for i in range(s.scenes)
+    ]
 
 
 class _ServerEnvs(EnvBase):
     """What both remote envs share: K server envs behind one ``VectorClient`` (``self.vec``),
     and copies (pickle, deepcopy) that make their own connection and server envs."""
 
-    def _remember(self, init_locals: Mapping[str, Any]) -> None:
-        """Keeps the constructor's arguments (its ``locals()``, taken first thing) for copies
-        (see ``__reduce__``); a shared ``client`` is replaced by its endpoints, prefix and
-        timeout."""
-        kwargs = {k: v for k, v in init_locals.items() if k not in ("self", "__class__")}
-        client = kwargs.pop("client")
-        if client is not None:
-            t = client.transport
-            kwargs.update(endpoint=list(t.endpoints), prefix=t.prefix, timeout=t.timeout)
-        self._init_kwargs = kwargs
+    def _connect(self, num_envs: int, opts: EnvOptions, **decided: Any) -> EnvSpec:
+        """Creates the K server envs of ``opts`` (the constructor's sorted options,
+        :func:`~sharedspace.client.env_options`) with what the adapter ``decided`` over its spec,
+        keeps what a copy needs (``_init_args``, see ``__reduce__``) and returns the envs' spec."""
+        spec, where, failover = opts
+        shared = isinstance(where, SimClient)
+        self._init_args = {
+            "spec": spec,
+            "client": Connection.of_client(where, failover) if shared else where,
+        }
+        self.vec = VectorClient(num_envs, spec.replace(**decided), client=where, failover=failover)
+        return self.vec.spec
 
     def __reduce__(self):
         """Pickling and copying make a new env from the constructor's arguments: its own
         connection and its own K server envs, seeded like this one at creation."""
-        return (_rebuild, (self.__class__, self._init_kwargs))
+        return (_rebuild, (self.__class__, self._init_kwargs | self._init_args))
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         try:
@@ -158,27 +159,25 @@ class RemoteBatchedEnv(_ServerEnvs):
     """K server envs as one TorchRL env of batch size ``[K]`` (ENV_CONTRACT.md).
 
     Args:
-        num_envs, max_agents, split, seed, scenario_order, pedestrian_model: K, M, the split
-            (``train``/``test``), the base seed, ``random``/``sequential``, the crowd's model
-            (ENV_CONTRACT.md).
-        pool: the server pool: its name (``"hbs-paper"``, ``"hbs-general"``, see
-            ``SimClient.pools()``), or the path of the scenario file the server serves (or its
+        spec: the envs (:class:`~sharedspace.wire.EnvSpec`: pool, split, seed, crowd model,
+            ``max_agents`` M, variations, ...; one external agent); ``**options`` naming its
+            fields (``max_agents=6``) or :class:`~sharedspace.client.Connection` fields
+            (``endpoint``, ``prefix``, ``timeout``, ``failover``) apply over it and ``client``.
+            ``pool`` may also be the path of the scenario file the server serves (or its
             scenario dicts), whose ``name`` selects the pool; the pool's order gives
-            ``scenario_index`` (default: the server's default pool, ``hbs-paper``).
+            ``scenario_index``.
+        num_envs: K.
+        scenario_order: ``random`` (the server's seeded permutations, autoreset) or
+            ``sequential`` (sub-env ``k`` plays the split's scenarios ``k, k+K, ...``).
         scenarios: scenario names (or pool indices) to play instead of drawing from the
             split: sub-env ``k`` plays ``scenarios[k], [k + K], ...`` cycling (each must be
-            in ``split``).
-        endpoint, prefix: where the server is (zenoh connect endpoint, key prefix).
-        timeout: query timeout, s.
-        failover: re-create the envs on a surviving server when theirs dies.
-        client: an existing :class:`~sharedspace.client.SimClient` to share.
-        external_agents, reward_weights, pedestrian_params, synthetic, variations, vehicle_model:
-            ``CreateEnv`` fields (``synthetic``: generated scenes instead of a pool, SPEC 5.2;
-            ``variations``: seeded scene variations, one drawn per episode, SPEC 5.2.1;
-            ``vehicle_model``: ``replay`` or ``idm``, None: the pool's).
+            in the split).
         variation_seeds: per sub-env, the variation seed every episode of that sub-env plays
             (``Reset.variation``; needs ``variations``): a fixed, replayable set of variations,
             as the evaluator uses. None: each episode draws its own.
+        client: a :class:`~sharedspace.client.SimClient` to share, or the ``Connection`` to
+            open (default: ``tcp/127.0.0.1:7447``).
+        device: the device of the env's tensors.
 
     ``last_variation_seeds`` (K ints, None without variations; seeds are unsigned 64-bit) is
     each sub-env's current episode's variation seed: a side channel, like
@@ -189,111 +188,96 @@ class RemoteBatchedEnv(_ServerEnvs):
 
     def __init__(
         self,
+        spec: EnvSpec | None = None,
         num_envs: int = 4,
-        max_agents: int = 8,
-        split: str | None = "train",
-        seed: int = 0,
+        *,
         scenario_order: str = "random",
         scenarios: str | Sequence[str | int] | None = None,
-        pool: str | Path | Sequence[Mapping[str, Any]] | None = None,
-        params: Mapping[str, Any] | None = None,
-        pedestrian_model: str = DEFAULT_MODEL,
-        device: str | torch.device = "cpu",
-        *,
-        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
-        prefix: str = DEFAULT_PREFIX,
-        timeout: float = DEFAULT_TIMEOUT,
-        failover: bool = False,
-        client: SimClient | None = None,
-        external_agents: Sequence[str] = ("vehicle_0",),
-        reward_weights: Mapping[str, float] | None = None,
-        pedestrian_params: Mapping[str, float] | None = None,
-        synthetic: Mapping[str, Any] | None = None,
-        variations: Mapping[str, Any] | None = None,
-        vehicle_model: str | None = None,
         variation_seeds: Sequence[int] | None = None,
+        client: SimClient | Connection | None = None,
+        device: str | torch.device = "cpu",
+        **options: Any,
     ):
-        self._remember(locals())
-        if num_envs < 1 or max_agents < 1:
-            raise ValueError("num_envs and max_agents must be at least 1")
-        if variation_seeds is not None:
-            variation_seeds = [int(s) for s in variation_seeds]
-            if variations is None:
-                raise ValueError("variation_seeds need variations (the spec they draw from)")
-            if len(variation_seeds) != num_envs:
-                raise ValueError(
-                    f"variation_seeds: {len(variation_seeds)} seeds for {num_envs} sub-envs"
-                )
+        if num_envs < 1:
+            raise ValueError("num_envs must be at least 1")
         if scenario_order not in ("random", "sequential"):
             raise ValueError(f"unknown scenario_order {scenario_order!r}")
-        if split not in ("train", "test"):
-            raise ValueError(
-                f"RemoteBatchedEnv serves split 'train' or 'test', not {split!r} "
-                "(a server env draws its episodes from one split)"
-            )
+        if isinstance(scenarios, str):
+            scenarios = [scenarios]
         if scenarios is not None:
-            if isinstance(scenarios, str):
-                scenarios = [scenarios]
             if not scenarios:
                 raise ValueError("scenarios: an empty list")
             scenario_order = "sequential"  # sub-env k plays scenarios[k], [k + K], ...
-        if params:
-            raise ValueError(
-                "RemoteBatchedEnv: world `params` are a server setting (sim-server --cfg params:)"
-            )
-        if len(external_agents) != 1:
+        self._init_kwargs = dict(
+            num_envs=num_envs,
+            scenario_order=scenario_order,
+            scenarios=scenarios,
+            variation_seeds=variation_seeds,
+            device=device,
+        )
+        opts = env_options(options, spec, client)
+        spec_pool, pool_name, pool_list = _pool_of(opts.spec)
+        spec = opts.spec.replace(pool=spec_pool)
+        if len(spec.external_agents) != 1:
             raise ValueError("RemoteBatchedEnv drives one external agent per sub-env")
+        self._variation_seeds = _checked_variation_seeds(variation_seeds, spec, num_envs)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
-        self.num_envs = k = int(num_envs)
-        self.max_agents = m = int(max_agents)
-        self.split = split
-        self.scenario_order = scenario_order
-        self.pedestrian_model = pedestrian_model
-        if synthetic is not None:
-            if pool is not None:
-                raise ValueError("synthetic scenes and a pool exclude each other")
-            pool_name, pool_list = "synthetic", synthetic_names(synthetic, split)
-        else:
-            pool_name, pool_list = listed_scenarios(pool)
-        self.pool_name = pool_name
-        self.env_time_s = 0.0
-        #: Each reward term of the last step, ``{term: [K]}`` (weighted, model.md 7; ``reward``
-        #: is their sum): a side channel for analyses, not part of the specs.
-        self.last_reward_terms: dict[str, np.ndarray] = {}
-        self._seed = int(seed)
-        self._reseed_pending = False
-        self._cursor = [0] * k
-        self._variation_seeds = variation_seeds
-        self.last_variation_seeds: list[int | None] = [None] * k
-        create = adapter_params(
-            self._init_kwargs,
-            pool=pool_name if pool is not None and synthetic is None else None,
+        spec = self._connect(
+            num_envs,
+            opts._replace(spec=spec),
             # Fixed variation seeds are sent with each reset, so their sub-envs reset by request.
             autoreset=scenario_order == "random" and variation_seeds is None,
         )
-        self.vec = VectorClient(k, client=client, failover=failover, **create)
+        self.num_envs, self.max_agents = int(num_envs), spec.max_agents
+        self.split, self.scenario_order = spec.split, scenario_order
+        self.pedestrian_model = spec.pedestrian_model
+        self._take_pool(pool_name, pool_list, scenarios)
+        self._init_state()
+        set_contract_specs(self, self.num_envs, self.max_agents)
+
+    def _take_pool(
+        self,
+        pool_name: str | None,
+        pool_list: list[tuple[str, str]] | None,
+        scenarios: Sequence[str | int] | None,
+    ) -> None:
+        """The pool's scenarios in pool order (asked of the server when the caller holds no
+        list) and the split's names this env plays; closes the envs on a wrong choice."""
+        self.pool_name = pool_name
         if pool_list is None:  # a pool the server names: it lists the scenarios
             self.pool_name, pool_list = self.vec.client.scenarios(pool_name, self.vec.server_id)
         self._scenario_index = {name: i for i, (name, _) in enumerate(pool_list)}
-        self._split_names = [name for name, s in pool_list if s == split]
+        self._split_names = [name for name, s in pool_list if s == self.split]
         if scenarios is not None:
             names = [pool_list[i][0] if isinstance(i, int) else str(i) for i in scenarios]
             wrong = [n for n in names if n not in self._split_names]
             if wrong:
                 self.vec.close()
                 raise ValueError(
-                    f"scenarios {wrong} are not {split} scenarios of pool {self.pool_name!r}"
+                    f"scenarios {wrong} are not {self.split} scenarios of pool {self.pool_name!r}"
                 )
             self._split_names = names
-        if scenario_order == "sequential" and not self._split_names:
+        if self.scenario_order == "sequential" and not self._split_names:
             self.vec.close()
-            raise ValueError(f"scenario_order='sequential': no {split} scenarios in the pool")
+            raise ValueError(f"scenario_order='sequential': no {self.split} scenarios in the pool")
+
+    def _init_state(self) -> None:
+        """The per-sub-env state before the first reset, and what ``CreateEnv`` answered."""
+        k, m = self.num_envs, self.max_agents
         action = self.vec.created["action"]
         self.dt = float(self.vec.created["dt"])
         self.vehicle_params = {
             "acc_max": float(action["physical_high"][0]),
             "omega_max": float(action["physical_high"][1]),
         }
+        self.env_time_s = 0.0
+        #: Each reward term of the last step, ``{term: [K]}`` (weighted, model.md 7; ``reward``
+        #: is their sum): a side channel for analyses, not part of the specs.
+        self.last_reward_terms: dict[str, np.ndarray] = {}
+        self.last_variation_seeds: list[int | None] = [None] * k
+        self._seed = self.vec.spec.seed
+        self._reseed_pending = False
+        self._cursor = [0] * k
         self._pending: list[dict[str, Any] | None] = [None] * k
         self._done = np.ones(k, dtype=bool)  # every sub-env needs a reset first
         self._scenario = np.full(k, -1, dtype=np.int64)
@@ -302,8 +286,6 @@ class RemoteBatchedEnv(_ServerEnvs):
             "adjacency": np.zeros((k, m, m), dtype=np.float32),
             "mask": np.zeros((k, m), dtype=bool),
         }
-
-        set_contract_specs(self, k, m)
 
     # ----------------------------------------------------------------------------------------
 
@@ -445,6 +427,30 @@ class RemoteBatchedEnv(_ServerEnvs):
         td = self._to_td(out)
         self.env_time_s += time.perf_counter() - t0
         return td
+
+
+def _pool_of(spec: EnvSpec) -> tuple[str | None, str | None, list[tuple[str, str]] | None]:
+    """``(the pool CreateEnv names, the pool's name, [(scenario, split), ...] or None)`` of a
+    spec: its generated scenes, the scenario file its ``pool`` names (by path), or a pool the
+    server lists (None: the server's default)."""
+    if spec.synthetic is not None:
+        if spec.pool is not None:
+            raise ValueError("synthetic scenes and a pool exclude each other")
+        return None, "synthetic", synthetic_names(spec.synthetic, spec.split)
+    name, listed = listed_scenarios(spec.pool)
+    return name, name, listed
+
+
+def _checked_variation_seeds(
+    seeds: Sequence[int] | None, spec: EnvSpec, num_envs: int
+) -> list[int] | None:
+    if seeds is None:
+        return None
+    if spec.variations is None:
+        raise ValueError("variation_seeds need variations (the spec they draw from)")
+    if len(seeds) != num_envs:
+        raise ValueError(f"variation_seeds: {len(seeds)} seeds for {num_envs} sub-envs")
+    return [int(s) for s in seeds]
 
 
 def _rebuild(cls, kwargs: dict[str, Any]) -> RemoteBatchedEnv:

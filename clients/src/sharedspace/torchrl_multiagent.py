@@ -5,7 +5,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -13,14 +13,9 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 
-from .client import SimClient
-from .models import DEFAULT_MODEL
-from .torchrl_env import (
-    NODE_FEATURES,
-    _ServerEnvs,
-)
-from .transport import DEFAULT_ENDPOINT, DEFAULT_PREFIX, DEFAULT_TIMEOUT
-from .vector import VectorClient, adapter_params
+from .client import Connection, SimClient, env_options
+from .torchrl_env import NODE_FEATURES, _ServerEnvs
+from .wire.requests import EnvSpec
 
 __all__ = ["RemoteMultiAgentEnv"]
 
@@ -40,17 +35,15 @@ class RemoteMultiAgentEnv(_ServerEnvs):
     round trip. With one agent it is the single-vehicle env in group form.
 
     Args:
+        spec: the envs (:class:`~sharedspace.wire.EnvSpec`); its ``external_agents`` are the
+            controlled vehicles (``vehicle_0`` is the scenario's ego, then the scenario's other
+            vehicles; episodes come only from scenarios that have all of them, SPEC 5.2;
+            default here: ``vehicle_0`` and ``vehicle_1``). ``**options`` naming its fields or
+            :class:`~sharedspace.client.Connection` fields apply over it and ``client``.
         num_envs: K.
-        external_agents: the controlled vehicles (``vehicle_0`` is the scenario's ego, then
-            the scenario's other vehicles); episodes come only from scenarios that have all
-            of them (SPEC 5.2).
-        max_agents: M, nodes per observation.
-        split, seed, pool, scenario, pedestrian_model, pedestrian_params, reward_weights,
-            synthetic, variations, vehicle_model: the ``CreateEnv`` fields (``pool`` by name, e.g.
-            ``"hbs-general"``, whose scenes have other cars; ``scenario`` pins every episode;
-            ``synthetic`` generated scenes with ``vehicles`` cars; ``variations`` seeded scene
-            variations, SPEC 5.2.1; ``vehicle_model`` ``replay`` or ``idm``, None: the pool's).
-        endpoint, prefix, timeout, client: where the server is (as :class:`RemoteBatchedEnv`).
+        client: a :class:`~sharedspace.client.SimClient` to share, or the ``Connection`` to
+            open.
+        device: the device of the env's tensors.
     """
 
     batch_locked = True
@@ -58,36 +51,26 @@ class RemoteMultiAgentEnv(_ServerEnvs):
 
     def __init__(
         self,
+        spec: EnvSpec | None = None,
         num_envs: int = 4,
-        external_agents: Sequence[str] = ("vehicle_0", "vehicle_1"),
-        max_agents: int = 8,
-        split: str = "train",
-        seed: int = 0,
-        pool: str | None = None,
-        scenario: str | None = None,
-        pedestrian_model: str = DEFAULT_MODEL,
-        device: str | torch.device = "cpu",
         *,
-        endpoint: str | Sequence[str] | None = DEFAULT_ENDPOINT,
-        prefix: str = DEFAULT_PREFIX,
-        timeout: float = DEFAULT_TIMEOUT,
-        client: SimClient | None = None,
-        reward_weights: Mapping[str, float] | None = None,
-        pedestrian_params: Mapping[str, float] | None = None,
-        synthetic: Mapping[str, Any] | None = None,
-        variations: Mapping[str, Any] | None = None,
-        vehicle_model: str | None = None,
+        client: SimClient | Connection | None = None,
+        device: str | torch.device = "cpu",
+        **options: Any,
     ):
-        self._remember(locals())
-        if num_envs < 1 or max_agents < 1 or not external_agents:
-            raise ValueError("num_envs, max_agents and external_agents must not be empty")
+        if num_envs < 1:
+            raise ValueError("num_envs must be at least 1")
+        self._init_kwargs = {"num_envs": num_envs, "device": device}
+        spec = spec or EnvSpec(external_agents=("vehicle_0", "vehicle_1"))
+        opts = env_options(options, spec, client)
+        if not opts.spec.external_agents:
+            raise ValueError("external_agents must not be empty")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        spec = self._connect(num_envs, opts, autoreset=True)
         self.num_envs = k = int(num_envs)
-        self.n_agents = a = len(external_agents)
-        self.max_agents = m = int(max_agents)
-        self.agent_names = list(external_agents)
-        create = adapter_params(self._init_kwargs, pool=pool, scenario=scenario, autoreset=True)
-        self.vec = VectorClient(k, client=client, **create)
+        self.n_agents = a = len(spec.external_agents)
+        self.max_agents = m = spec.max_agents
+        self.agent_names = list(spec.external_agents)
         #: Scenario name of each sub-env's current episode.
         self.scenarios: list[str | None] = [None] * k
         self._obs = {

@@ -13,8 +13,8 @@
   (:meth:`Transport.servers`), the least-loaded choice (:meth:`Transport.pick_server`), and a
   liveliness watch of the servers (:meth:`Transport.is_alive`) used to detect a lost server.
 
-Errors: :class:`~sharedspace.errors.NoServer` (no server answered at the endpoint within the
-timeout; the message names both), :class:`~sharedspace.errors.VersionMismatch` (servers found,
+Errors: :class:`~sharedspace.wire.errors.NoServer` (no server answered at the endpoint within the
+timeout; the message names both), :class:`~sharedspace.wire.errors.VersionMismatch` (servers found,
 none speaking this client's protocol version), :class:`ServerLost` (the server hosting envs
 went away).
 """
@@ -36,9 +36,11 @@ from typing import Any
 
 import zenoh
 
-from . import codec
 from .closing import Closing
-from .errors import NoServer, SharedspaceError, VersionMismatch
+from .wire import requests
+from .wire.envelope import PROTOCOL_VERSION
+from .wire.errors import NoServer, SharedspaceError, VersionMismatch
+from .wire.replies import decode_result
 
 __all__ = [
     "DEFAULT_ENDPOINT",
@@ -51,6 +53,7 @@ __all__ = [
     "make_client_id",
     "server_load",
     "undeclare_all",
+    "zenoh_file_settings",
 ]
 
 log = logging.getLogger("sharedspace")
@@ -146,6 +149,25 @@ def _as_list(x: str | Iterable[str] | None) -> list[str]:
     return list(x)
 
 
+def zenoh_file_settings(path: str | os.PathLike) -> dict[str, Any]:
+    """A zenoh JSON5 configuration file (such as deploy/trainer.json5) as the flat
+    ``{"path/to/key": value}`` entries :class:`Transport` takes as ``config``."""
+    import json5
+
+    flat: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict) and value:
+            for key, inner in value.items():
+                walk(f"{prefix}/{key}" if prefix else key, inner)
+        else:
+            flat[prefix] = value
+
+    with open(path) as f:
+        walk("", json5.loads(f.read()))
+    return flat
+
+
 def undeclare_all(declarations) -> None:
     """Undeclares zenoh subscribers, tokens and queryables, best effort: one that fails (its
     session already closed) does not keep the others."""
@@ -183,13 +205,15 @@ class Transport(Closing):
         timeout: float = DEFAULT_TIMEOUT,
         client_id: str | None = None,
         config: dict[str, Any] | None = None,
-        protocol_version: int = codec.PROTOCOL_VERSION,
+        protocol_version: int = PROTOCOL_VERSION,
     ):
         if mode not in ("peer", "client", "router"):
             raise ValueError(f"mode must be 'peer', 'client' or 'router', got {mode!r}")
         self.endpoints = _as_list(endpoint)
         self.prefix = prefix.strip("/")
         self.mode = mode
+        #: The extra zenoh config entries this session was opened with.
+        self.config = dict(config or {})
         self.timeout = float(timeout)
         self.protocol_version = int(protocol_version)
         self.client_id = client_id or make_client_id()
@@ -310,7 +334,7 @@ class Transport(Closing):
 
     def request(self, key: str, payload: bytes, timeout: float | None = None) -> Any:
         """A query whose reply envelope is decoded (``ok`` value, or the typed ServerError)."""
-        return codec.decode_reply(self.query(key, payload, timeout))
+        return decode_result(self.query(key, payload, timeout))
 
     # ----------------------------------------------------------------------------------------
     # Discovery
@@ -323,7 +347,7 @@ class Transport(Closing):
         """
         total = self.timeout if timeout is None else float(timeout)
         deadline = time.monotonic() + total
-        payload = codec.encode_info_request(self.protocol_version)
+        payload = requests.encode_info_request(self.protocol_version)
         while True:
             remaining = max(deadline - time.monotonic(), 0.05)
             handler = self.session.get(
@@ -338,7 +362,7 @@ class Transport(Closing):
                 if reply.ok is None:
                     continue
                 try:
-                    info = codec.decode_reply(reply.ok.payload.to_bytes())
+                    info = decode_result(reply.ok.payload.to_bytes())
                 except SharedspaceError as e:
                     log.warning("sharedspace: bad info reply on %s: %s", reply.ok.key_expr, e)
                     continue
@@ -360,8 +384,8 @@ class Transport(Closing):
         """The least-loaded live server (``load / capacity``) speaking this protocol version
         with room for ``need`` more envs, not in ``exclude``.
 
-        Raises :class:`~sharedspace.errors.NoServer` when none answers within ``timeout`` and
-        :class:`~sharedspace.errors.VersionMismatch` when every server speaks another version.
+        Raises :class:`~sharedspace.wire.errors.NoServer` when none answers within ``timeout`` and
+        :class:`~sharedspace.wire.errors.VersionMismatch` when every server speaks another version.
         """
         excluded = set(exclude)
         total = self.timeout if timeout is None else float(timeout)

@@ -27,48 +27,19 @@ from typing import Any
 
 import numpy as np
 
-from . import codec
-from .client import SimClient
+from .client import Connection, SimClient, env_options
 from .closing import Closing
-from .decode import _OBS_KEYS, REWARD_TERMS, decode_batch_result
-from .errors import EnvClosed, SharedspaceError, WrongShape
-from .transport import (
-    ServerLost,
-)
+from .names import REWARD_TERMS
+from .transport import ServerLost
+from .wire import requests
+from .wire.envelope import encode, f32_array_head
+from .wire.errors import EnvClosed, SharedspaceError, WrongShape
+from .wire.replies import OBS_KEYS, decode_batch_result
+from .wire.requests import EnvSpec
 
-__all__ = ["VectorClient", "adapter_params"]
+__all__ = ["VectorClient"]
 
 log = logging.getLogger("sharedspace")
-
-#: The env adapters' constructor arguments that reach ``VectorClient`` unchanged: the
-#: connection settings (ignored there when a client is shared) and ``CreateEnv`` fields.
-_PASSED_THROUGH = (
-    "endpoint",
-    "prefix",
-    "timeout",
-    "split",
-    "pedestrian_model",
-    "pedestrian_params",
-    "reward_weights",
-    "synthetic",
-    "variations",
-    "vehicle_model",
-)
-
-
-def adapter_params(args: Mapping[str, Any], **fields: Any) -> dict[str, Any]:
-    """The ``VectorClient`` keyword arguments of an env adapter (PettingZoo, TorchRL) made from
-    its constructor's arguments ``args``: those it passes through as given, ``seed``,
-    ``external_agents`` and ``max_agents`` normalised, then ``fields``, what the adapter
-    decides itself (``pool``, ``scenario``, ``autoreset``)."""
-    params = {key: args[key] for key in _PASSED_THROUGH}
-    params.update(
-        seed=int(args["seed"]),
-        external_agents=list(args["external_agents"]),
-        max_agents=int(args["max_agents"]),
-    )
-    params.update(fields)
-    return params
 
 
 def _stack_reset_obs(results: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
@@ -79,50 +50,38 @@ def _stack_reset_obs(results: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarr
 
 
 class VectorClient(Closing):
-    """K envs created by one ``CreateEnv``, stepped with one ``BatchStep`` per step.
+    """K envs of one :class:`~sharedspace.wire.EnvSpec`, created by one ``CreateEnv`` and
+    stepped with one ``BatchStep`` per step.
 
     Args:
         num_envs: K.
-        client: the :class:`SimClient` to use (default: a new one from ``endpoint`` etc.).
+        spec: the envs (default: the server's defaults); ``**options`` naming ``EnvSpec``
+            fields are applied over it.
+        client: a :class:`SimClient` to share, or the :class:`~sharedspace.client.Connection`
+            to open (default: ``Connection`` fields of ``**options``).
         failover: on :class:`ServerLost`, re-create the envs on a surviving server inside
             ``step``/``reset`` (see the module docstring) instead of raising.
         step_timeout: timeout of a ``BatchStep`` (default: the client's timeout).
-        **params: ``CreateEnv`` fields (``seed``, ``split``, ``pool``, ``pedestrian_model``,
-            ``external_agents``, ``max_agents``, ``autoreset``, ``scenario``, ...) and, when
-            ``client`` is None, the :class:`SimClient` arguments ``endpoint``, ``prefix``,
-            ``timeout``, ``mode``, ``listen``, ``multicast``, ``server_id``.
     """
-
-    _CLIENT_KEYS = (
-        "endpoint",
-        "prefix",
-        "timeout",
-        "mode",
-        "listen",
-        "multicast",
-        "client_id",
-        "config",
-        "server_id",
-        "discover_timeout",
-    )
 
     def __init__(
         self,
         num_envs: int,
+        spec: EnvSpec | None = None,
         *,
-        client: SimClient | None = None,
+        client: SimClient | Connection | None = None,
         failover: bool = False,
         step_timeout: float | None = None,
-        **params: Any,
+        **options: Any,
     ):
         if num_envs < 1:
             raise ValueError("num_envs must be at least 1")
-        client_kwargs = {k: params.pop(k) for k in self._CLIENT_KEYS if k in params}
-        self._own_client = client is None
-        self.client = client or SimClient(**client_kwargs)
+        spec, where, wants_failover = env_options(options, spec, client)
+        self._own_client = not isinstance(where, SimClient)
+        self.client = where if isinstance(where, SimClient) else where.open()
         self.num_envs = int(num_envs)
-        self.params = params
-        self.failover = bool(failover)
+        self.spec = spec
+        self.failover = bool(failover or wants_failover)
         self.step_timeout = step_timeout
         #: Number of failovers so far (re-creations after a lost server).
         self.failovers = 0
@@ -144,7 +103,7 @@ class VectorClient(Closing):
         sid = None
         if exclude:
             sid = str(self.client.pick_server(exclude=exclude, need=self.num_envs)["server_id"])
-        self.created = self.client.create(self.num_envs, server_id=sid, **self.params)
+        self.created = self.client.create(self.num_envs, self.spec, server_id=sid)
         self.env_ids = list(self.created["env_ids"])
         self.server_id = self.created["server_id"]
         self.n_ext = len(self.created["external_agents"])
@@ -155,10 +114,10 @@ class VectorClient(Closing):
         # everything but the action data is encoded once (a K = 256 request took 92 us to pack
         # whole, mostly the 256 strings; packing the actions array alone ~80 us right after
         # the blocking receive of the previous reply).
-        self._batch_head = codec.batch_step_head(self.env_ids) + codec.f32_array_head(
+        self._batch_head = requests.batch_step_head(self.env_ids) + f32_array_head(
             (self.num_envs, self.n_ext, 2)
         )
-        known = (codec.encode(list(self.env_ids)), list(self.env_ids))
+        known = (encode(list(self.env_ids)), list(self.env_ids))
         self._decode_batch = lambda payload: decode_batch_result(payload, known)
         self._pending_step: dict[str, Any] | None = None
         self.n_features = int(self.created["observation"]["n_features"])
@@ -251,7 +210,7 @@ class VectorClient(Closing):
             )
         payload = self._batch_head + np.ascontiguousarray(arr, dtype="<f4").tobytes()
         try:
-            res = self.client._request(
+            res = self.client.request(
                 self.server_id,
                 self._batch_key,
                 payload,
@@ -272,10 +231,10 @@ class VectorClient(Closing):
         episode's first), as writable ``[K, n_ext, ...]`` arrays; None before any reset."""
         res, self._pending_step = self._pending_step, None
         if res is not None:
-            obs = {k: np.array(res["obs"][k]) for k in _OBS_KEYS}
+            obs = {k: np.array(res["obs"][k]) for k in OBS_KEYS}
             resets = res["resets"]
             if len(resets["index"]):
-                for key in _OBS_KEYS:
+                for key in OBS_KEYS:
                     obs[key][resets["index"]] = resets["obs"][key]
             self._last_obs = obs
         return self._last_obs

@@ -7,12 +7,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 use serde_json::{json, Map, Value};
-use sim_core::params::VehicleModel;
-use sim_core::variation::VariationSpec;
 
 use super::core::Limits;
+use super::pools::PoolEntry;
 
 /// Default zenoh listen endpoint of a peer or router server.
 pub const DEFAULT_LISTEN: &str = "tcp/127.0.0.1:7447";
@@ -106,92 +105,6 @@ impl Default for ServerConfig {
             malloc_arenas: 2,
             zenoh: Value::Object(Map::new()),
         }
-    }
-}
-
-/// One entry of `pools`: a path, or a path with the pool's default scene variations and vehicle
-/// model.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(untagged)]
-pub enum PoolEntry {
-    Path(PathBuf),
-    WithVariations {
-        path: PathBuf,
-        #[serde(default)]
-        variations: Option<VariationSpec>,
-        /// How the pool's vehicles nobody controls move (`replay` | `idm`); absent: as the pool
-        /// file says.
-        #[serde(default)]
-        vehicle_model: Option<VehicleModel>,
-    },
-}
-
-/// The map form of a [`PoolEntry`], read field by field so that a bad field is named (an
-/// untagged enum would only say that no variant matched).
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct PoolEntryFields {
-    path: PathBuf,
-    #[serde(default)]
-    variations: Option<VariationSpec>,
-    #[serde(default)]
-    vehicle_model: Option<VehicleModel>,
-}
-
-impl<'de> Deserialize<'de> for PoolEntry {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct Entry;
-        impl<'de> serde::de::Visitor<'de> for Entry {
-            type Value = PoolEntry;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("a pool path, or {path, variations, vehicle_model}")
-            }
-            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<PoolEntry, E> {
-                Ok(PoolEntry::Path(PathBuf::from(s)))
-            }
-            fn visit_map<A: serde::de::MapAccess<'de>>(
-                self,
-                map: A,
-            ) -> Result<PoolEntry, A::Error> {
-                let f = PoolEntryFields::deserialize(
-                    serde::de::value::MapAccessDeserializer::new(map),
-                )?;
-                Ok(PoolEntry::WithVariations {
-                    path: f.path,
-                    variations: f.variations,
-                    vehicle_model: f.vehicle_model,
-                })
-            }
-        }
-        d.deserialize_any(Entry)
-    }
-}
-
-impl PoolEntry {
-    pub fn path(&self) -> &PathBuf {
-        match self {
-            PoolEntry::Path(p) | PoolEntry::WithVariations { path: p, .. } => p,
-        }
-    }
-
-    pub fn vehicle_model(&self) -> Option<VehicleModel> {
-        match self {
-            PoolEntry::Path(_) => None,
-            PoolEntry::WithVariations { vehicle_model, .. } => *vehicle_model,
-        }
-    }
-
-    pub fn variations(&self) -> Option<&VariationSpec> {
-        match self {
-            PoolEntry::Path(_) => None,
-            PoolEntry::WithVariations { variations, .. } => variations.as_ref(),
-        }
-    }
-}
-
-impl From<PathBuf> for PoolEntry {
-    fn from(p: PathBuf) -> Self {
-        PoolEntry::Path(p)
     }
 }
 

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use protocol::{EnvTopic, ErrorCode, ErrorReply, KeySpace};
+use protocol::{ErrorCode, ErrorReply, KeySpace};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use zenoh::bytes::Encoding;
@@ -20,7 +20,7 @@ use super::config::{ConfigError, ServerConfig};
 use super::core::{reply_bytes, Response, ServerCore};
 use super::env::{Gates, Publication, Watch};
 use super::pools::load_pools;
-use super::watch::{sync_env_watch, EnvWatch, NetWatch};
+use super::watch::{sync_env_watch, EnvWatch, NetWatch, TOPICS};
 
 /// Why the server could not start.
 #[derive(Debug, thiserror::Error)]
@@ -43,14 +43,6 @@ fn zerr(e: impl std::fmt::Display) -> ServerError {
 pub fn msgpack() -> Encoding {
     Encoding::from("application/msgpack")
 }
-
-pub(super) const TOPICS: [EnvTopic; 5] = [
-    EnvTopic::States,
-    EnvTopic::Uncertainty,
-    EnvTopic::RiskGraph,
-    EnvTopic::Events,
-    EnvTopic::Result,
-];
 
 #[derive(Debug, Clone, Copy)]
 enum Kind {
@@ -250,6 +242,205 @@ impl Ctx {
 /// the work itself. Everything else (create, reset, close, batches of up to `max_batch` envs)
 /// runs as a task, so that the network threads keep moving other trainers' traffic. Once the
 /// server stops, queries are no longer answered (they time out at the client).
+/// The pure core of a server: its pools and world parameters loaded from the configuration.
+fn build_core(
+    cfg: &ServerConfig,
+    server_id: &str,
+    keys: &KeySpace,
+) -> Result<ServerCore, ServerError> {
+    let params = crate::params_file::ParamsDoc::from_arg(cfg.params.as_deref())
+        .and_then(|doc| crate::params_file::ModelParams::from_doc(&doc))
+        .map_err(|e| ServerError::Params(e.to_string()))?;
+    let pools = load_pools(&cfg.pools, params.base()).map_err(ServerError::Pool)?;
+    let mut core = ServerCore::new(
+        server_id.to_string(),
+        keys.clone(),
+        cfg.limits(),
+        pools,
+        params,
+    );
+    core.set_batch_threads(cfg.batch_threads());
+    Ok(core)
+}
+
+/// Publication gates: one wildcard publisher per topic of [`TOPICS`], whose zenoh matching
+/// status is kept in that topic's flag.
+async fn declare_gates(
+    session: &Session,
+    keys: &KeySpace,
+) -> Result<(Vec<Publisher<'static>>, [Arc<AtomicBool>; 5]), ServerError> {
+    let mut publishers = Vec::new();
+    let gates: [Arc<AtomicBool>; 5] = std::array::from_fn(|_| Arc::new(AtomicBool::new(false)));
+    for (topic, flag) in TOPICS.iter().zip(&gates) {
+        let publisher = session
+            .declare_publisher(keys.env_topic_all(*topic))
+            .await
+            .map_err(zerr)?;
+        let f = flag.clone();
+        publisher
+            .matching_listener()
+            .callback(move |s| f.store(s.matching(), Ordering::Relaxed))
+            .background()
+            .await
+            .map_err(zerr)?;
+        if publisher.matching_status().await.map_err(zerr)?.matching() {
+            flag.store(true, Ordering::Relaxed);
+        }
+        publishers.push(publisher);
+    }
+    Ok((publishers, gates))
+}
+
+/// One queryable per request kind (SPEC section 3), each answered by [`serve_query`].
+async fn declare_queryables(
+    ctx: &Arc<Ctx>,
+    server_id: &str,
+) -> Result<Vec<Queryable<()>>, ServerError> {
+    let keys = &ctx.keys;
+    let queryables = [
+        (keys.server_info(server_id), Kind::Info),
+        (keys.env_create(server_id), Kind::Create),
+        (
+            keys.env_op_wildcard(server_id, protocol::EnvOp::Reset),
+            Kind::EnvOp,
+        ),
+        (
+            keys.env_op_wildcard(server_id, protocol::EnvOp::Step),
+            Kind::EnvOp,
+        ),
+        (
+            keys.env_op_wildcard(server_id, protocol::EnvOp::Close),
+            Kind::EnvOp,
+        ),
+        (keys.batch_step(server_id), Kind::Batch),
+    ];
+    let rt = tokio::runtime::Handle::current();
+    let mut served = Vec::with_capacity(queryables.len());
+    for (key, kind) in queryables {
+        let key = key.map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        let (served_ctx, rt) = (ctx.clone(), rt.clone());
+        let q = ctx
+            .session
+            .declare_queryable(key)
+            .complete(true)
+            .callback(move |query| serve_query(&served_ctx, &rt, kind, query))
+            .await
+            .map_err(zerr)?;
+        served.push(q);
+    }
+    Ok(served)
+}
+
+/// Realtime actions: `{p}/env/*/action/*`, handed to the core as they arrive.
+async fn declare_action_subscriber(
+    session: &Session,
+    core: &Arc<ServerCore>,
+    keys: &KeySpace,
+) -> Result<Subscriber<()>, ServerError> {
+    let (core, keys_a) = (core.clone(), keys.clone());
+    session
+        .declare_subscriber(format!("{}/env/*/action/*", keys.prefix()))
+        .callback(move |sample| {
+            let key = sample.key_expr().as_str();
+            let Some((env_id, agent)) = keys_a.parse_env_action(key) else {
+                return;
+            };
+            let bytes = sample.payload().to_bytes();
+            if let Err(e) = core.handle_action(env_id, agent, &bytes) {
+                tracing::debug!(key, error = %e, "action dropped");
+            }
+        })
+        .await
+        .map_err(zerr)
+}
+
+/// The trainers' liveliness tokens, with history: a trainer that appears is alive, one that
+/// disappears has its envs reaped (or kept for `reconnect_grace_s`).
+async fn watch_trainers(
+    session: &Session,
+    core: &Arc<ServerCore>,
+    keys: &KeySpace,
+    mut stop: watch::Receiver<bool>,
+) -> Result<JoinHandle<()>, ServerError> {
+    let trainers = session
+        .liveliness()
+        .declare_subscriber(keys.trainer_all())
+        .history(true)
+        .await
+        .map_err(zerr)?;
+    let (core, keys) = (core.clone(), keys.clone());
+    Ok(tokio::spawn(async move {
+        loop {
+            tokio::select! {
+                s = trainers.recv_async() => {
+                    let Ok(sample) = s else { break };
+                    let Some(client) = keys.parse_trainer(sample.key_expr().as_str()) else {
+                        continue;
+                    };
+                    match sample.kind() {
+                        SampleKind::Put => {
+                            tracing::debug!(client, "trainer alive");
+                            core.trainer_alive(client);
+                        }
+                        SampleKind::Delete => {
+                            let reaped = core.trainer_lost(client, Instant::now());
+                            tracing::info!(client, envs = reaped.len(), "trainer gone, envs reaped (or kept for reconnect_grace_s)");
+                        }
+                    }
+                }
+                _ = stop.changed() => break,
+            }
+        }
+    }))
+}
+
+/// Gives the allocator's free memory back to the system every `period`.
+fn spawn_memory_trim(period: Duration, mut stop: watch::Receiver<bool>) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {
+                    // Walks every arena under its lock: milliseconds, off the runtime.
+                    let _ = tokio::task::spawn_blocking(super::core::trim_allocator).await;
+                }
+                _ = stop.changed() => break,
+            }
+        }
+    })
+}
+
+/// Reaps, every 250 ms, the envs of clients without a liveliness token (`trainer_grace_s`).
+fn spawn_sweep(core: Arc<ServerCore>, mut stop: watch::Receiver<bool>) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(250));
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {
+                    let reaped = core.sweep(Instant::now());
+                    if !reaped.is_empty() {
+                        tracing::info!(envs = reaped.len(), "reaped envs of trainers without liveliness token");
+                    }
+                }
+                _ = stop.changed() => break,
+            }
+        }
+    })
+}
+
+/// The server's liveliness token `{p}/server/{id}/alive`: what clients find it by.
+async fn declare_alive_token(
+    session: &Session,
+    keys: &KeySpace,
+    server_id: &str,
+) -> Result<LivelinessToken, ServerError> {
+    let key = keys
+        .server_alive(server_id)
+        .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+    session.liveliness().declare_token(key).await.map_err(zerr)
+}
+
 fn serve_query(ctx: &Arc<Ctx>, rt: &tokio::runtime::Handle, kind: Kind, query: Query) {
     if *ctx.stop.borrow() {
         return;
@@ -281,42 +472,15 @@ pub struct Server {
 impl Server {
     /// Opens the zenoh session and declares everything. Returns once the server serves.
     pub async fn start(cfg: ServerConfig) -> Result<Self, ServerError> {
-        let params = crate::params_file::ParamsDoc::from_arg(cfg.params.as_deref())
-            .and_then(|doc| crate::params_file::ModelParams::from_doc(&doc))
-            .map_err(|e| ServerError::Params(e.to_string()))?;
-        let pools = load_pools(&cfg.pools, params.base()).map_err(ServerError::Pool)?;
         let keys =
             KeySpace::new(cfg.prefix.clone()).map_err(|e| ConfigError::Invalid(e.to_string()))?;
         let server_id = cfg.server_id_or_random();
+        let core = Arc::new(build_core(&cfg, &server_id, &keys)?);
         let zcfg = zenoh::Config::from_json5(&cfg.zenoh_json()).map_err(zerr)?;
         let session = zenoh::open(zcfg).await.map_err(zerr)?;
-        let mut core =
-            ServerCore::new(server_id.clone(), keys.clone(), cfg.limits(), pools, params);
-        core.set_batch_threads(cfg.batch_threads());
-        let core = Arc::new(core);
         let (stop_tx, stop_rx) = watch::channel(false);
 
-        // Publication gates: one wildcard publisher per topic, its matching status kept in a flag.
-        let mut gate_publishers = Vec::new();
-        let gates: [Arc<AtomicBool>; 5] = std::array::from_fn(|_| Arc::new(AtomicBool::new(false)));
-        for (topic, flag) in TOPICS.iter().zip(&gates) {
-            let publisher = session
-                .declare_publisher(keys.env_topic_all(*topic))
-                .await
-                .map_err(zerr)?;
-            let f = flag.clone();
-            publisher
-                .matching_listener()
-                .callback(move |s| f.store(s.matching(), Ordering::Relaxed))
-                .background()
-                .await
-                .map_err(zerr)?;
-            if publisher.matching_status().await.map_err(zerr)?.matching() {
-                flag.store(true, Ordering::Relaxed);
-            }
-            gate_publishers.push(publisher);
-        }
-
+        let (gate_publishers, gates) = declare_gates(&session, &keys).await?;
         let env_watch = Arc::new(EnvWatch::default());
         let ctx = Arc::new(Ctx {
             core: core.clone(),
@@ -327,145 +491,24 @@ impl Server {
             stop: stop_rx.clone(),
             inline_steps: core.max_scene_agents() <= INLINE_STEP_MAX_AGENTS,
         });
-        let mut tasks = Vec::new();
-        let sid = server_id.as_str();
-        let queryables = [
-            (keys.server_info(sid), Kind::Info),
-            (keys.env_create(sid), Kind::Create),
-            (
-                keys.env_op_wildcard(sid, protocol::EnvOp::Reset),
-                Kind::EnvOp,
-            ),
-            (
-                keys.env_op_wildcard(sid, protocol::EnvOp::Step),
-                Kind::EnvOp,
-            ),
-            (
-                keys.env_op_wildcard(sid, protocol::EnvOp::Close),
-                Kind::EnvOp,
-            ),
-            (keys.batch_step(sid), Kind::Batch),
-        ];
-        let rt = tokio::runtime::Handle::current();
-        let mut served = Vec::with_capacity(queryables.len());
-        for (key, kind) in queryables {
-            let key = key.map_err(|e| ConfigError::Invalid(e.to_string()))?;
-            let (ctx, rt) = (ctx.clone(), rt.clone());
-            let q = session
-                .declare_queryable(key)
-                .complete(true)
-                .callback(move |query| serve_query(&ctx, &rt, kind, query))
-                .await
-                .map_err(zerr)?;
-            served.push(q);
-        }
-
-        // Realtime actions.
-        let core_a = core.clone();
-        let keys_a = keys.clone();
-        let actions = session
-            .declare_subscriber(format!("{}/env/*/action/*", keys.prefix()))
-            .callback(move |sample| {
-                let key = sample.key_expr().as_str();
-                let Some((env_id, agent)) = keys_a.parse_env_action(key) else {
-                    return;
-                };
-                let bytes = sample.payload().to_bytes();
-                if let Err(e) = core_a.handle_action(env_id, agent, &bytes) {
-                    tracing::debug!(key, error = %e, "action dropped");
-                }
-            })
-            .await
-            .map_err(zerr)?;
-
-        tasks.push(tokio::spawn(sync_env_watch(
+        let queryables = declare_queryables(&ctx, &server_id).await?;
+        let actions = declare_action_subscriber(&session, &core, &keys).await?;
+        let mut tasks = vec![tokio::spawn(sync_env_watch(
             session.clone(),
             core.clone(),
             keys.clone(),
             gates,
             env_watch,
             stop_rx.clone(),
-        )));
-
-        // Trainers' liveliness and reaping.
-        let trainers = session
-            .liveliness()
-            .declare_subscriber(keys.trainer_all())
-            .history(true)
-            .await
-            .map_err(zerr)?;
-        {
-            let core = core.clone();
-            let keys = keys.clone();
-            let mut stop = stop_rx.clone();
-            tasks.push(tokio::spawn(async move {
-                loop {
-                    tokio::select! {
-                        s = trainers.recv_async() => {
-                            let Ok(sample) = s else { break };
-                            let Some(client) = keys.parse_trainer(sample.key_expr().as_str()) else {
-                                continue;
-                            };
-                            match sample.kind() {
-                                SampleKind::Put => {
-                                    tracing::debug!(client, "trainer alive");
-                                    core.trainer_alive(client);
-                                }
-                                SampleKind::Delete => {
-                                    let reaped = core.trainer_lost(client, Instant::now());
-                                    tracing::info!(client, envs = reaped.len(), "trainer gone, envs reaped (or kept for reconnect_grace_s)");
-                                }
-                            }
-                        }
-                        _ = stop.changed() => break,
-                    }
-                }
-            }));
-        }
+        ))];
+        tasks.push(watch_trainers(&session, &core, &keys, stop_rx.clone()).await?);
         if cfg.memory_trim_s > 0.0 {
-            let mut stop = stop_rx.clone();
             let period = Duration::from_secs_f64(cfg.memory_trim_s);
-            tasks.push(tokio::spawn(async move {
-                let mut tick = tokio::time::interval(period);
-                tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-                loop {
-                    tokio::select! {
-                        _ = tick.tick() => {
-                            // Walks every arena under its lock: milliseconds, off the runtime.
-                            let _ = tokio::task::spawn_blocking(super::core::trim_allocator).await;
-                        }
-                        _ = stop.changed() => break,
-                    }
-                }
-            }));
+            tasks.push(spawn_memory_trim(period, stop_rx.clone()));
         }
-        {
-            let core = core.clone();
-            let mut stop = stop_rx.clone();
-            tasks.push(tokio::spawn(async move {
-                let mut tick = tokio::time::interval(Duration::from_millis(250));
-                loop {
-                    tokio::select! {
-                        _ = tick.tick() => {
-                            let reaped = core.sweep(Instant::now());
-                            if !reaped.is_empty() {
-                                tracing::info!(envs = reaped.len(), "reaped envs of trainers without liveliness token");
-                            }
-                        }
-                        _ = stop.changed() => break,
-                    }
-                }
-            }));
-        }
-
-        let token = session
-            .liveliness()
-            .declare_token(
-                keys.server_alive(sid)
-                    .map_err(|e| ConfigError::Invalid(e.to_string()))?,
-            )
-            .await
-            .map_err(zerr)?;
+        tasks.push(spawn_sweep(core.clone(), stop_rx));
+        // Last: clients find the server by this token, once it answers everything.
+        let token = declare_alive_token(&session, &keys, &server_id).await?;
         tracing::info!(
             server_id = %server_id,
             prefix = keys.prefix(),
@@ -478,7 +521,7 @@ impl Server {
             stop_tx,
             tasks,
             token: Some(token),
-            queryables: served,
+            queryables,
             _gate_publishers: gate_publishers,
             _actions: Some(actions),
         })

@@ -6,14 +6,22 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard};
 use std::time::Duration;
 
-use protocol::KeySpace;
+use protocol::{EnvTopic, KeySpace};
 use tokio::sync::watch;
 use zenoh::pubsub::Publisher;
 use zenoh::Session;
 
 use super::core::ServerCore;
 use super::env::{Gates, Watch};
-use super::net::TOPICS;
+
+/// The topics the server publishes per env, in the order of its gates and flags.
+pub(super) const TOPICS: [EnvTopic; 5] = [
+    EnvTopic::States,
+    EnvTopic::Uncertainty,
+    EnvTopic::RiskGraph,
+    EnvTopic::Events,
+    EnvTopic::Result,
+];
 
 /// Per-env publication flags. The topic gates say whether anybody subscribes to a topic of
 /// *some* env; a viewer or an observer usually follows one env while a trainer steps hundreds,

@@ -10,12 +10,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sharedspace.models import DEFAULT_MODEL, VEHICLE_MODELS
+from sharedspace.client import Connection
+from sharedspace.models import DEFAULT_MODEL
+from sharedspace.wire import EnvSpec
 
 __all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
 
 #: Network variants (paper Section V.B): G-SAC-Cog, G-SAC-NoCog, S-SAC.
 VARIANTS = ("g_sac_cog", "g_sac_nocog", "s_sac")
+#: Fields of older configs, ignored when one is loaded (``env_backend``: the Rust server is
+#: the only backend).
+RETIRED_FIELDS = ("env_backend",)
 
 
 @dataclass
@@ -31,7 +36,6 @@ class TrainConfig:
     device: str = "cpu"  # torch device of the networks and the updates ("cpu", "cuda")
     num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
     # --- env
-    env_backend: str = "remote"  # the Rust server over Zenoh (the only one; kept for old configs)
     num_envs: int = 8  # K, sub-envs stepped together (env batch size)
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
     pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
@@ -72,23 +76,39 @@ class TrainConfig:
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {VARIANTS}, not {self.variant!r}")
-        if self.env_backend == "local":
-            raise ValueError(
-                "env_backend=local was removed: the numpy world is a test oracle now "
-                "(clients/tests/reference.py); leave server_endpoint empty and the trainer "
-                "starts a local sim-server"
-            )
-        if self.env_backend != "remote":
-            raise ValueError(f"env_backend must be remote, not {self.env_backend!r}")
-        if not isinstance(self.variations, dict):
-            raise ValueError(f"variations must be a mapping, not {self.variations!r}")
-        if self.vehicle_model not in ("", *VEHICLE_MODELS):
-            raise ValueError(
-                f"vehicle_model must be one of {VEHICLE_MODELS} or empty (the pool's), "
-                f"not {self.vehicle_model!r}"
-            )
+        self.env_spec("train", self.seed, self.variations)  # names a wrong env field now
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
+
+    def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
+        """The envs this config trains or evaluates on: ``split``, ``seed`` and scene
+        ``variations`` (the training env's are ``variations``; evaluation plays the scenes)."""
+        return EnvSpec(
+            pool=self.scenario_pool or None,
+            split=split,
+            seed=seed,
+            pedestrian_model=self.pedestrian_model,
+            max_agents=self.max_agents,
+            variations=variations or None,
+            vehicle_model=self.vehicle_model or None,
+        )
+
+    def connection(self) -> Connection:
+        """Where the envs live (:meth:`sharedspace.client.Connection.resolve`): the zenoh file,
+        else the endpoint, else a local ``sim-server`` of this config's pool and parameters."""
+        return Connection.resolve(
+            self.server_endpoint,
+            self.server_prefix,
+            self.zenoh_config,
+            [self.scenario_pool] if self.scenario_pool else [],
+            self.server_params or None,
+        )
+
+    @classmethod
+    def from_dict(cls, fields: dict[str, Any]) -> TrainConfig:
+        """A config from a saved one (a checkpoint's, ``config.json``), without the fields
+        configs no longer have (:data:`RETIRED_FIELDS`)."""
+        return cls(**{k: v for k, v in fields.items() if k not in RETIRED_FIELDS})
 
     @property
     def batch_frames(self) -> int:
@@ -129,10 +149,12 @@ def apply_overrides(cfg: TrainConfig, overrides: list[str] | dict[str, Any]) -> 
     )
     for key, value in items:
         key = key.strip()
+        if key in RETIRED_FIELDS:
+            continue
         if key not in data:
             raise KeyError(f"unknown config key {key!r}")
         data[key] = _parse_value(value, data[key]) if isinstance(value, str) else value
-    return TrainConfig(**data)
+    return TrainConfig.from_dict(data)
 
 
 def command_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import torch
 from tensordict.nn import InteractionType, NormalParamExtractor, TensorDictModule
-from torch import nn, optim
+from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.modules.distributions import TanhNormal
-from torchrl.objectives import SoftUpdate
-from torchrl.objectives.sac import SACLoss
 
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.gcn import ActorNet, GraphEncoder, QNet
@@ -26,8 +23,6 @@ __all__ = [
     "make_env",
     "make_actor",
     "make_critic",
-    "make_loss",
-    "make_optimizers",
     "make_update",
     "make_replay_buffer",
     "make_collector",
@@ -46,63 +41,19 @@ def make_env(
     variations: dict[str, Any] | None = None,
     variation_seeds: Sequence[int] | None = None,
 ) -> EnvBase:
-    """The batched env (ENV_CONTRACT.md) on the Rust server: the one at ``cfg.server_endpoint``
-    or reached through ``cfg.zenoh_config``, else a ``sim-server`` this process starts on a free
-    loopback port (:func:`sharedspace.local_server.shared_server`). ``variations`` (and fixed
-    ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1; the trainer passes
-    ``cfg.variations`` for its training env only."""
+    """The batched env (ENV_CONTRACT.md) of ``cfg.env_spec`` on the Rust server of
+    ``cfg.connection()`` (an endpoint, a zenoh file, or a ``sim-server`` this process starts).
+    ``variations`` (and fixed ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1;
+    the trainer passes ``cfg.variations`` for its training env only."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
-    kwargs = dict(
-        num_envs=num_envs or cfg.num_envs,
-        max_agents=cfg.max_agents,
-        split=split,
-        seed=cfg.seed if seed is None else seed,
+    return RemoteBatchedEnv(
+        cfg.env_spec(split, cfg.seed if seed is None else seed, variations),
+        num_envs or cfg.num_envs,
         scenario_order=scenario_order,
-        pedestrian_model=cfg.pedestrian_model,
-        variations=variations or None,
         variation_seeds=variation_seeds,
-        vehicle_model=cfg.vehicle_model or None,
+        client=cfg.connection(),
     )
-    if cfg.scenario_pool:
-        kwargs["pool"] = cfg.scenario_pool
-    if cfg.zenoh_config:
-        from sharedspace.client import SimClient
-
-        settings = zenoh_file_settings(cfg.zenoh_config)
-        client = SimClient(
-            endpoint=None,
-            prefix=cfg.server_prefix,
-            mode=settings.pop("mode", "client"),
-            config=settings,
-        )
-        return RemoteBatchedEnv(prefix=cfg.server_prefix, client=client, **kwargs)
-    if cfg.server_endpoint:
-        return RemoteBatchedEnv(endpoint=cfg.server_endpoint, prefix=cfg.server_prefix, **kwargs)
-    from sharedspace.local_server import shared_server
-
-    server = shared_server(
-        [cfg.scenario_pool] if cfg.scenario_pool else [], cfg.server_params or None
-    )
-    return RemoteBatchedEnv(endpoint=server.endpoint, prefix=server.prefix, **kwargs)
-
-
-def zenoh_file_settings(path: str) -> dict[str, Any]:
-    """A zenoh JSON5 configuration file (such as deploy/trainer.json5) as the flat
-    ``{"path/to/key": value}`` entries :class:`sharedspace.transport.Transport` takes."""
-    import json5
-
-    flat: dict[str, Any] = {}
-
-    def walk(prefix: str, value: Any) -> None:
-        if isinstance(value, dict) and value:
-            for key, inner in value.items():
-                walk(f"{prefix}/{key}" if prefix else key, inner)
-        else:
-            flat[prefix] = value
-
-    walk("", json5.loads(Path(path).read_text()))
-    return flat
 
 
 def _encoder(cfg: TrainConfig) -> GraphEncoder:
@@ -144,30 +95,6 @@ def make_critic(cfg: TrainConfig, action_spec) -> ValueOperator:
     """``Q(s, a)``: its own graph encoder + MLP; SACLoss makes the two critics and targets."""
     net = QNet(_encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1])
     return ValueOperator(net, in_keys=[*OBS_KEYS, "action"]).to(cfg.device)
-
-
-def make_loss(cfg: TrainConfig, actor, critic) -> tuple[SACLoss, SoftUpdate]:
-    """SAC loss (two critics, learned temperature, target entropy -|A|) and soft target update."""
-    loss = SACLoss(
-        actor_network=actor,
-        qvalue_network=critic,
-        num_qvalue_nets=2,
-        loss_function=cfg.loss_function,
-        alpha_init=cfg.alpha_init,
-        delay_actor=False,
-        delay_qvalue=True,
-    )
-    loss.make_value_estimator(gamma=cfg.gamma)
-    return loss, SoftUpdate(loss, tau=cfg.tau)
-
-
-def make_optimizers(cfg: TrainConfig, loss: SACLoss) -> dict[str, optim.Optimizer]:
-    """Adam for the actor, the critics and ``log_alpha``."""
-    return {
-        "actor": optim.Adam(list(loss.actor_network_params.flatten_keys().values()), lr=cfg.lr),
-        "critic": optim.Adam(list(loss.qvalue_network_params.flatten_keys().values()), lr=cfg.lr),
-        "alpha": optim.Adam([loss.log_alpha], lr=cfg.lr),
-    }
 
 
 def make_update(cfg: TrainConfig, actor, action_spec, num_critics: int = 2) -> SACUpdate:

@@ -31,7 +31,7 @@ from sharedspace.train.config import (
     command_parser,
     load_config,
 )
-from sharedspace.train.evaluate import evaluate_policy
+from sharedspace.train.evaluation import evaluate_split
 from sharedspace.train.sac import (
     make_actor,
     make_collector,
@@ -252,7 +252,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         # ---- evaluate, checkpoint
         if cfg.eval_interval and counters["frames"] >= next_eval:
             next_eval = _next_multiple(counters["frames"], cfg.eval_interval)
-            last_eval = evaluate_policy(cfg, actor, cfg.eval_split)["summary"]
+            last_eval = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
             logger.log({f"eval/{k}": v for k, v in last_eval.items()}, counters["frames"])
         if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
             next_ckpt = _next_multiple(counters["frames"], cfg.checkpoint_interval)
@@ -289,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--resume", default=None, help="checkpoint to continue from")
     args = ap.parse_args(argv)
     if args.resume:  # the checkpoint's config, then the file and the overrides over it
-        cfg = TrainConfig(**torch.load(args.resume, weights_only=False)["config"])
+        cfg = TrainConfig.from_dict(torch.load(args.resume, weights_only=False)["config"])
         if args.config:
             cfg = apply_overrides(cfg, _read_table(args.config))
         cfg = apply_overrides(cfg, args.set)

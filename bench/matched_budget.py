@@ -1,7 +1,7 @@
 """Matched-budget comparison: G-SAC-Cog trained on the paper pool vs on paper+general scenes,
 both at the same frame count, on the 18 paper test scenes (3 seeds each).
 
-    python results/table2/runs-paper-plus-general/matched.py ENDPOINT step_160000.pt \
+    .venv/bin/python bench/matched_budget.py ENDPOINT step_160000.pt \
         AUG_RUNS PAPER_RUNS OUT.json
 
 against a server with params/table2.json5 serving embedded:hbs-paper and the paper+general pool
@@ -11,14 +11,15 @@ as PAPER_RUNS' named checkpoint."""
 import json
 import sys
 from pathlib import Path
-import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "clients" / "src"))
-from sharedspace.train.evaluate import load_checkpoint_actor, evaluate_policy
+import numpy as np
+import torch
+
+from sharedspace.paper.evaluate import load_checkpoint_actor, evaluate_policy
 from sharedspace.stats import wilson, sign_test, paired_bootstrap
 
 ep, frames_name, aug_dir, base_dir, out = sys.argv[1:6]
-ov = ["env_backend=remote", f"server_endpoint={ep}"]
+ov = [f"server_endpoint={ep}"]
 res = {}
 for label, pattern in (
     ("paper pool", f"{base_dir}/g_sac_cog-s{{s}}/checkpoints/{frames_name}"),
@@ -28,8 +29,6 @@ for label, pattern in (
     for s in range(3):
         ck = pattern.format(s=s)
         cfg, actor = load_checkpoint_actor(ck, ov)
-        import torch
-
         fr = int(torch.load(ck, weights_only=False)["counters"]["frames"])
         r = evaluate_policy(cfg, actor, "test")
         runs.append(

@@ -1,7 +1,7 @@
 """PNG figures: learning curves, test-episode profiles against the human driver (paper Figs. 6-7),
 and a scene with its risk graph.
 
-    python -m sharedspace.train.plots --run RUN_DIR [--eval-json EVAL.json] [--scene 0 --step 6]
+    python -m sharedspace.paper.plots --run RUN_DIR [--eval-json EVAL.json] [--scene 0 --step 6]
         [--out DIR]
 """
 
@@ -200,7 +200,7 @@ def plot_scene(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = command_parser("python -m sharedspace.train.plots", __doc__)
+    ap = command_parser("python -m sharedspace.paper.plots", __doc__)
     ap.add_argument("--run", default="", help="run directory (its metrics.csv)")
     ap.add_argument("--eval-json", default="", help="JSON written by evaluate --json")
     ap.add_argument("--scene", type=int, default=-1, help="pool index of a scenario to draw")

@@ -16,7 +16,7 @@ success rate is reachable on our scenario extraction at all:
 
 The drivers read only the observation (ENV_CONTRACT.md: ego-frame node features, mask), so
 they run through the same evaluator and env as a learned actor
-(``python -m sharedspace.train.evaluate --driver pursuit``).
+(``python -m sharedspace.paper.evaluate --driver pursuit``).
 """
 
 from __future__ import annotations

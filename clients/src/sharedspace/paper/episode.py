@@ -1,6 +1,6 @@
 """One test episode of a policy as pictures: an animation (GIF, MP4) and the paper-style figure.
 
-    python -m sharedspace.train.episode --checkpoint results/table2/policies/g_sac_cog-s0.pt \\
+    python -m sharedspace.paper.episode --checkpoint results/table2/policies/g_sac_cog-s0.pt \\
         --scenario hbs-car1301 --set server_endpoint=tcp/127.0.0.1:7447 \\
         --gif out/ep.gif [--mp4 out/ep.mp4] [--figure out/ep.png]
 
@@ -8,7 +8,7 @@ The episode is played with the deterministic policy in a PettingZoo env on the s
 world as ``evaluate``: the checkpoint's pedestrian model, ``max_agents`` and the server's
 parameters), recording every step's scene from the server's ``states`` and ``risk_graph``
 publications (:mod:`sharedspace.scene_plot` draws them). ``--driver NAME`` plays a scripted
-driver instead (``sharedspace.train.drivers``).
+driver instead (``sharedspace.paper.drivers``).
 
 The figure follows the paper's Figs. 6-7: four snapshots of the episode (start, two in between,
 end) above the ego's speed, acceleration and heading over time beside the recorded human
@@ -210,10 +210,10 @@ def _human_profile(scenario: str, pool: Any = None) -> tuple[list[float], list[f
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = command_parser("python -m sharedspace.train.episode", __doc__)
+    ap = command_parser("python -m sharedspace.paper.episode", __doc__)
     who = ap.add_mutually_exclusive_group(required=True)
     who.add_argument("--checkpoint", help="checkpoint or shipped policy (.pt)")
-    who.add_argument("--driver", help="a scripted driver (sharedspace.train.drivers)")
+    who.add_argument("--driver", help="a scripted driver (sharedspace.paper.drivers)")
     ap.add_argument("--scenario", required=True, help="scenario name, e.g. hbs-car1301")
     ap.add_argument("--split", default="test", help="the scenario's split")
     ap.add_argument("--gif", default="", help="write the animation here (GIF)")
@@ -221,10 +221,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--figure", default="", help="write the four-snapshot figure here (PNG)")
     add_overrides_argument(ap, "config overrides (server_endpoint=..., server_prefix=...)")
     args = ap.parse_args(argv)
+    from sharedspace.paper.drivers import make_driver
+    from sharedspace.paper.evaluate import load_checkpoint_actor
     from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
     from sharedspace.train.config import TrainConfig, apply_overrides
-    from sharedspace.train.drivers import make_driver
-    from sharedspace.train.evaluate import load_checkpoint_actor
 
     if args.checkpoint:
         cfg, policy = load_checkpoint_actor(args.checkpoint, args.set)
@@ -232,12 +232,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = apply_overrides(TrainConfig(), args.set)
         policy = make_driver(args.driver)
     env = SharedSpaceParallelEnv(
-        cfg.server_endpoint,
-        cfg.server_prefix,
-        max_agents=cfg.max_agents,
-        split=args.split,
-        pedestrian_model=cfg.pedestrian_model,
-        render_mode="rgb_array",
+        cfg.env_spec(args.split, cfg.seed), client=cfg.connection(), render_mode="rgb_array"
     )
     try:
         ep = record_episode(env, policy, args.scenario, seed=cfg.seed)

@@ -1,8 +1,8 @@
 """Training pools beyond the paper's 59 scenes, with the paper's test split kept unseen, and a
 validation pool carved from the training scenes.
 
-    python -m sharedspace.train.pools --general general.json --out paper-plus-general.json
-    python -m sharedspace.train.pools --validation 12 --out paper-validation.json
+    python -m sharedspace.paper.pools --general general.json --out paper-plus-general.json
+    python -m sharedspace.paper.pools --validation 12 --out paper-validation.json
 
 Table II's learners reach 0.99 success on their 59 training scenes and 0.83 on the 18 test
 scenes (docs/RESULTS.md, "Reading Table II"): they overfit. :func:`paper_plus_general` builds a
@@ -57,7 +57,7 @@ def paper_plus_general(
         "provenance": (
             f"{paper['name']} (train and test splits as extracted) plus the {len(extra)} "
             f"scenes of {general['name']} that share no recorded agent with a {paper['name']} "
-            "test scene, all in the train split (sharedspace.train.pools.paper_plus_general)"
+            "test scene, all in the train split (sharedspace.paper.pools.paper_plus_general)"
         ),
         "scenarios": list(paper["scenarios"]) + extra,
     }
@@ -79,7 +79,7 @@ def validation_pool(
         "provenance": (
             f"{paper['name']}'s {len(train)} train scenes, {n} of them (random.Random({seed})"
             ".sample) as the validation split `test`; its test scenes left out "
-            "(sharedspace.train.pools.validation_pool)"
+            "(sharedspace.paper.pools.validation_pool)"
         ),
         "scenarios": scenes,
     }

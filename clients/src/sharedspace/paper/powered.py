@@ -2,13 +2,13 @@
 drivers played on the same seeded variations of every test scene, with Wilson intervals and
 paired, scene-clustered comparisons.
 
-    python -m sharedspace.train.powered --policies results/table2/policies \\
+    python -m sharedspace.paper.powered --policies results/table2/policies \\
         --drivers pursuit_3 pursuit_5 hold stop --variations 32 \\
         --json docs/table2_variations.json --markdown out/powered.md
 
-    python -m sharedspace.train.powered --from-json docs/table2_variations.json --by-m 8,16,32
+    python -m sharedspace.paper.powered --from-json docs/table2_variations.json --by-m 8,16,32
 
-Every policy plays variation ``j`` (seed ``j``, :func:`sharedspace.train.evaluate.play_variations`)
+Every policy plays variation ``j`` (seed ``j``, :func:`sharedspace.paper.evaluate.play_variations`)
 of every test scene, so two policies' outcomes pair up episode by episode. A variant's seeds pool:
 its outcome in an episode is the mean over its seeds. A comparison ``A - B`` is the mean paired
 difference with two 95 % bootstrap intervals (:func:`sharedspace.stats.paired_clustered`): one
@@ -30,19 +30,19 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedspace.paper.drivers import DRIVERS, make_driver
+from sharedspace.paper.evaluate import (
+    BENCHMARK_VARIATIONS,
+    STATUSES,
+    load_checkpoint_actor,
+    play_variations,
+)
 from sharedspace.stats import paired_clustered, wilson
 from sharedspace.train.config import (
     TrainConfig,
     add_overrides_argument,
     apply_overrides,
     command_parser,
-)
-from sharedspace.train.drivers import DRIVERS, make_driver
-from sharedspace.train.evaluate import (
-    BENCHMARK_VARIATIONS,
-    STATUSES,
-    load_checkpoint_actor,
-    play_variations,
 )
 
 __all__ = ["LABELS", "group_table", "comparisons", "render", "main"]
@@ -204,8 +204,9 @@ def checkpoints_of(paths: Sequence[str]) -> list[tuple[str | None, Path]]:
     return out
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = command_parser("python -m sharedspace.train.powered", __doc__)
+def make_parser():
+    """The command's arguments."""
+    ap = command_parser("python -m sharedspace.paper.powered", __doc__)
     ap.add_argument(
         "--policies",
         nargs="*",
@@ -229,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--pool",
         default="",
         help="a scenario file to play (served by the local server; e.g. a validation pool of "
-        "sharedspace.train.pools) instead of the checkpoints' own pool",
+        "sharedspace.paper.pools) instead of the checkpoints' own pool",
     )
     ap.add_argument(
         "--params",
@@ -260,23 +261,91 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--markdown", default="", help="write the two tables here")
     add_overrides_argument(ap, "config overrides of every evaluation (e.g. server_endpoint=)")
+    return ap
+
+
+def _analyse_saved(path: str, ms: list[int]) -> None:
+    """The tables of the episodes of an earlier ``--json``."""
+    saved = json.loads(Path(path).read_text())
+    groups = saved["episodes"]
+    result = {
+        **saved,
+        "table": group_table(groups),
+        "comparisons": comparisons(groups, default_pairs(list(groups))),
+    }
+    result.pop("episodes")
+    print(render(result))
+    if ms:
+        print(by_m(groups, default_pairs(list(groups)), ms))
+
+
+def _play_groups(args, overrides: list[str], spec: dict[str, Any]) -> dict[str, Any]:
+    """Every policy's and driver's episodes on the variations, by group and run."""
+    groups: dict[str, dict[str, list[dict[str, Any]]]] = {}
+    for group, path in checkpoints_of(args.policies):
+        cfg, actor = load_checkpoint_actor(str(path), overrides)
+        t0 = time.perf_counter()
+        eps = play_variations(cfg, actor, args.variations, args.split, spec)
+        run = f"{path.parent.parent.name}/{path.stem}" if group else path.stem
+        groups.setdefault(group or cfg.variant, {})[run] = eps
+        ok = sum(e["status"] == "success" for e in eps) / len(eps)
+        print(f"{run}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    cfg = apply_overrides(TrainConfig(), overrides)
+    for name in args.drivers:
+        eps = play_variations(
+            cfg, None, args.variations, args.split, spec, fresh_policy=lambda n=name: make_driver(n)
+        )
+        groups[name] = {name: eps}
+        ok = sum(e["status"] == "success" for e in eps) / len(eps)
+        print(f"{name}: success {ok:.3f}", flush=True)
+    return groups
+
+
+def _planner_bound(args, overrides: list[str], spec: dict[str, Any]) -> dict[str, Any]:
+    """The open-loop search on the first ``args.planner`` variations of every scene."""
+    from sharedspace.paper.planner import open_loop_search
+
+    t0 = time.perf_counter()
+    found = open_loop_search(
+        apply_overrides(TrainConfig(), overrides),
+        rounds=args.planner_rounds,
+        per_round=args.planner_per_round,
+        variations=args.planner,
+        spec=spec,
+    )
+    solved = sum(r.get("replayed") == "success" for r in found.values())
+    print(f"planner bound: {solved} of {len(found)} solved", flush=True)
+    return {
+        "variations": args.planner,
+        "rounds": args.planner_rounds,
+        "per_round": args.planner_per_round,
+        "cells": len(found),
+        "solved": solved,
+        "bound": solved / len(found) if found else 0.0,
+        "bound_ci": wilson(solved, len(found)),
+        "unsolved": sorted(n for n, r in found.items() if r.get("replayed") != "success"),
+        "wall_s": round(time.perf_counter() - t0, 1),
+    }
+
+
+def _slim(groups: dict[str, Any]) -> dict[str, Any]:
+    """The episodes as ``--json`` keeps them: what an analysis reads, no traces."""
+    keep = ("scenario_index", "variation", "status", "steps")
+    return {
+        name: {run: [{k: e[k] for k in keep} for e in eps] for run, eps in runs.items()}
+        for name, runs in groups.items()
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = make_parser()
     args = ap.parse_args(argv)
     if args.variations < 1:
         ap.error("--variations must be at least 1")
     spec = dict(args.variation_spec or BENCHMARK_VARIATIONS)
     ms = [int(m) for m in args.by_m.split(",") if m.strip()]
     if args.from_json:
-        saved = json.loads(Path(args.from_json).read_text())
-        groups = saved["episodes"]
-        result = {
-            **saved,
-            "table": group_table(groups),
-            "comparisons": comparisons(groups, default_pairs(list(groups))),
-        }
-        result.pop("episodes")
-        print(render(result))
-        if ms:
-            print(by_m(groups, default_pairs(list(groups)), ms))
+        _analyse_saved(args.from_json, ms)
         return 0
 
     server = None
@@ -291,67 +360,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         overrides.append(f"server_endpoint={server.endpoint}")
     if args.pool:
         overrides.append(f"scenario_pool={args.pool}")
-    groups: dict[str, dict[str, list[dict[str, Any]]]] = {}
     started = time.perf_counter()
     try:
-        for group, path in checkpoints_of(args.policies):
-            cfg, actor = load_checkpoint_actor(str(path), overrides)
-            t0 = time.perf_counter()
-            eps = play_variations(cfg, actor, args.variations, args.split, spec)
-            run = f"{path.parent.parent.name}/{path.stem}" if group else path.stem
-            groups.setdefault(group or cfg.variant, {})[run] = eps
-            ok = sum(e["status"] == "success" for e in eps) / len(eps)
-            print(f"{run}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
-        cfg = apply_overrides(TrainConfig(), overrides)
-        for name in args.drivers:
-            eps = play_variations(
-                cfg,
-                None,
-                args.variations,
-                args.split,
-                spec,
-                fresh_policy=lambda n=name: make_driver(n),
-            )
-            groups[name] = {name: eps}
-            ok = sum(e["status"] == "success" for e in eps) / len(eps)
-            print(f"{name}: success {ok:.3f}", flush=True)
-        planner = None
-        if args.planner > 0:
-            from sharedspace.train.planner import open_loop_search
-
-            t0 = time.perf_counter()
-            found = open_loop_search(
-                cfg,
-                rounds=args.planner_rounds,
-                per_round=args.planner_per_round,
-                variations=args.planner,
-                spec=spec,
-            )
-            solved = sum(r.get("replayed") == "success" for r in found.values())
-            planner = {
-                "variations": args.planner,
-                "rounds": args.planner_rounds,
-                "per_round": args.planner_per_round,
-                "cells": len(found),
-                "solved": solved,
-                "bound": solved / len(found) if found else 0.0,
-                "bound_ci": wilson(solved, len(found)),
-                "unsolved": sorted(n for n, r in found.items() if r.get("replayed") != "success"),
-                "wall_s": round(time.perf_counter() - t0, 1),
-            }
-            print(f"planner bound: {solved} of {len(found)} solved", flush=True)
+        groups = _play_groups(args, overrides, spec)
+        planner = _planner_bound(args, overrides, spec) if args.planner > 0 else None
     finally:
         if server is not None:
             server.close()
-    scenes = len(
-        {e["scenario_index"] for runs in groups.values() for r in runs.values() for e in r}
-    )
+    scenes = {e["scenario_index"] for runs in groups.values() for r in runs.values() for e in r}
     result = {
         "meta": {
             "variations": args.variations,
             "spec": spec,
             "split": args.split,
-            "scenes": scenes,
+            "scenes": len(scenes),
             "params": args.params if server is not None else None,
             "wall_s": round(time.perf_counter() - started, 1),
         },
@@ -366,17 +388,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.markdown:
         Path(args.markdown).write_text(text)
     if args.json:
-        slim = {
-            name: {
-                run: [
-                    {k: e[k] for k in ("scenario_index", "variation", "status", "steps")}
-                    for e in eps
-                ]
-                for run, eps in runs.items()
-            }
-            for name, runs in groups.items()
-        }
-        Path(args.json).write_text(json.dumps({**result, "episodes": slim}))
+        Path(args.json).write_text(json.dumps({**result, "episodes": _slim(groups)}))
     return 0
 
 

@@ -1,9 +1,9 @@
 """Scores a checkpoint on a split: the paper's Table II columns, plus the recorded human driver.
 
-    python -m sharedspace.train.evaluate --checkpoint runs/x/checkpoints/last.pt --split test
+    python -m sharedspace.paper.evaluate --checkpoint runs/x/checkpoints/last.pt --split test
         [--json out.json] [--traces traces.json] [--set key=value ...]
-    python -m sharedspace.train.evaluate --driver pursuit_3 ...   # a scripted reference driver
-    python -m sharedspace.train.evaluate --checkpoint ... --variations 32   # the powered test
+    python -m sharedspace.paper.evaluate --driver pursuit_3 ...   # a scripted reference driver
+    python -m sharedspace.paper.evaluate --checkpoint ... --variations 32   # the powered test
 
 Every scenario of the split is played once with the deterministic policy (the TanhNormal's
 mode) in a batched env with one sub-env per scenario (``scenario_order="sequential"``). The human
@@ -14,7 +14,7 @@ With ``--variations M`` every scenario is played in M seeded scene variations in
 5.2.1; the spec is ``--variation-spec``, by default the benchmark's: pedestrians moved by
 N(0, 0.25 m), started up to a step earlier or later, desired speeds within +-10 %). Variation
 ``j`` of every scene is the variation of seed ``j``, for every policy and driver, so results
-of two policies are paired episode by episode (:mod:`sharedspace.train.powered` compares them);
+of two policies are paired episode by episode (:mod:`sharedspace.paper.powered` compares them);
 any episode replays with ``sim-server rollout --scenario NAME --variation j``. The table then
 gives Wilson 95 % intervals.
 """
@@ -28,10 +28,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import torch
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from sharedspace.names import Feature
+from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.pool import load_pool, recorded_headings, split_indices
 from sharedspace.stats import wilson
 from sharedspace.train.config import (
@@ -40,8 +38,14 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
-from sharedspace.train.drivers import DRIVERS, make_driver
-from sharedspace.train.sac import make_actor, make_env
+from sharedspace.train.evaluation import (
+    STATUSES,
+    evaluate_split,
+    load_checkpoint_actor,
+    run_episodes,
+    summarize,
+)
+from sharedspace.train.sac import make_env
 
 __all__ = [
     "COLUMNS",
@@ -53,6 +57,7 @@ __all__ = [
     "summarize",
     "format_table",
     "load_checkpoint_actor",
+    "evaluate_policy",
     "main",
 ]
 
@@ -66,67 +71,11 @@ COLUMNS = (
     ("max_abs_acc", "Avg max |acc| (m/s^2)"),
 )
 
-#: How an episode ends.
-STATUSES = ("success", "collision", "timeout")
-
 #: The powered test's scene variations (sim-core ``VariationSpec::benchmark``; docs/RESULTS.md).
 BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
 
 #: Most sub-envs of one evaluation env (the server's default ``max_batch`` is 1024).
 MAX_EVAL_ENVS = 512
-
-
-def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
-    """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and
-    returns one record per sub-env: scenario index, status, metrics, return, and the ego's
-    speed / normalised action trace (``speeds[0]`` at the start)."""
-    k = env.batch_size[0]
-    records: list[dict[str, Any] | None] = [None] * k
-    traces = [{"speeds": [], "actions": [], "return": 0.0} for _ in range(k)]
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        td = env.reset()
-        # The policy may live on a GPU (device=cuda) while the env's tensors are on the CPU.
-        param = next(iter(policy.parameters()), None)
-        device = param.device if param is not None and param.device != env.device else None
-        scen = td["scenario_index"].reshape(-1).tolist()
-        seeds = getattr(env, "last_variation_seeds", None)
-        variation = [-1 if s is None else int(s) for s in (seeds or [None] * k)]
-        for i in range(k):
-            traces[i]["speeds"].append(float(td["features"][i, 0, Feature.SPEED]))
-        for _ in range(max_steps):
-            td = policy(td.to(device)).to(env.device) if device is not None else policy(td)
-            td = env.step(td)
-            nxt = td["next"]
-            done = nxt["done"].reshape(-1)
-            terms = getattr(env, "last_reward_terms", None) or {}
-            for i in range(k):
-                if records[i] is not None:
-                    continue
-                traces[i]["speeds"].append(float(nxt["features"][i, 0, Feature.SPEED]))
-                traces[i]["actions"].append(td["action"][i].tolist())
-                traces[i]["return"] += float(nxt["reward"][i])
-                for term, values in terms.items():
-                    sums = traces[i].setdefault("reward_terms", {})
-                    sums[term] = sums.get(term, 0.0) + float(values[i])
-                if done[i]:
-                    status = next(
-                        (s for s in STATUSES if bool(nxt[f"episode_{s}"][i])),
-                        "timeout",
-                    )
-                    records[i] = {
-                        "scenario_index": int(scen[i]),
-                        "variation": variation[i],
-                        "status": status,
-                        "avg_speed": float(nxt["episode_avg_speed"][i]),
-                        "avg_abs_jerk": float(nxt["episode_avg_abs_jerk"][i]),
-                        "max_abs_acc": float(nxt["episode_max_abs_acc"][i]),
-                        "steps": len(traces[i]["actions"]),
-                        **traces[i],
-                    }
-            if all(r is not None for r in records):
-                break
-            td = env.maybe_reset(step_mdp(td))
-    return [r for r in records if r is not None]
 
 
 def human_metrics(speeds: Sequence[float], dt: float) -> dict[str, Any]:
@@ -167,19 +116,6 @@ def human_episodes(pool: Sequence[dict], indices: Sequence[int]) -> list[dict[st
     return out
 
 
-def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
-    """Means over episodes (``MetricsSummary::of``): status shares and metric means."""
-    n = len(episodes)
-    if n == 0:
-        return {"episodes": 0, **{c: 0.0 for c, _ in COLUMNS}}
-    row: dict[str, float] = {"episodes": n}
-    for s in STATUSES:
-        row[s] = sum(e["status"] == s for e in episodes) / n
-    for key in ("avg_speed", "avg_abs_jerk", "max_abs_acc"):
-        row[key] = float(np.mean([e[key] for e in episodes]))
-    return row
-
-
 def format_table(rows: dict[str, dict[str, float]]) -> str:
     """Table II as text: one row per model."""
     head = f"{'Model':<16}" + "".join(f"{h:>22}" for _, h in COLUMNS) + f"{'episodes':>10}"
@@ -191,20 +127,6 @@ def format_table(rows: dict[str, dict[str, float]]) -> str:
             + f"{int(row['episodes']):>10}"
         )
     return "\n".join(lines)
-
-
-def load_checkpoint_actor(path: str, overrides: Sequence[str] = (), device: str = "cpu"):
-    """(config, actor) from a checkpoint written by the trainer."""
-    ckpt = torch.load(path, map_location=device, weights_only=False)
-    cfg = apply_overrides(TrainConfig(**ckpt["config"]), list(overrides))
-    cfg = apply_overrides(cfg, {"device": device})
-    probe = make_env(cfg, split=cfg.eval_split, num_envs=1)
-    actor = make_actor(cfg, probe.action_spec_unbatched)
-    with torch.no_grad():
-        actor(probe.reset())  # materialise lazy shapes, if any
-    actor.load_state_dict(ckpt["actor"])
-    probe.close()
-    return cfg, actor
 
 
 def play_variations(
@@ -254,27 +176,20 @@ def evaluate_policy(
 ) -> dict[str, Any]:
     """Plays every scenario of ``split`` once (or in ``variations`` seeded variations,
     :func:`play_variations`); returns per-episode records and the summary."""
-    if variations > 0:
-        episodes = play_variations(cfg, actor, variations, split, spec)
-        return {"episodes": episodes, "summary": summarize(episodes)}
-    pool = load_pool(cfg.scenario_pool or None)
-    n = len(split_indices(pool, split))
-    env = make_env(cfg, split=split, num_envs=n, seed=cfg.seed, scenario_order="sequential")
-    try:
-        episodes = run_episodes(env, actor)
-    finally:
-        env.close()
+    if variations <= 0:
+        return evaluate_split(cfg, actor, split)
+    episodes = play_variations(cfg, actor, variations, split, spec)
     return {"episodes": episodes, "summary": summarize(episodes)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = command_parser("python -m sharedspace.train.evaluate", __doc__)
+    ap = command_parser("python -m sharedspace.paper.evaluate", __doc__)
     who = ap.add_mutually_exclusive_group(required=True)
     who.add_argument("--checkpoint", help="checkpoint .pt written by the trainer")
     who.add_argument(
         "--driver",
         choices=sorted([*DRIVERS, "human_replay"]),
-        help="a scripted reference driver instead of a checkpoint (sharedspace.train.drivers)",
+        help="a scripted reference driver instead of a checkpoint (sharedspace.paper.drivers)",
     )
     ap.add_argument("--split", default="test", help="train | test | all")
     ap.add_argument(
@@ -293,7 +208,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"default {json.dumps(BENCHMARK_VARIATIONS)}",
     )
     ap.add_argument("--json", default="", help="write the table and episodes to this JSON file")
-    add_overrides_argument(ap, "config overrides (e.g. env_backend=remote)")
+    add_overrides_argument(ap, "config overrides (e.g. server_endpoint=...)")
     ap.add_argument("--device", default="cpu")
     args = ap.parse_args(argv)
 

@@ -6,14 +6,21 @@
   scenario (or per seeded variation of each, the powered test's bound); a successful sequence,
   replayed in a fresh env, proves that success is reachable there.
 
-Table II (:mod:`sharedspace.train.table2`) and the powered test
-(:mod:`sharedspace.train.powered`) report both.
+Table II (:mod:`sharedspace.paper.table2`) and the powered test
+(:mod:`sharedspace.paper.powered`) report both. As a command, the planner's bound of a world:
+
+    python -m sharedspace.paper.planner --pool out/table2g/pool-general.json \
+        --params params/table2g.json5 --set max_agents=10 --out results/table2g/planner_bound.json
 """
 
 from __future__ import annotations
 
 import itertools
+import json
+import sys
+import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,10 +28,16 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
+from sharedspace.local_server import LocalServer
 from sharedspace.names import Feature
+from sharedspace.paper.evaluate import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
 from sharedspace.pool import load_pool, split_indices
-from sharedspace.train.config import TrainConfig
-from sharedspace.train.evaluate import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
+from sharedspace.train.config import (
+    TrainConfig,
+    add_overrides_argument,
+    apply_overrides,
+    command_parser,
+)
 from sharedspace.train.sac import make_env
 
 __all__ = ["open_loop_search", "unavoidable_first_step"]
@@ -86,53 +99,27 @@ def open_loop_search(
     successful sequence, or None).
 
     With ``variations`` = M > 0 the search runs on each of the M seeded variations of every test
-    scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.train.evaluate.play_variations`
+    scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.paper.evaluate.play_variations`
     plays them), keyed ``"{name}#{seed}"``: the bound of the powered test."""
     pool = load_pool(cfg.scenario_pool or None)
     test = split_indices(pool, "test")
     n = len(test) * max(1, variations)  # search cells: (scenario, variation)
     rng = np.random.default_rng(seed)
-    levels = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
-    constants = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=2)), dtype=np.float32)
     played: dict[str, list[tuple[float, np.ndarray]]] = {}  # name -> (score, actions)
     found: dict[str, dict[str, Any]] = {}
     names: list[str] = []
     for round_ in range(rounds):
-        k_envs = n * per_round
-        actions = np.empty((k_envs, max_steps, 2), dtype=np.float32)
-        for k in range(k_envs):
-            c = k // n  # sub-env k plays the split's scenario k % n (sequential order)
-            if round_ == 0 and c < len(constants):
-                actions[k] = constants[c]
-            elif round_ == 0:
-                t = 0
-                while t < max_steps:
-                    length = int(rng.integers(1, 7))
-                    actions[k, t : t + length] = rng.choice(levels, size=2)
-                    t += length
-            else:
-                best = sorted(played[names[k % n]], key=lambda e: -e[0])[:elites]
-                stack = np.stack([a for _, a in best])
-                mean, std = stack.mean(0), np.maximum(stack.std(0), 0.15)
-                actions[k] = np.clip(mean + std * rng.standard_normal(mean.shape), -1.0, 1.0)
+        shape = (n * per_round, max_steps, 2)
+        if round_ == 0:
+            actions = _first_round(shape, n, rng)
+        else:
+            actions = _elite_round(shape, n, [played[name] for name in names[:n]], elites, rng)
         names, outcome = _play_open_loop(cfg, pool, actions, variations, spec)
         for k, name in enumerate(names):
-            rec = found.setdefault(
-                name,
-                {"candidates": 0, "success": 0, "collision": 0, "timeout": 0, "best_steps": None},
-            )
             status, steps, goal_dist = outcome[k] or ("timeout", max_steps, float("inf"))
-            rec["candidates"] += 1
-            rec[status] += 1
-            if status == "success" and (rec["best_steps"] is None or steps < rec["best_steps"]):
-                rec["best_steps"] = steps
-                rec["best_actions"] = actions[k, :steps].tolist()  # float32 values, exact
-            score = {
-                "success": 1e4 - steps,
-                "timeout": -goal_dist,
-                "collision": -1e4 + steps,
-            }[status]
-            played.setdefault(name, []).append((score, actions[k]))
+            _count(found, name, status, steps, actions[k])
+            score = {"success": 1e4 - steps, "timeout": -goal_dist, "collision": -1e4 + steps}
+            played.setdefault(name, []).append((score[status], actions[k]))
     # Replayed in fresh envs, every best sequence must arrive again: the bound rests on it.
     replay = np.zeros((n, max_steps, 2), dtype=np.float32)
     for j, name in enumerate(names[:n]):
@@ -144,6 +131,53 @@ def open_loop_search(
         if found.get(name, {}).get("best_actions"):
             found[name]["replayed"] = result[0] if result else "timeout"
     return found
+
+
+#: The constant actions of ``{-1, 0, 1}^2``, each cell's first candidates.
+_CONSTANTS = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=2)), dtype=np.float32)
+#: The levels of round 0's random piecewise-constant sequences.
+_LEVELS = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
+
+
+def _first_round(shape: tuple[int, int, int], n: int, rng) -> np.ndarray:
+    """Round 0: sub-env ``k`` (cell ``k % n``, candidate ``k // n``) plays a constant action of
+    :data:`_CONSTANTS`, then random piecewise-constant sequences."""
+    actions = np.empty(shape, dtype=np.float32)
+    for k in range(shape[0]):
+        c = k // n  # sub-env k plays the split's scenario k % n (sequential order)
+        if c < len(_CONSTANTS):
+            actions[k] = _CONSTANTS[c]
+            continue
+        t = 0
+        while t < shape[1]:
+            length = int(rng.integers(1, 7))
+            actions[k, t : t + length] = rng.choice(_LEVELS, size=2)
+            t += length
+    return actions
+
+
+def _elite_round(shape, n: int, played: list[list[tuple[float, np.ndarray]]], elites: int, rng):
+    """A later round: each cell's candidates from a per-step Gaussian fitted to its ``elites``
+    best sequences so far (``played[c]``: cell ``c``'s scored sequences)."""
+    actions = np.empty(shape, dtype=np.float32)
+    for k in range(shape[0]):
+        best = sorted(played[k % n], key=lambda e: -e[0])[:elites]
+        stack = np.stack([a for _, a in best])
+        mean, std = stack.mean(0), np.maximum(stack.std(0), 0.15)
+        actions[k] = np.clip(mean + std * rng.standard_normal(mean.shape), -1.0, 1.0)
+    return actions
+
+
+def _count(found: dict[str, dict[str, Any]], name: str, status: str, steps: int, actions) -> None:
+    """One played candidate of cell ``name``: its outcome counted, a faster success kept."""
+    rec = found.setdefault(
+        name, {"candidates": 0, "success": 0, "collision": 0, "timeout": 0, "best_steps": None}
+    )
+    rec["candidates"] += 1
+    rec[status] += 1
+    if status == "success" and (rec["best_steps"] is None or steps < rec["best_steps"]):
+        rec["best_steps"] = steps
+        rec["best_actions"] = actions[:steps].tolist()  # float32 values, exact
 
 
 def _play_open_loop(
@@ -206,3 +240,49 @@ def _play_open_loop_env(
     finally:
         env.close()
     return names, outcome
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The planner's bound on a world: can any driver succeed on its test scenes?"""
+    ap = command_parser("python -m sharedspace.paper.planner", __doc__)
+    ap.add_argument("--rounds", type=int, default=8, help="search rounds per scene")
+    ap.add_argument("--per-round", type=int, default=48, help="sequences per scene and round")
+    ap.add_argument("--pool", default="", help="scenario file of the test scenes (default: paper)")
+    ap.add_argument("--params", default="params/table2.json5", help="world parameters")
+    ap.add_argument("--out", default="", help="write the summary here (JSON)")
+    add_overrides_argument(ap, "config overrides, e.g. max_agents=10")
+    args = ap.parse_args(argv)
+    t0 = time.time()
+    pools = [args.pool] if args.pool else []
+    with LocalServer(
+        cfg=[f"pools:{json.dumps(pools)}", f"params:{json.dumps(args.params)}"]
+    ) as srv:
+        sets = [f"server_endpoint={srv.endpoint}", f"scenario_pool={args.pool}", *args.set]
+        found = open_loop_search(
+            apply_overrides(TrainConfig(), sets), rounds=args.rounds, per_round=args.per_round
+        )
+    solved = sorted(n for n, r in found.items() if r.get("replayed") == "success")
+    summary = {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "rounds": args.rounds,
+        "per_round": args.per_round,
+        "scenes": len(found),
+        "solved": len(solved),
+        "success_reachable": len(solved) / max(1, len(found)),
+        "unsolved": sorted(set(found) - set(solved)),
+        "minutes": round((time.time() - t0) / 60, 1),
+        "per_scene": {
+            n: {k: v for k, v in r.items() if k != "best_actions"} for n, r in found.items()
+        },
+    }
+    if args.out:
+        Path(args.out).write_text(json.dumps(summary, indent=1))
+    print(
+        f"planner bound: a replayed collision-free arrival in {len(solved)} of {len(found)} "
+        f"test scenes ({summary['success_reachable']:.3f}); {summary['minutes']} min"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,7 +1,9 @@
-"""The server's replies as numpy (protocol/SPEC.md sections 5 and 6): one msgspec decoder per
-reply shape, arrays as zero-copy numpy views of the payload (``_view``).
+"""The server's replies as numpy (protocol/SPEC.md sections 5 and 6; the protocol crate's
+``messages/replies.rs``): one msgspec decoder per reply shape, arrays as zero-copy numpy views of
+the payload (``_view``).
 
-- :func:`decode_result`: any reply's ``result`` (generic: maps, lists, arrays as numpy);
+- :func:`decode_result`: any reply's ``result`` (generic: maps, lists, arrays as numpy), the
+  one decoder every other falls back to for errors and anything off its schema;
 - :func:`decode_step_result` / :func:`step_decoder_for`: a ``StepResult`` (the per-env hot
   path; the layout-specialised decoder of an env is built once from its first reply);
 - :func:`decode_batch_result`: a ``BatchStepResult`` (the batched hot path).
@@ -15,25 +17,28 @@ from typing import Annotated, Any, Literal
 import msgspec
 import numpy as np
 
-from . import codec, names
+from .. import names
+from . import envelope
 from .errors import ProtocolError
 
 REWARD_TERMS = names.REWARD_TERMS
 
-_OBS_KEYS = ("features", "adjacency", "mask", "node_ids")
-_F4 = np.dtype("<f4")
+#: The arrays of an observation.
+OBS_KEYS = ("features", "adjacency", "mask", "node_ids")
+#: The dtype of every float32 array on the wire.
+F4 = np.dtype("<f4")
 _RESULT_ARRAYS = ("reward", "terminated", "truncated")
 #: The per-env columns of a ``BatchStepResult``, and of its stacked ``resets``.
 _BATCH_COLUMNS = ("episode", "step", "t", "action_clipped")
 _RESET_COLUMNS = ("index", "episode", "horizon_steps")
 #: Wire dtype -> (numpy dtype, item size), resolved once: ``np.dtype("<f4")`` per array is a
 #: measurable share of decoding a small step reply.
-_WIRE_DTYPES = {name: (np.dtype(name), size) for name, size in codec.ARRAY_DTYPES.items()}
+_WIRE_DTYPES = {name: (np.dtype(name), size) for name, size in envelope.ARRAY_DTYPES.items()}
 
 
 def _array(m: Any) -> np.ndarray:
-    """A binary-array map as a read-only numpy view (lean twin of ``codec.decode_array``, which
-    it falls back to for anything unusual so that errors stay precise)."""
+    """A binary-array map as a read-only numpy view (lean twin of ``envelope.decode_array``,
+    which it falls back to for anything unusual so that errors stay precise)."""
     if type(m) is dict:
         spec = _WIRE_DTYPES.get(m.get("dtype"))
         shape = m.get("shape")
@@ -49,16 +54,16 @@ def _array(m: Any) -> np.ndarray:
                     count *= d
                 if type(count) is int and len(data) == count * size and min(shape, default=0) >= 0:
                     return np.ndarray(shape, dtype, data)
-    if not codec.is_array_map(m):
+    if not envelope.is_array_map(m):
         raise ProtocolError(f"expected a binary-array map {{dtype, shape, data}}, got {m!r:.80}")
-    return codec.decode_array(m)
+    return envelope.decode_array(m)
 
 
 def _obs_in(r: Any) -> None:
     if type(r) is dict:
         obs = r.get("obs")
         if type(obs) is dict:
-            for k in _OBS_KEYS:
+            for k in OBS_KEYS:
                 if k in obs:
                     obs[k] = _array(obs[k])
 
@@ -70,19 +75,20 @@ _REPLY_DECODER = msgspec.msgpack.Decoder()
 
 
 def decode_result(payload: bytes) -> Any:
-    """Decodes a reply envelope like :func:`sharedspace.codec.decode_reply`, faster on the hot
-    path: MessagePack is decoded by msgspec without a per-map hook and only the binary arrays of
-    ``ResetResult``/``StepResult``/``BatchStepResult`` (``obs``, ``reward``, ``reward_terms``,
-    ``terminated``, ``truncated``, the autoreset ``reset.obs``, a batch's per-env columns and its
-    stacked ``resets``) become numpy views; any other map is left as it is (``ServerInfo``,
-    ``EnvCreated`` and ``Closed`` carry no arrays)."""
+    """Decodes a reply envelope (``{"ok": result}``: the result; ``{"error": ...}``: raises the
+    typed :class:`~sharedspace.wire.errors.ServerError`). MessagePack is decoded by msgspec
+    without a per-map hook and only the binary arrays of ``ResetResult``/``StepResult``/
+    ``BatchStepResult`` (``obs``, ``reward``, ``reward_terms``, ``terminated``, ``truncated``,
+    the autoreset ``reset.obs``, a batch's per-env columns and its stacked ``resets``) become
+    numpy views; any other map is left as it is (``ServerInfo``, ``EnvCreated`` and ``Closed``
+    carry no arrays)."""
     if len(payload) == 0:
         raise ProtocolError("empty reply payload")
     try:
         msg = _REPLY_DECODER.decode(payload)
     except msgspec.DecodeError as e:  # truncated, trailing bytes, malformed
         raise ProtocolError(f"undecodable reply: {e}") from e
-    r = codec.unwrap_reply(msg)
+    r = envelope.unwrap_reply(msg)
     if type(r) is dict and "obs" in r:
         _obs_in(r)
         for k in _RESULT_ARRAYS:
@@ -353,7 +359,7 @@ def _layout_of(res: Mapping[str, Any]) -> _Layout:
         raise ValueError("reward terms of several layouts")
     reward = spec(res["reward"])
     return (
-        tuple((k, *spec(o[k])) for k in _OBS_KEYS),
+        tuple((k, *spec(o[k])) for k in OBS_KEYS),
         reward,
         spec(res["terminated"]),
         spec(res["truncated"]),

@@ -1,0 +1,124 @@
+"""The trainer's evaluation: every scenario of a split played once with the deterministic
+policy (the TanhNormal's mode), one sub-env per scenario, summarised as the paper's Table II
+columns; and the actor of a checkpoint. :mod:`sharedspace.paper.evaluate` builds the tables,
+the human row and the powered test on these."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from sharedspace.names import Feature
+from sharedspace.pool import load_pool, split_indices
+from sharedspace.train.config import TrainConfig, apply_overrides
+from sharedspace.train.sac import make_actor, make_env
+
+__all__ = [
+    "METRICS",
+    "STATUSES",
+    "evaluate_split",
+    "load_checkpoint_actor",
+    "run_episodes",
+    "summarize",
+]
+
+#: How an episode ends.
+STATUSES = ("success", "collision", "timeout")
+#: The per-episode metrics a summary averages (sim-core ``EpisodeMetrics``).
+METRICS = ("avg_speed", "avg_abs_jerk", "max_abs_acc")
+
+
+def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
+    """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and
+    returns one record per sub-env: scenario index, status, metrics, return, and the ego's
+    speed / normalised action trace (``speeds[0]`` at the start)."""
+    k = env.batch_size[0]
+    records: list[dict[str, Any] | None] = [None] * k
+    traces = [{"speeds": [], "actions": [], "return": 0.0} for _ in range(k)]
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        # The policy may live on a GPU (device=cuda) while the env's tensors are on the CPU.
+        param = next(iter(policy.parameters()), None)
+        device = param.device if param is not None and param.device != env.device else None
+        scen = td["scenario_index"].reshape(-1).tolist()
+        seeds = getattr(env, "last_variation_seeds", None)
+        variation = [-1 if s is None else int(s) for s in (seeds or [None] * k)]
+        for i in range(k):
+            traces[i]["speeds"].append(float(td["features"][i, 0, Feature.SPEED]))
+        for _ in range(max_steps):
+            td = policy(td.to(device)).to(env.device) if device is not None else policy(td)
+            td = env.step(td)
+            nxt = td["next"]
+            done = nxt["done"].reshape(-1)
+            terms = getattr(env, "last_reward_terms", None) or {}
+            for i in range(k):
+                if records[i] is not None:
+                    continue
+                traces[i]["speeds"].append(float(nxt["features"][i, 0, Feature.SPEED]))
+                traces[i]["actions"].append(td["action"][i].tolist())
+                traces[i]["return"] += float(nxt["reward"][i])
+                for term, values in terms.items():
+                    sums = traces[i].setdefault("reward_terms", {})
+                    sums[term] = sums.get(term, 0.0) + float(values[i])
+                if done[i]:
+                    status = next(
+                        (s for s in STATUSES if bool(nxt[f"episode_{s}"][i])),
+                        "timeout",
+                    )
+                    records[i] = {
+                        "scenario_index": int(scen[i]),
+                        "variation": variation[i],
+                        "status": status,
+                        "avg_speed": float(nxt["episode_avg_speed"][i]),
+                        "avg_abs_jerk": float(nxt["episode_avg_abs_jerk"][i]),
+                        "max_abs_acc": float(nxt["episode_max_abs_acc"][i]),
+                        "steps": len(traces[i]["actions"]),
+                        **traces[i],
+                    }
+            if all(r is not None for r in records):
+                break
+            td = env.maybe_reset(step_mdp(td))
+    return [r for r in records if r is not None]
+
+
+def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """Means over episodes (``MetricsSummary::of``): status shares and metric means."""
+    n = len(episodes)
+    if n == 0:
+        return {"episodes": 0, **dict.fromkeys(STATUSES + METRICS, 0.0)}
+    row: dict[str, float] = {"episodes": n}
+    for s in STATUSES:
+        row[s] = sum(e["status"] == s for e in episodes) / n
+    for key in METRICS:
+        row[key] = float(np.mean([e[key] for e in episodes]))
+    return row
+
+
+def load_checkpoint_actor(path: str, overrides: Sequence[str] = (), device: str = "cpu"):
+    """(config, actor) from a checkpoint written by the trainer."""
+    ckpt = torch.load(path, map_location=device, weights_only=False)
+    cfg = apply_overrides(TrainConfig.from_dict(ckpt["config"]), list(overrides))
+    cfg = apply_overrides(cfg, {"device": device})
+    probe = make_env(cfg, split=cfg.eval_split, num_envs=1)
+    actor = make_actor(cfg, probe.action_spec_unbatched)
+    with torch.no_grad():
+        actor(probe.reset())  # materialise lazy shapes, if any
+    actor.load_state_dict(ckpt["actor"])
+    probe.close()
+    return cfg, actor
+
+
+def evaluate_split(cfg: TrainConfig, actor, split: str = "test") -> dict[str, Any]:
+    """Plays every scenario of ``split`` once; returns per-episode records and the summary."""
+    pool = load_pool(cfg.scenario_pool or None)
+    n = len(split_indices(pool, split))
+    env = make_env(cfg, split=split, num_envs=n, seed=cfg.seed, scenario_order="sequential")
+    try:
+        episodes = run_episodes(env, actor)
+    finally:
+        env.close()
+    return {"episodes": episodes, "summary": summarize(episodes)}
