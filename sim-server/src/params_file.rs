@@ -24,7 +24,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde_json::{Map, Value};
-use sim_core::params::{ParamError, PedestrianModel, WorldParams};
+use sim_core::params::{
+    from_fields, merge, OverlayError, ParamError, PedestrianModel, WorldParams,
+};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ParamsFileError {
@@ -61,73 +63,19 @@ fn parse_error(origin: &str, message: impl Into<String>) -> ParamsFileError {
     }
 }
 
-/// Recursively merges `top` into `bottom`; a `shape` (a tagged enum) is replaced whole.
-fn merge(bottom: &mut Map<String, Value>, top: &Map<String, Value>) {
-    for (key, value) in top {
-        match (bottom.get_mut(key), value) {
-            (Some(Value::Object(b)), Value::Object(t)) if key != "shape" => merge(b, t),
-            _ => {
-                bottom.insert(key.clone(), value.clone());
-            }
-        }
-    }
-}
-
+/// The checked parameters of a document's complete field map (sim-core's overlay), an error
+/// naming the document and the field.
 fn to_world_params(
     fields: Map<String, Value>,
     origin: &str,
 ) -> Result<WorldParams, ParamsFileError> {
-    let params: WorldParams =
-        serde_path_to_error::deserialize(Value::Object(fields)).map_err(|e| {
-            let path = e.path().to_string();
-            let inner = e.into_inner();
-            if path == "." {
-                parse_error(origin, inner.to_string())
-            } else {
-                parse_error(origin, format!("{path}: {inner}"))
-            }
-        })?;
-    params
-        .validate()
-        .map_err(|source| ParamsFileError::Invalid {
+    from_fields(fields).map_err(|e| match e {
+        OverlayError::Invalid(source) => ParamsFileError::Invalid {
             path: origin.to_string(),
             source,
-        })?;
-    Ok(params)
-}
-
-/// `base` with `values` set at their dotted paths in the parameter file
-/// (`pedestrians.sfm.tau`), through the same serde overlay and checks as a file: an unknown
-/// path, a non-finite value or a value [`WorldParams::validate`] refuses is an error naming it.
-pub fn with_values(
-    base: &WorldParams,
-    values: &[(String, f64)],
-    origin: &str,
-) -> Result<WorldParams, ParamsFileError> {
-    let Ok(Value::Object(mut fields)) = serde_json::to_value(base) else {
-        unreachable!("WorldParams serializes to a JSON object");
-    };
-    let mut top = Map::new();
-    for (path, value) in values {
-        let mut at = &mut top;
-        let mut keys = path.split('.').peekable();
-        while let Some(key) = keys.next() {
-            if keys.peek().is_none() {
-                // A non-finite f64 becomes null, which the f64 field then refuses by its path.
-                at.insert(key.to_string(), Value::from(*value));
-            } else {
-                let next = at
-                    .entry(key.to_string())
-                    .or_insert_with(|| Value::Object(Map::new()));
-                let Value::Object(next) = next else {
-                    unreachable!("a path's inner keys are objects");
-                };
-                at = next;
-            }
-        }
-    }
-    merge(&mut fields, &top);
-    to_world_params(fields, origin)
+        },
+        e => parse_error(origin, e.to_string()),
+    })
 }
 
 impl ParamsDoc {

@@ -152,34 +152,7 @@ pub fn rollout(
     config.vehicle_model = models.vehicles;
     let mut world = World::new(scenario.clone(), params, config)?;
     world.set_threads(threads);
-    let agents: Vec<Value> = scenario
-        .agents
-        .iter()
-        .enumerate()
-        .map(|(id, a)| {
-            let control = control_name(world.control(id as u32).expect("id in range"));
-            let fields = [
-                ("control", json!(control)),
-                ("end_step", json!(a.end_step())),
-            ];
-            agent_json(id, a, fields)
-        })
-        .collect();
-    let header = json!({
-        "type": "header",
-        "format": "sharedspace-rollout/1",
-        "scenario": scenario.name,
-        "split": scenario.split,
-        "model": model.name(),
-        "vehicle_model": models.vehicles.name(),
-        "dt": params.dt,
-        "horizon": world.horizon(),
-        "ego": scenario.ego,
-        "ego_drive": match ego { EgoDrive::Replay => json!("replay"), EgoDrive::Constant(a) => json!(a) },
-        "params": serde_json::to_value(params).expect("params serialise"),
-        "variation": serde_json::to_value(variation).expect("variation serialises"),
-        "agents": agents,
-    });
+    let header = header_json(&world, &scenario, &params, models, ego, variation);
     writeln!(out, "{header}")?;
     writeln!(out, "{}", step_json(&world, &[], &[]))?;
     let last_recorded = scenario.recorded_steps().saturating_sub(1);
@@ -218,4 +191,45 @@ pub fn rollout(
         json!({"type": "end", "reason": reason, "steps": world.step_index(), "metrics": metrics})
     )?;
     Ok(world.step_index())
+}
+
+/// The rollout's first line: the scenario, the models, the parameters, the variation and every
+/// agent with its control.
+fn header_json(
+    world: &World,
+    scenario: &Scenario,
+    params: &WorldParams,
+    models: RolloutModels,
+    ego: EgoDrive,
+    variation: Option<&Variation>,
+) -> Value {
+    let model = models.pedestrians;
+    let agents: Vec<Value> = scenario
+        .agents
+        .iter()
+        .enumerate()
+        .map(|(id, a)| {
+            let control = control_name(world.control(id as u32).expect("id in range"));
+            let fields = [
+                ("control", json!(control)),
+                ("end_step", json!(a.end_step())),
+            ];
+            agent_json(id, a, fields)
+        })
+        .collect();
+    json!({
+        "type": "header",
+        "format": "sharedspace-rollout/1",
+        "scenario": scenario.name,
+        "split": scenario.split,
+        "model": model.name(),
+        "vehicle_model": models.vehicles.name(),
+        "dt": params.dt,
+        "horizon": world.horizon(),
+        "ego": scenario.ego,
+        "ego_drive": match ego { EgoDrive::Replay => json!("replay"), EgoDrive::Constant(a) => json!(a) },
+        "params": serde_json::to_value(params).expect("params serialise"),
+        "variation": serde_json::to_value(variation).expect("variation serialises"),
+        "agents": agents,
+    })
 }

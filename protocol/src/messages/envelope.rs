@@ -6,7 +6,7 @@ use serde::de::{self, DeserializeOwned, Deserializer, MapAccess, Visitor};
 use serde::ser::{SerializeMap, Serializer};
 use serde::{Deserialize, Serialize};
 
-use super::*;
+use super::ErrorCode;
 
 /// An error reply: `{"code": ErrorCode, "message": str, "env_id": str | nil}`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::array::{F32Array, F64Array, U32Array, U8Array};
 
-use super::*;
+use super::{Event, RewardTerms};
 
 /// `{p}/env/{env_id}/states`: every agent's state after a reset or step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -6,7 +6,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::array::{ArrayError, F32Array, F64Array, NdArray, U32Array, U64Array, U8Array};
 
-use super::*;
+use super::{
+    AgentKind, EventKind, Mode, Outcome, PedestrianModel, Split, Variation, ACTION_NAMES,
+    FEATURE_NAMES, N_FEATURES, PAD_NODE_ID,
+};
 
 /// Observation layout, in `EnvCreated`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

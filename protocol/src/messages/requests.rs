@@ -8,7 +8,10 @@ use crate::array::{F32Array, FloatArray};
 use crate::keys;
 use crate::PROTOCOL_VERSION;
 
-use super::*;
+use super::{
+    ErrorCode, ErrorReply, Mode, PedestrianModel, Split, VariationSpec, VehicleModel, ACTION_DIM,
+    DEFAULT_EXTERNAL_AGENT, DEFAULT_MAX_AGENTS, REWARD_WEIGHT_DEFAULTS,
+};
 
 fn default_count() -> u32 {
     1

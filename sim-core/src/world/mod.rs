@@ -277,6 +277,89 @@ impl StepScratch {
     }
 }
 
+/// A scenario a world can be built from: its `dt` the parameters', fewer agents than the slot
+/// sentinel, and every track non-empty and finite.
+fn check_scenario(scenario: &Scenario, params: &WorldParams) -> Result<(), WorldError> {
+    let name = || scenario.name.clone();
+    if (scenario.dt - params.dt).abs() > 1e-9 {
+        return Err(WorldError::DtMismatch {
+            scenario: name(),
+            got: scenario.dt,
+            want: params.dt,
+        });
+    }
+    if scenario.agents.len() >= NO_SLOT as usize {
+        return Err(WorldError::Scenario {
+            scenario: name(),
+            reason: "too many agents".into(),
+        });
+    }
+    for (k, a) in scenario.agents.iter().enumerate() {
+        if a.positions.is_empty() || a.positions.len() != a.velocities.len() {
+            return Err(WorldError::Scenario {
+                scenario: name(),
+                reason: format!(
+                    "agent {k}: empty track or positions/velocities of different length"
+                ),
+            });
+        }
+        let finite = a
+            .positions
+            .iter()
+            .chain(&a.velocities)
+            .all(|p| p[0].is_finite() && p[1].is_finite());
+        if !finite {
+            return Err(WorldError::Scenario {
+                scenario: name(),
+                reason: format!("agent {k}: non-finite position or velocity"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The externally controlled agents' tracks (each agent once, known to the scenario); their
+/// control set to [`Control::External`] in `control_of`.
+fn external_tracks(
+    scenario: &Scenario,
+    config: &EpisodeConfig,
+    control_of: &mut [Control],
+) -> Result<Vec<ExternalTrack>, WorldError> {
+    let mut externals: Vec<ExternalTrack> = Vec::new();
+    for &id in &config.external {
+        if id as usize >= scenario.agents.len() {
+            return Err(WorldError::UnknownAgent {
+                scenario: scenario.name.clone(),
+                agent: id,
+            });
+        }
+        if externals.iter().any(|e| e.id == id) {
+            return Err(WorldError::DuplicateExternal { agent: id });
+        }
+        control_of[id as usize] = Control::External;
+        externals.push(ExternalTrack {
+            id,
+            active: false,
+            speeds: Vec::new(),
+            last_acc: None,
+            goal_distance: 0.0,
+            status: None,
+        });
+    }
+    Ok(externals)
+}
+
+/// Steps of an episode: the ego's recorded duration plus `horizon_extra` (model.md section 7).
+fn episode_horizon(scenario: &Scenario, params: &WorldParams) -> u32 {
+    let recorded = scenario.recorded_steps();
+    let ego_len = scenario
+        .agents
+        .get(scenario.ego)
+        .map_or(recorded, |a| a.end_step() + 1);
+    (((ego_len.saturating_sub(1)) as f64 * params.dt + params.horizon_extra) / params.dt).round()
+        as u32
+}
+
 impl World {
     /// Starts an episode of `scenario` at its first step.
     pub fn new(
@@ -285,78 +368,17 @@ impl World {
         config: EpisodeConfig,
     ) -> Result<Self, WorldError> {
         params.validate()?;
-        let name = || scenario.name.clone();
-        if (scenario.dt - params.dt).abs() > 1e-9 {
-            return Err(WorldError::DtMismatch {
-                scenario: name(),
-                got: scenario.dt,
-                want: params.dt,
-            });
-        }
-        let n_total = scenario.agents.len();
-        if n_total >= NO_SLOT as usize {
-            return Err(WorldError::Scenario {
-                scenario: name(),
-                reason: "too many agents".into(),
-            });
-        }
-        for (k, a) in scenario.agents.iter().enumerate() {
-            if a.positions.is_empty() || a.positions.len() != a.velocities.len() {
-                return Err(WorldError::Scenario {
-                    scenario: name(),
-                    reason: format!(
-                        "agent {k}: empty track or positions/velocities of different length"
-                    ),
-                });
-            }
-            let finite = a
-                .positions
-                .iter()
-                .chain(&a.velocities)
-                .all(|p| p[0].is_finite() && p[1].is_finite());
-            if !finite {
-                return Err(WorldError::Scenario {
-                    scenario: name(),
-                    reason: format!("agent {k}: non-finite position or velocity"),
-                });
-            }
-        }
+        check_scenario(&scenario, &params)?;
         let mut control_of = config.controls(&scenario);
-        let mut externals: Vec<ExternalTrack> = Vec::new();
-        for &id in &config.external {
-            if id as usize >= n_total {
-                return Err(WorldError::UnknownAgent {
-                    scenario: name(),
-                    agent: id,
-                });
-            }
-            if externals.iter().any(|e| e.id == id) {
-                return Err(WorldError::DuplicateExternal { agent: id });
-            }
-            control_of[id as usize] = Control::External;
-            externals.push(ExternalTrack {
-                id,
-                active: false,
-                speeds: Vec::new(),
-                last_acc: None,
-                goal_distance: 0.0,
-                status: None,
-            });
-        }
+        let externals = external_tracks(&scenario, &config, &mut control_of)?;
         let paths: Arc<[Option<RecordedPath>]> = scenario
             .agents
             .iter()
             .zip(&control_of)
             .map(|(rec, c)| matches!(c, Control::Vehicle(_)).then(|| RecordedPath::new(rec)))
             .collect();
-        let recorded = scenario.recorded_steps();
-        let ego_len = scenario
-            .agents
-            .get(scenario.ego)
-            .map_or(recorded, |a| a.end_step() + 1);
-        let horizon = (((ego_len.saturating_sub(1)) as f64 * params.dt + params.horizon_extra)
-            / params.dt)
-            .round() as u32;
+        let horizon = episode_horizon(&scenario, &params);
+        let n_total = scenario.agents.len();
         let mut pending: Vec<AgentId> = (0..n_total as AgentId).collect();
         pending.sort_by_key(|&id| {
             (

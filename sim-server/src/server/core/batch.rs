@@ -1,7 +1,11 @@
 //! `BatchStep`: K envs stepped in lockstep (on several threads when K is large), their reply
 //! written straight from reusable step buffers.
 
-use super::*;
+use super::{
+    bad, decode_batch_step, lock, reply_bytes, write_batch_step_ok, Arc, BatchColumns, BatchEnvRef,
+    BatchStep, BatchStepResult, BufMut, Buffers, Env, ErrorCode, ErrorReply, Mode, Mutex,
+    MutexGuard, Publication, Response, ServerCore, StepScratch, Watch, PARALLEL_MIN_BATCH,
+};
 
 /// Most step buffers kept for reuse between batches (as many as batches ever ran at once; a
 /// few is plenty).
@@ -30,164 +34,25 @@ impl ServerCore {
         watch: &dyn Watch,
         pubs: &mut Vec<Publication>,
     ) -> Result<Vec<u8>, ErrorReply> {
-        let req: BatchStep = decode_batch_step(payload).map_err(bad)?;
+        let (req, order) = self.checked_batch(payload)?;
         let k = req.env_ids.len();
-        if k == 0 {
-            return Err(bad("env_ids is empty"));
-        }
-        if k > self.limits.max_batch as usize {
-            return Err(ErrorReply::new(
-                ErrorCode::LimitExceeded,
-                format!(
-                    "batch of {k} envs exceeds max_batch {}",
-                    self.limits.max_batch
-                ),
-            ));
-        }
-        // Duplicates first (they would otherwise deadlock the locking below).
-        let mut order: Vec<usize> = (0..k).collect();
-        order.sort_by(|&a, &b| req.env_ids[a].cmp(&req.env_ids[b]));
-        for w in order.windows(2) {
-            if req.env_ids[w[0]] == req.env_ids[w[1]] {
-                let id = &req.env_ids[w[0]];
-                return Err(
-                    bad(format!("env id {id:?} listed twice in batch")).with_env(id.clone())
-                );
-            }
-        }
         let handles = self.lookup_all(&req.env_ids)?;
         // A fair turn among the trainers' batches (module `fair`), charged to the trainer that
         // created the first env; held until the reply is written. Taken before any env is
         // locked, so that waiting never holds an env.
         let trainer = lock(&handles[0]).spec.client_id.clone();
         let _turn = self.turns.acquire(&trainer, k as u64);
-        // Lock in id order.
-        let mut guards: Vec<Option<MutexGuard<'_, Env>>> = (0..k).map(|_| None).collect();
-        for &i in &order {
-            guards[i] = Some(lock(&handles[i]));
-        }
-        let mut envs: Vec<MutexGuard<'_, Env>> =
-            guards.into_iter().map(|g| g.expect("locked")).collect();
-        let (n_ext, m) = (envs[0].spec.n_ext(), envs[0].spec.max_agents);
-        for env in &envs {
-            if env.closed {
-                return Err(
-                    ErrorReply::new(ErrorCode::EnvClosed, "env is closed").with_env(env.id.clone())
-                );
-            }
-            if env.spec.mode != Mode::Lockstep {
-                return Err(ErrorReply::new(
-                    ErrorCode::WrongMode,
-                    "env is in realtime mode; batch step needs lockstep envs",
-                )
-                .with_env(env.id.clone()));
-            }
-            if env.spec.n_ext() != n_ext || env.spec.max_agents != m {
-                return Err(ErrorReply::new(
-                    ErrorCode::WrongShape,
-                    format!(
-                        "batch mixes envs: {} has n_ext {} and max_agents {}, {} has {} and {}",
-                        envs[0].id,
-                        n_ext,
-                        m,
-                        env.id,
-                        env.spec.n_ext(),
-                        env.spec.max_agents
-                    ),
-                )
-                .with_env(env.id.clone()));
-            }
-        }
+        let mut envs = lock_in_order(&handles, &order);
+        let (n_ext, m) = check_batch_envs(&envs)?;
         let actions = req.checked_action_rows(n_ext as u32)?;
         for env in &envs {
             env.check_steppable(true)?;
         }
-        // Large batches are stepped on several threads (consecutive chunks of envs, each
-        // writing its own range of the one output buffer), the first chunk on this thread.
-        let threads = if k >= PARALLEL_MIN_BATCH {
-            self.batch_threads.min(k / (PARALLEL_MIN_BATCH / 2)).max(1)
-        } else {
-            1
-        };
-        let chunk = k.div_ceil(threads);
         let mut buf = self.take_buffers(k, n_ext, m as usize);
         let mut refs: Vec<&mut Env> = envs.iter_mut().map(|g| &mut **g).collect();
-        // Per chunk: its envs' columns of the reply, and its publications.
-        type Part = (BatchColumns, Vec<Publication>, Result<(), ErrorReply>);
-        let mut steppers = self.take_steppers(threads);
-        let run = |base: usize,
-                   envs: &mut [&mut Env],
-                   actions: &[[f64; 2]],
-                   mut out: BufMut<'_>,
-                   scratch: &mut StepScratch|
-         -> Part {
-            let mut cols = BatchColumns::with_capacity(base as u32, envs.len(), n_ext);
-            let mut pubs = Vec::new();
-            for (i, env) in envs.iter_mut().enumerate() {
-                let rows = &actions[i * n_ext..(i + 1) * n_ext];
-                let slots = &mut out.slots(i);
-                let gates = watch.gates(&env.id);
-                let meta = match env.step_into(rows, slots, gates, &mut pubs, Some(scratch)) {
-                    Ok(meta) => meta,
-                    Err(e) => return (cols, pubs, Err(e)),
-                };
-                cols.push_env(&BatchEnvRef {
-                    episode: meta.episode,
-                    scenario: env.scenario_name(meta.scenario),
-                    step: meta.step,
-                    t: meta.t,
-                    action_clipped: env.action_clipped(),
-                    events: &meta.events,
-                    metrics: &meta.metrics,
-                });
-                if meta.reset {
-                    env.push_reset_columns(&mut cols);
-                }
-            }
-            (cols, pubs, Ok(()))
-        };
-        let parts: Vec<Part> = if threads <= 1 {
-            vec![run(0, &mut refs, &actions, buf.view(), &mut steppers[0])]
-        } else {
-            // The first chunk on this thread, the others on the helper threads, each into its
-            // own slot (in chunk order).
-            let mut slots: Vec<Option<Part>> = (0..threads).map(|_| None).collect();
-            let actions = &actions[..];
-            let mut work = refs
-                .chunks_mut(chunk)
-                .zip((0..k).step_by(chunk))
-                .zip(buf.view().chunks(k, chunk))
-                .zip(steppers.iter_mut())
-                .zip(slots.iter_mut());
-            let ((((e0, b0), o0), s0), p0) = work.next().expect("k >= 1");
-            let jobs: Vec<Box<dyn FnOnce() + Send + '_>> = work
-                .map(|((((e, b), o), s), p)| {
-                    Box::new(move || *p = Some(run(b, e, &actions[b * n_ext..], o, s)))
-                        as Box<dyn FnOnce() + Send + '_>
-                })
-                .collect();
-            self.helpers.run(jobs, || {
-                *p0 = Some(run(b0, e0, &actions[b0 * n_ext..], o0, s0));
-            });
-            slots
-                .into_iter()
-                .map(|p| {
-                    p.unwrap_or_else(|| {
-                        (
-                            BatchColumns::default(),
-                            Vec::new(),
-                            Err(ErrorReply::new(
-                                ErrorCode::Internal,
-                                "batch worker panicked",
-                            )),
-                        )
-                    })
-                })
-                .collect()
-        };
+        let parts = self.step_chunks(&mut refs, &actions, buf.view(), watch, n_ext);
         drop(refs);
         drop(envs);
-        self.return_steppers(steppers);
         let mut cols = BatchColumns::default();
         for (i, (part, p, r)) in parts.into_iter().enumerate() {
             r?;
@@ -209,6 +74,100 @@ impl ServerCore {
         self.return_buffers(buf);
         written.map_err(Buffers::err)?;
         Ok(reply)
+    }
+
+    /// The decoded request within the limits, and its envs' positions in id order (the order
+    /// they are locked in); an env listed twice is refused (it would deadlock the locking).
+    fn checked_batch(&self, payload: &[u8]) -> Result<(BatchStep, Vec<usize>), ErrorReply> {
+        let req: BatchStep = decode_batch_step(payload).map_err(bad)?;
+        let k = req.env_ids.len();
+        if k == 0 {
+            return Err(bad("env_ids is empty"));
+        }
+        if k > self.limits.max_batch as usize {
+            return Err(ErrorReply::new(
+                ErrorCode::LimitExceeded,
+                format!(
+                    "batch of {k} envs exceeds max_batch {}",
+                    self.limits.max_batch
+                ),
+            ));
+        }
+        let mut order: Vec<usize> = (0..k).collect();
+        order.sort_by(|&a, &b| req.env_ids[a].cmp(&req.env_ids[b]));
+        for w in order.windows(2) {
+            if req.env_ids[w[0]] == req.env_ids[w[1]] {
+                let id = &req.env_ids[w[0]];
+                return Err(
+                    bad(format!("env id {id:?} listed twice in batch")).with_env(id.clone())
+                );
+            }
+        }
+        Ok((req, order))
+    }
+
+    /// Steps the batch's envs: large batches on several threads (consecutive chunks of envs,
+    /// each writing its own range of the one output buffer), the first chunk on this thread.
+    /// One part per chunk, in chunk order.
+    fn step_chunks(
+        &self,
+        envs: &mut [&mut Env],
+        actions: &[[f64; 2]],
+        out: BufMut<'_>,
+        watch: &dyn Watch,
+        n_ext: usize,
+    ) -> Vec<Part> {
+        let k = envs.len();
+        let threads = if k >= PARALLEL_MIN_BATCH {
+            self.batch_threads.min(k / (PARALLEL_MIN_BATCH / 2)).max(1)
+        } else {
+            1
+        };
+        let chunk = k.div_ceil(threads);
+        let mut steppers = self.take_steppers(threads);
+        let run = |base: usize, envs: &mut [&mut Env], out, scratch: &mut StepScratch| {
+            step_chunk(
+                envs,
+                &actions[base * n_ext..],
+                out,
+                scratch,
+                watch,
+                base,
+                n_ext,
+            )
+        };
+        let parts = if threads <= 1 {
+            vec![run(0, envs, out, &mut steppers[0])]
+        } else {
+            // The first chunk on this thread, the others on the helper threads, each into its
+            // own slot (in chunk order).
+            let mut slots: Vec<Option<Part>> = (0..threads).map(|_| None).collect();
+            let mut work = envs
+                .chunks_mut(chunk)
+                .zip((0..k).step_by(chunk))
+                .zip(out.chunks(k, chunk))
+                .zip(steppers.iter_mut())
+                .zip(slots.iter_mut());
+            let ((((e0, b0), o0), s0), p0) = work.next().expect("k >= 1");
+            let jobs: Vec<Box<dyn FnOnce() + Send + '_>> = work
+                .map(|((((e, b), o), s), p)| {
+                    Box::new(move || *p = Some(run(b, e, o, s))) as Box<dyn FnOnce() + Send + '_>
+                })
+                .collect();
+            self.helpers.run(jobs, || *p0 = Some(run(b0, e0, o0, s0)));
+            slots
+                .into_iter()
+                .map(|p| {
+                    p.unwrap_or_else(|| {
+                        let panicked =
+                            ErrorReply::new(ErrorCode::Internal, "batch worker panicked");
+                        (BatchColumns::default(), Vec::new(), Err(panicked))
+                    })
+                })
+                .collect()
+        };
+        self.return_steppers(steppers);
+        parts
     }
 
     /// Step buffers for a batch, reusing those of an earlier batch when there are any.
@@ -243,4 +202,88 @@ impl ServerCore {
             pool.push(buf);
         }
     }
+}
+
+/// One chunk's share of a batch: its envs' columns of the reply, its publications, and the
+/// first error of its envs.
+type Part = (BatchColumns, Vec<Publication>, Result<(), ErrorReply>);
+
+/// Locks the envs in id order (`order`), so that two batches never wait on each other.
+fn lock_in_order<'a>(handles: &'a [Arc<Mutex<Env>>], order: &[usize]) -> Vec<MutexGuard<'a, Env>> {
+    let mut guards: Vec<Option<MutexGuard<'_, Env>>> = (0..handles.len()).map(|_| None).collect();
+    for &i in order {
+        guards[i] = Some(lock(&handles[i]));
+    }
+    guards.into_iter().map(|g| g.expect("locked")).collect()
+}
+
+/// Every env of a batch open, in lockstep and of one shape: its `(n_ext, max_agents)`.
+fn check_batch_envs(envs: &[MutexGuard<'_, Env>]) -> Result<(usize, u32), ErrorReply> {
+    let (n_ext, m) = (envs[0].spec.n_ext(), envs[0].spec.max_agents);
+    for env in envs {
+        if env.closed {
+            return Err(
+                ErrorReply::new(ErrorCode::EnvClosed, "env is closed").with_env(env.id.clone())
+            );
+        }
+        if env.spec.mode != Mode::Lockstep {
+            return Err(ErrorReply::new(
+                ErrorCode::WrongMode,
+                "env is in realtime mode; batch step needs lockstep envs",
+            )
+            .with_env(env.id.clone()));
+        }
+        if env.spec.n_ext() != n_ext || env.spec.max_agents != m {
+            return Err(ErrorReply::new(
+                ErrorCode::WrongShape,
+                format!(
+                    "batch mixes envs: {} has n_ext {} and max_agents {}, {} has {} and {}",
+                    envs[0].id,
+                    n_ext,
+                    m,
+                    env.id,
+                    env.spec.n_ext(),
+                    env.spec.max_agents
+                ),
+            )
+            .with_env(env.id.clone()));
+        }
+    }
+    Ok((n_ext, m))
+}
+
+/// Steps one chunk of a batch (its first env is the batch's `base`-th) into `out`.
+fn step_chunk(
+    envs: &mut [&mut Env],
+    actions: &[[f64; 2]],
+    mut out: BufMut<'_>,
+    scratch: &mut StepScratch,
+    watch: &dyn Watch,
+    base: usize,
+    n_ext: usize,
+) -> Part {
+    let mut cols = BatchColumns::with_capacity(base as u32, envs.len(), n_ext);
+    let mut pubs = Vec::new();
+    for (i, env) in envs.iter_mut().enumerate() {
+        let rows = &actions[i * n_ext..(i + 1) * n_ext];
+        let slots = &mut out.slots(i);
+        let gates = watch.gates(&env.id);
+        let meta = match env.step_into(rows, slots, gates, &mut pubs, Some(scratch)) {
+            Ok(meta) => meta,
+            Err(e) => return (cols, pubs, Err(e)),
+        };
+        cols.push_env(&BatchEnvRef {
+            episode: meta.episode,
+            scenario: env.scenario_name(meta.scenario),
+            step: meta.step,
+            t: meta.t,
+            action_clipped: env.action_clipped(),
+            events: &meta.events,
+            metrics: &meta.metrics,
+        });
+        if meta.reset {
+            env.push_reset_columns(&mut cols);
+        }
+    }
+    (cols, pubs, Ok(()))
 }

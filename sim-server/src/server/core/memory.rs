@@ -2,7 +2,7 @@
 //! memory to the system (`memory_trim_s`), for whichever allocator the binary was built with:
 //! glibc malloc (the default) or jemalloc (`--features jemalloc`).
 
-use super::*;
+use super::BTreeMap;
 
 #[cfg(feature = "jemalloc")]
 pub use jemalloc::{allocator_figures, limit_allocator_arenas, trim_allocator};

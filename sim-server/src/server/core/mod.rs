@@ -24,7 +24,7 @@ use protocol::{
     OpenEnv, Reply, Reset, ServerInfo, Split as WireSplit, Step, SyntheticScenes, PROTOCOL_VERSION,
 };
 use serde::Serialize;
-use sim_core::params::{PedestrianModel, SocialForceParams, WorldParams};
+use sim_core::params::{PedestrianModel, WorldParams};
 
 use crate::params_file::ModelParams;
 use sim_core::scenario::Split;

@@ -1,7 +1,7 @@
 //! Trainers' liveliness: the envs of a trainer whose token disappeared, or that never had one,
 //! are reaped after their grace.
 
-use super::*;
+use super::{lock, Instant, ServerCore};
 
 impl ServerCore {
     /// The liveliness token of `client_id` is present.

@@ -1,7 +1,10 @@
 //! The step's output buffers: one env's slices of a (possibly batched) result, and the
 //! reusable buffers a batch writes into.
 
-use super::*;
+use super::{
+    BatchArrays, ErrorCode, ErrorReply, F32Array, ObsBatch, ObsRef, U32Array, U8Array, WireTerms,
+    N_FEATURES, PAD_NODE_ID,
+};
 
 /// Mutable output slices of one env's step (or reset) in row-major layout, one env's share of a
 /// (possibly batched) result.

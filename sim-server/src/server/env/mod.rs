@@ -17,7 +17,7 @@ use sim_core::rng::{derive_seed, SplitMix64};
 use sim_core::scenario::{AgentKind, Split};
 use sim_core::variation::{Variation, VariationSpec};
 use sim_core::world::{
-    AgentId, Control, EpisodeConfig, Event as SimEvent, StepError, StepScratch, World,
+    AgentId, Control, EpisodeConfig, Event as SimEvent, StepError, StepOutcome, StepScratch, World,
 };
 
 use protocol::wire::{BatchArrays, BatchColumns, BatchReset, ObsRef};
@@ -136,6 +136,16 @@ fn outcome_of(s: EpisodeStatus) -> Outcome {
     }
 }
 
+/// A sim-core event as the protocol's event at `step`, time `t`.
+fn sim_event(e: &SimEvent, step: u32, t: f64) -> Event {
+    match *e {
+        SimEvent::Collision { a, b } => event(EventKind::Collision, step, t, vec![a, b]),
+        SimEvent::GoalReached { agent } => event(EventKind::GoalReached, step, t, vec![agent]),
+        SimEvent::Entered { agent } => event(EventKind::AgentEntered, step, t, vec![agent]),
+        SimEvent::Left { agent } => event(EventKind::AgentLeft, step, t, vec![agent]),
+    }
+}
+
 fn event(kind: EventKind, step: u32, t: f64, agents: Vec<u32>) -> Event {
     Event {
         kind,
@@ -233,45 +243,9 @@ impl Env {
             )
             .with_env(self.id.clone()));
         }
+        let idx = self.next_scenario(seed, scenario)?;
         let spec = self.spec.clone();
-        let pool = &spec.pool;
-        let idx = match scenario {
-            Some(name) => {
-                let Some(i) = pool.find(name) else {
-                    return Err(ErrorReply::new(
-                        ErrorCode::BadRequest,
-                        format!("no scenario {name:?} in pool {:?}", pool.name),
-                    )
-                    .with_env(self.id.clone()));
-                };
-                if !spec.candidates.contains(&i) {
-                    return Err(ErrorReply::new(
-                        ErrorCode::BadRequest,
-                        format!(
-                            "scenario {name:?} is not in this env's candidates (split {:?} of pool {:?} with at least {} vehicles)",
-                            spec.split,
-                            pool.name,
-                            spec.external_vehicles.iter().max().map_or(0, |k| k + 1)
-                        ),
-                    )
-                    .with_env(self.id.clone()));
-                }
-                if let Some(seed) = seed {
-                    self.reseed(seed);
-                }
-                i
-            }
-            None => {
-                if let Some(seed) = seed {
-                    self.reseed(seed);
-                }
-                match spec.pinned {
-                    Some(p) => p,
-                    None => self.seq.next_scenario(),
-                }
-            }
-        };
-        let served = &pool.scenarios[idx];
+        let served = &spec.pool.scenarios[idx];
         let ext_ids: Vec<AgentId> = spec
             .external_vehicles
             .iter()
@@ -288,8 +262,71 @@ impl Env {
             let seed = variation.unwrap_or_else(|| self.variation_seeds.next_u64());
             v.draw(&served.scenario, &spec.params, seed)
         });
+        let world = self.episode_world(idx, variation.as_ref(), config)?;
+        self.world = Some(world);
+        self.variation = variation;
+        self.scenario = idx;
+        self.ext_ids = ext_ids;
+        self.episode += 1;
+        self.returns.iter_mut().for_each(|r| *r = 0.0);
+        self.held.iter_mut().for_each(|h| *h = [0.0; 2]);
+        self.held_seq.iter_mut().for_each(|h| *h = None);
+        Ok(())
+    }
+
+    /// The pool index of the next episode's scenario: the one named (among the env's
+    /// candidates), else the pinned one, else the next of the env's sequence (re-seeded first
+    /// when a `seed` is given).
+    fn next_scenario(
+        &mut self,
+        seed: Option<u64>,
+        scenario: Option<&str>,
+    ) -> Result<usize, ErrorReply> {
+        let spec = self.spec.clone();
+        let pool = &spec.pool;
+        let Some(name) = scenario else {
+            if let Some(seed) = seed {
+                self.reseed(seed);
+            }
+            return Ok(spec.pinned.unwrap_or_else(|| self.seq.next_scenario()));
+        };
+        let Some(i) = pool.find(name) else {
+            return Err(ErrorReply::new(
+                ErrorCode::BadRequest,
+                format!("no scenario {name:?} in pool {:?}", pool.name),
+            )
+            .with_env(self.id.clone()));
+        };
+        if !spec.candidates.contains(&i) {
+            return Err(ErrorReply::new(
+                ErrorCode::BadRequest,
+                format!(
+                    "scenario {name:?} is not in this env's candidates (split {:?} of pool {:?} with at least {} vehicles)",
+                    spec.split,
+                    pool.name,
+                    spec.external_vehicles.iter().max().map_or(0, |k| k + 1)
+                ),
+            )
+            .with_env(self.id.clone()));
+        }
+        if let Some(seed) = seed {
+            self.reseed(seed);
+        }
+        Ok(i)
+    }
+
+    /// The world of an episode of scenario `idx`: built from the variation's scene, or a copy
+    /// of the scenario's cached fresh world (built and cached on its first episode).
+    fn episode_world(
+        &mut self,
+        idx: usize,
+        variation: Option<&Variation>,
+        config: EpisodeConfig,
+    ) -> Result<World, ErrorReply> {
+        let spec = self.spec.clone();
+        let served = &spec.pool.scenarios[idx];
         let cached = spec.fresh_worlds.get(idx).and_then(OnceLock::get);
-        let world = match (&variation, cached) {
+        Ok(match (variation, cached) {
             (Some(v), _) => World::new(
                 Arc::new(v.apply(&served.scenario)),
                 v.apply_params(&spec.params),
@@ -321,16 +358,7 @@ impl Env {
                 }
                 w
             }
-        };
-        self.world = Some(world);
-        self.variation = variation;
-        self.scenario = idx;
-        self.ext_ids = ext_ids;
-        self.episode += 1;
-        self.returns.iter_mut().for_each(|r| *r = 0.0);
-        self.held.iter_mut().for_each(|h| *h = [0.0; 2]);
-        self.held_seq.iter_mut().for_each(|h| *h = None);
-        Ok(())
+        })
     }
 
     /// Writes the current episode's first observation into `reset_obs` (right after a reset
@@ -421,6 +449,43 @@ impl Env {
         pubs: &mut Vec<Publication>,
         scratch: Option<&mut StepScratch>,
     ) -> Result<StepMeta, ErrorReply> {
+        let out = self.step_world(actions, scratch)?;
+        let step = out.step;
+        let dt = self.world.as_ref().expect("stepped").params().dt;
+        let t = step as f64 * dt;
+        let mut events: Vec<Event> = out.events.iter().map(|e| sim_event(e, step, t)).collect();
+        let metrics = self.write_outcomes(&out, slots, &mut events, t, dt);
+        let world = self.world.as_ref().expect("present");
+        write_obs(world, &self.ext_ids, self.spec.max_agents as usize, slots);
+        let over = world.is_over();
+        if gates.any() {
+            self.publish_state(gates, &events, Some(slots), pubs);
+        }
+        let meta_episode = self.episode;
+        let scenario = self.scenario;
+        let reset = over && self.spec.autoreset;
+        if reset {
+            self.start_episode(None, None, None)?;
+            self.publish_episode_start(gates, pubs);
+        }
+        Ok(StepMeta {
+            episode: meta_episode,
+            scenario,
+            step,
+            t,
+            events,
+            metrics,
+            reset,
+        })
+    }
+
+    /// Steps the world with one action row per external agent (agents whose episode has
+    /// ended are left out).
+    fn step_world(
+        &mut self,
+        actions: &[[f64; 2]],
+        scratch: Option<&mut StepScratch>,
+    ) -> Result<StepOutcome, ErrorReply> {
         self.check_steppable(false)?;
         let n = self.spec.n_ext();
         if actions.len() != n {
@@ -444,17 +509,27 @@ impl Env {
             Some(s) => world.step_in(s, &self.active),
             None => world.step(&self.active),
         };
-        let out = out.map_err(|e| {
+        out.map_err(|e| {
             let code = match e {
                 StepError::EpisodeOver => ErrorCode::NeedsReset,
                 StepError::NonFiniteAction { .. } => ErrorCode::NonFiniteAction,
                 _ => ErrorCode::Internal,
             };
             ErrorReply::new(code, e.to_string()).with_env(self.id.clone())
-        })?;
-        let step = out.step;
-        let dt = world.params().dt;
-        let t = step as f64 * dt;
+        })
+    }
+
+    /// Each external agent's reward, terms and flags into `slots`, its clipped action and
+    /// episode end into `events`; the metrics of the episodes that ended.
+    fn write_outcomes(
+        &mut self,
+        out: &StepOutcome,
+        slots: &mut Slots<'_>,
+        events: &mut Vec<Event>,
+        t: f64,
+        dt: f64,
+    ) -> Vec<EpisodeMetrics> {
+        let (n, step) = (self.spec.n_ext(), out.step);
         slots.reward.fill(0.0);
         for term in slots.terms.iter_mut() {
             term.fill(0.0);
@@ -463,18 +538,6 @@ impl Env {
         slots.truncated.fill(0);
         self.clipped.clear();
         self.clipped.resize(n, false);
-        let mut events: Vec<Event> = out
-            .events
-            .iter()
-            .map(|e| match *e {
-                SimEvent::Collision { a, b } => event(EventKind::Collision, step, t, vec![a, b]),
-                SimEvent::GoalReached { agent } => {
-                    event(EventKind::GoalReached, step, t, vec![agent])
-                }
-                SimEvent::Entered { agent } => event(EventKind::AgentEntered, step, t, vec![agent]),
-                SimEvent::Left { agent } => event(EventKind::AgentLeft, step, t, vec![agent]),
-            })
-            .collect();
         let mut metrics = Vec::new();
         for o in &out.agents {
             let Some(k) = self.ext_ids.iter().position(|&x| x == o.agent) else {
@@ -511,28 +574,7 @@ impl Env {
                 });
             }
         }
-        let world = self.world.as_ref().expect("present");
-        write_obs(world, &self.ext_ids, self.spec.max_agents as usize, slots);
-        let over = world.is_over();
-        if gates.any() {
-            self.publish_state(gates, &events, Some(slots), pubs);
-        }
-        let meta_episode = self.episode;
-        let scenario = self.scenario;
-        let reset = over && self.spec.autoreset;
-        if reset {
-            self.start_episode(None, None, None)?;
-            self.publish_episode_start(gates, pubs);
-        }
-        Ok(StepMeta {
-            episode: meta_episode,
-            scenario,
-            step,
-            t,
-            events,
-            metrics,
-            reset,
-        })
+        metrics
     }
 
     /// A single (unbatched) step result; the world steps in `scratch` (see [`Env::step_into`]).

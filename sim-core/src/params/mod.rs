@@ -5,6 +5,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::Shape;
 
+mod names;
+pub use names::{
+    from_fields, merge, pedestrian_param_fields, OverlayError, OTHER_PEDESTRIAN_PARAMS,
+    REWARD_WEIGHTS,
+};
+
 /// Internal prediction model an observer uses for another agent's next velocity (model.md 3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
