@@ -13,7 +13,7 @@ UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router view browser test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean
+.PHONY: help run build serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -39,6 +39,19 @@ VIEWER_PAGE := viewer/dist/index.html
 $(VIEWER_PAGE): viewer/package-lock.json viewer/build.mjs $(wildcard viewer/src/*)
 	cd viewer && npm ci --no-audit --no-fund && npm run build
 
+# cargo-modules reads a crate's items and uses (rust-analyzer); scripts/module_cycles.py collapses
+# them to modules. Built once into .tools/ at opt-level 1: about 60 % of a release build's time,
+# and it reads the four crates about as fast.
+CARGO_MODULES := .tools/bin/cargo-modules
+$(CARGO_MODULES):
+	CARGO_PROFILE_RELEASE_OPT_LEVEL=1 CARGO_PROFILE_RELEASE_CODEGEN_UNITS=256 \
+		CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_DEBUG=false \
+		$(CARGO) install cargo-modules --version 0.27.0 --locked --root .tools
+
+cycles: $(CARGO_MODULES) $(VENV)/.installed ## no import cycle between the modules of any crate or of the Python package, and its layers
+	PATH="$(CURDIR)/.tools/bin:$$PATH" $(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
+	cd clients && ../$(VENV)/bin/lint-imports --no-logo
+
 browser: ## Debian's chromium + chromium-driver (the viewer's browser test)
 	./scripts/install-browser.sh
 
@@ -55,9 +68,10 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
 	$(SERVER) router --config deploy/router.json5 $(ARGS)
 
-test: $(VENV)/.installed $(VIEWER_PAGE) browser ## every test: Rust (fmt, clippy, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff
+test: $(VENV)/.installed $(VIEWER_PAGE) browser $(CARGO_MODULES) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	PATH="$(CURDIR)/.tools/bin:$$PATH" $(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
 	$(CARGO) test --workspace
 	$(CARGO) build -p sim-server
 	@# a hung interpreter exit must fail CI in minutes, not eat its whole budget

@@ -135,7 +135,7 @@ class StepRefused(ValueError):
 class VarianceSchedule:
     """The variances a belief goes through, indexed by its number of updates.
 
-    Same recurrence and stopping rule as ``sim_core::cognition::VarianceSchedule``:
+    Same recurrence and stopping rule as ``sim_core::model::cognition::VarianceSchedule``:
     ``post[0] = s0^2``, ``prior[n] = post[n-1] + q^2``, ``post[n] = 1/(1/prior[n] + 1/s_o^2)``,
     tabulated until a posterior repeats bit for bit (later updates reuse the last entry).
     """
@@ -299,7 +299,7 @@ def _round_half_away(x: float) -> int:
 
 
 def wrap_angle(a: float) -> float:
-    """Wraps an angle into ``(-pi, pi]`` like ``sim_core::vehicle::wrap_angle``."""
+    """Wraps an angle into ``(-pi, pi]`` like ``sim_core::model::vehicle::wrap_angle``."""
     w = math.fmod(a, math.tau)
     if w <= -math.pi:
         w += math.tau

@@ -54,7 +54,7 @@ pub const MAX_SIDE: f64 = 10_000.0;
 /// Upper bound on the number of pedestrians, to keep allocations bounded.
 pub const MAX_PEDESTRIANS: usize = 1_000_000;
 
-pub use sim_core::rng::SplitMix64;
+pub use sim_core::support::rng::SplitMix64;
 
 /// How pedestrians walk relative to the ego vehicle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

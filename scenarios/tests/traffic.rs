@@ -1,4 +1,4 @@
-//! The reactive vehicle model (sim-core `traffic.rs`, docs/MODEL.md "Traffic") on the recorded
+//! The reactive vehicle model (sim-core `model/traffic.rs`, docs/MODEL.md "Traffic") on the recorded
 //! `hbs-general` scenes and on hand-made ones: cars nobody controls never overlap each other, never
 //! drive into a car standing in their way, keep their record on a free road, and step the same
 //! on every thread count.

@@ -118,7 +118,7 @@ fn the_default_spec_plays_the_recorded_scene_to_the_bit() {
 /// Every ego-frame observation of an episode with the ego holding `action`, `steps` steps long.
 fn observations(scene: &Scenario, params: &WorldParams, action: [f64; 2], steps: u32) -> Vec<f32> {
     const M: usize = 8;
-    let f = sim_core::observation::NODE_FEATURES;
+    let f = sim_core::world::observation::NODE_FEATURES;
     let config = EpisodeConfig::ego_external(scene, PedestrianModel::CrSfm);
     let mut world = World::new(Arc::new(scene.clone()), *params, config).expect("world");
     let ego = scene.ego as u32;
@@ -183,7 +183,7 @@ fn a_mirrored_scene_mirrors_the_ego_frame() {
         param_scales: Default::default(),
         pedestrians: Vec::new(),
     };
-    let f = sim_core::observation::NODE_FEATURES;
+    let f = sim_core::world::observation::NODE_FEATURES;
     let base = observations(scene, &params, [0.0, 0.0], 1);
     let seen = observations(&mirrored.apply(scene), &params, [0.0, 0.0], 1);
     for node in 0..8 {

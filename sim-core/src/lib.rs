@@ -2,27 +2,29 @@
 //!
 //! Everything here is deterministic and free of I/O, async, wall clocks and global random state:
 //! the world advances only when [`world::World::step`] is called with the actions for that step.
-//! The equations and every decision the paper leaves open are in `shared/spec/model.md`; each
-//! module names the section it implements.
+//! The equations and every decision the paper leaves open are in docs/MODEL.md; each module names
+//! the section it implements.
+//!
+//! - [`geometry`]: footprints (discs, oriented rectangles) and clearance, what everything stands
+//!   on;
+//! - [`model`]: the equations, one implementation each (cognition, risk, pedestrian forces,
+//!   vehicle kinematics, traffic);
+//! - [`world`]: the world's state and its step, stage by stage, calling the equations, and the
+//!   learner's observation of it;
+//! - [`params`], [`scenario`], [`variation`]: what a world is built from;
+//! - [`metrics`], [`pedeval`]: episode metrics and the pedestrian-model evaluation;
+//! - [`support`]: neighbour grid, random generator, fast math, helper threads.
 
 #![deny(unsafe_op_in_unsafe_fn)]
 
-pub mod cognition;
-pub mod fastmath;
 pub mod geometry;
-pub mod grid;
-pub mod helpers;
 pub mod metrics;
-pub mod observation;
+pub mod model;
 pub mod params;
-pub mod pedestrian;
 pub mod pedeval;
-pub mod risk;
-pub mod rng;
 pub mod scenario;
-pub mod traffic;
+pub mod support;
 pub mod variation;
-pub mod vehicle;
 pub mod world;
 
 pub use geometry::{Shape, Vec2};

@@ -82,7 +82,7 @@ impl AgentRecord {
             {
                 let v = self.velocities[idx];
                 if v[0].hypot(v[1]) > MOVING {
-                    return crate::fastmath::atan2(v[1], v[0]);
+                    return crate::support::fastmath::atan2(v[1], v[0]);
                 }
             }
         }

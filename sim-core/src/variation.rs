@@ -33,8 +33,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::{clearance, Placed, Shape, Vec2};
 use crate::params::{SocialForceParams, WorldParams};
-use crate::rng::{derive_seed, SplitMix64};
 use crate::scenario::{AgentKind, AgentRecord, Scenario};
+use crate::support::rng::{derive_seed, SplitMix64};
 
 /// Largest accepted `position_sigma`, m.
 pub const MAX_POSITION_SIGMA: f64 = 10.0;

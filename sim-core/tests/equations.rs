@@ -5,27 +5,29 @@ mod common;
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
 use common::{line, paper_world, track};
-use sim_core::cognition::{kl_isotropic, posterior, Belief, VarianceSchedule, DIM};
 use sim_core::geometry::{clearance, clearance_and_normal, disc_rect_gap, Placed, Shape, Vec2};
 use sim_core::metrics::{
     displacement_errors, DisplacementErrors, EpisodeMetrics, EpisodeStatus, MetricsSummary,
     PedestrianEvalSummary,
 };
-use sim_core::params::RiskParams;
-use sim_core::params::{CognitionParams, PredictionModel, SocialForceParams, VehicleParams};
-use sim_core::pedestrian::{
+use sim_core::model::cognition::{kl_isotropic, posterior, Belief, VarianceSchedule, DIM};
+use sim_core::model::pedestrian::{
     clip_norm, goal_force, goal_weight, integrate, repulsion, repulsion_weight, total_force,
     Interaction,
 };
-use sim_core::risk::adjacency;
+use sim_core::model::risk::adjacency;
+use sim_core::model::vehicle::{
+    map_action, unicycle_step, wrap_angle, UnicycleState, VehicleCommand,
+};
+use sim_core::params::RiskParams;
+use sim_core::params::{CognitionParams, PredictionModel, SocialForceParams, VehicleParams};
 use sim_core::scenario::{AgentKind, AgentRecord};
-use sim_core::vehicle::{map_action, unicycle_step, wrap_angle, UnicycleState, VehicleCommand};
 use sim_core::world::{Event, RewardTerms};
 use sim_core::{PedestrianModel, StepOutcome, World};
 
 const EPS: f64 = 1e-12;
 
-// model.md section 4 in the paper's unfolded form: the oracle that `sim_core::risk::edge_psi`
+// model.md section 4 in the paper's unfolded form: the oracle that `sim_core::model::risk::edge_psi`
 // (the one implementation the world step runs) is checked against.
 
 /// Virtual distance from observer `i` at `x_i` to agent `j` at `x_j` moving with `v_j` and
@@ -1028,7 +1030,7 @@ fn folded_risk_equals_the_virtual_distance_composition() {
             virtual_distance(d, x_i, x_j, v_j, acc, params.gamma1),
             params.gamma2,
         );
-        let folded = sim_core::risk::risk_with(d, to_i, to_i.norm(), v_j, acc, &params);
+        let folded = sim_core::model::risk::risk_with(d, to_i, to_i.norm(), v_j, acc, &params);
         assert!((folded - unfolded).abs() <= 1e-14, "{folded} vs {unfolded}");
     }
 }

@@ -6,8 +6,8 @@ use std::collections::BTreeSet;
 
 use common::{line, scenario, Rng};
 use sim_core::geometry::Vec2;
-use sim_core::grid::Grid;
 use sim_core::scenario::{AgentKind, AgentRecord};
+use sim_core::support::grid::Grid;
 use sim_core::{EpisodeConfig, PedestrianModel, World, WorldParams};
 
 const R: f64 = 15.0;

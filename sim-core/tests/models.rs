@@ -5,8 +5,8 @@
 
 use std::path::PathBuf;
 
+use sim_core::model::pedestrian::ModelForces;
 use sim_core::params::{models_json, PedestrianModel, PedestrianParams, MODELS};
-use sim_core::pedestrian::ModelForces;
 
 #[test]
 fn the_table_is_in_enum_order_and_names_are_unique() {

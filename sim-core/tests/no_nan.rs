@@ -166,7 +166,7 @@ fn run_case(c: &Case) -> Result<(), TestCaseError> {
             prop_assert!(finite(&row));
         }
         let n = 4;
-        let [fl, al, ml] = sim_core::observation::buffer_lengths(n);
+        let [fl, al, ml] = sim_core::world::observation::buffer_lengths(n);
         let (mut f, mut adj, mut m) = (vec![0f32; fl], vec![0f32; al], vec![0u8; ml]);
         if w.fill_observation(0, n, (&mut f, &mut adj, &mut m))
             .unwrap()

@@ -108,7 +108,7 @@ fn vector_instruction_set_does_not_change_any_bit_with_constant_acceleration() {
 fn vector_instruction_set_does_not_change_any_bit_with_a_long_variance_schedule() {
     let mut params = WorldParams::default();
     params.cognition.q = 0.01;
-    assert!(sim_core::cognition::VarianceSchedule::new(&params.cognition).len() > 100);
+    assert!(sim_core::model::cognition::VarianceSchedule::new(&params.cognition).len() > 100);
     assert_same_bits(&mut every_variant(&params));
 }
 

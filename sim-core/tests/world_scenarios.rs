@@ -7,8 +7,8 @@ use std::sync::Arc;
 use common::{line, paper_world, scenario, track, with_external};
 use sim_core::geometry::Vec2;
 use sim_core::metrics::EpisodeStatus;
-use sim_core::observation::{buffer_lengths, ObservationError, NODE_FEATURES};
 use sim_core::scenario::{AgentKind, AgentRecord, Scenario};
+use sim_core::world::observation::{buffer_lengths, ObservationError, NODE_FEATURES};
 use sim_core::world::{AgentView, Control, Event, GraphEdge};
 use sim_core::{
     EpisodeConfig, PedestrianModel, StepError, StepOutcome, World, WorldError, WorldParams,

@@ -25,7 +25,7 @@ pub use requests::*;
 
 /// Observation node features, in order (model.md section 7; ego frame, x forward): sim-core's
 /// list, the one definition.
-pub use sim_core::observation::FEATURE_NAMES;
+pub use sim_core::world::observation::FEATURE_NAMES;
 /// The reward terms, in order: sim-core's list.
 pub use sim_core::world::REWARD_TERM_NAMES;
 /// Number of node features `F`.

@@ -71,7 +71,7 @@ impl Default for RiskParams {
 /// Which model moves a pedestrian (model.md section 5).
 ///
 /// **The one list of pedestrian models.** A model is a variant here, a row of [`MODELS`] (its
-/// name, label, and how it weighs its forces, which [`crate::pedestrian::ModelForces`] reads) and,
+/// name, label, and how it weighs its forces, which [`crate::model::pedestrian::ModelForces`] reads) and,
 /// when it has social forces, a field of [`PedestrianParams`]. Everything else derives its list
 /// from these: the wire protocol uses this enum, the CLI and parameter files parse
 /// [`PedestrianModel::from_name`], and the Python side reads `clients/src/sharedspace/models.json`,
@@ -247,7 +247,7 @@ pub enum VehicleModel {
     Replay,
     /// Follows its recorded path and controls its speed along it with the intelligent driver
     /// model: it keeps its record's timing while the road is free, keeps a gap to whatever is in
-    /// the corridor ahead, and never drives into it ([`crate::traffic`]).
+    /// the corridor ahead, and never drives into it ([`crate::model::traffic`]).
     Idm,
 }
 

@@ -13,36 +13,40 @@
 //! 4. observe at `t + 1`: beliefs (`u_{t+1}`), clearances, `psi_{t+1}`, the graph;
 //! 5. events (collisions, arrivals) and every reward term of the transition.
 //!
-//! Where each stage lives (the equations themselves are in the modules named for them:
-//! [`crate::cognition`], [`crate::risk`], [`crate::pedestrian`], [`crate::vehicle`]):
+//! Where each stage lives (the equations themselves are in [`crate::model`]):
 //! - `agents.rs`, `store.rs`: the state (agents by slot, the edge store of beliefs and graph);
+//! - `config.rs`: what moves each agent ([`Control`]) and the episode's configuration;
 //! - `lifecycle.rs`: stages 1 and 3 (entering, arriving, leaving);
-//! - `motion.rs`: stage 2 (every agent's move);
+//! - `motion.rs`: stage 2 (every agent's move), `reactive_vehicles.rs` its last part (the cars
+//!   nobody controls, one after the other);
 //! - `observe/`: stage 4 (the observe pass: `mod.rs` its threads and compiled variants,
 //!   `kernel.rs` one observer's edges, which call the equation modules);
-//! - `outcome.rs`: stage 5 (events and rewards).
+//! - `outcome.rs`: stage 5 (events and rewards);
+//! - `observation.rs`: the learner's view of the state (ego-frame node features, padded
+//!   adjacency and mask), read after a step.
 
 use std::ops::Range;
 use std::sync::Arc;
 
-use crate::cognition::VarianceSchedule;
 use crate::geometry::{Shape, Vec2};
-use crate::grid::Grid;
-use crate::helpers::Helpers;
 use crate::metrics::EpisodeMetrics;
+use crate::model::cognition::VarianceSchedule;
+use crate::model::risk;
+use crate::model::traffic::RecordedPath;
 use crate::params::{ParamError, WorldParams};
-use crate::risk;
 use crate::scenario::{AgentKind, Scenario};
-use crate::traffic::RecordedPath;
+use crate::support::grid::Grid;
+use crate::support::threads::Helpers;
 
 mod agents;
 mod config;
 mod lifecycle;
 mod motion;
+pub mod observation;
 mod observe;
 mod outcome;
+mod reactive_vehicles;
 mod store;
-mod traffic;
 
 use agents::{Agents, ExternalTrack};
 pub use config::{Control, EpisodeConfig};

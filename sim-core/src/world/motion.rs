@@ -1,17 +1,17 @@
 //! Stage 2 of a step: every agent moves from `t` to `t + 1` at once (model.md 1, 2, 5): external
-//! agents by their action ([`crate::vehicle`], [`crate::pedestrian::integrate`]), replayed agents
-//! by their record, simulated pedestrians by their social forces ([`crate::pedestrian`]), and
-//! then the reactive vehicles, one after the other (`traffic.rs`).
+//! agents by their action ([`crate::model::vehicle`], [`crate::model::pedestrian::integrate`]), replayed agents
+//! by their record, simulated pedestrians by their social forces ([`crate::model::pedestrian`]), and
+//! then the reactive vehicles, one after the other (`reactive_vehicles.rs`).
 
 use super::agents::v2;
 use super::AgentId;
 use super::{observe, Control, StepScratch, World};
-use crate::fastmath;
 use crate::geometry::Vec2;
+use crate::model::pedestrian::{self, ModelForces};
+use crate::model::vehicle::{self, UnicycleState};
 use crate::params::PedestrianModel;
-use crate::pedestrian::{self, ModelForces};
 use crate::scenario::AgentKind;
-use crate::vehicle::{self, UnicycleState};
+use crate::support::fastmath;
 
 impl World {
     /// Moves every agent; records, per external agent, whether its action was clipped and its yaw

@@ -4,8 +4,8 @@
 use std::mem::MaybeUninit;
 
 use super::AgentId;
-use crate::cognition::Belief;
 use crate::geometry::Vec2;
+use crate::model::cognition::Belief;
 
 /// One directed edge `i -> j` of the risk graph with `i`'s belief about `j` (a copy read out of
 /// the [`EdgeStore`]).

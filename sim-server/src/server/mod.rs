@@ -10,7 +10,7 @@
 //! * [`env`]: one env — its scenario sequence, the current episode's `sim_core::World`, and the
 //!   translation of sim-core results into protocol replies and publications (observations are
 //!   written straight into the reply's arrays, batched or not).
-//! * [`sim_core::helpers`]: the persistent threads that step a large batch's chunks.
+//! * [`sim_core::support::threads`]: the persistent threads that step a large batch's chunks.
 //! * [`core`]: [`ServerCore`], the env registry (env id → `Arc<Mutex<Env>>`), trainers and
 //!   reaping, limits, and one handler per request taking payload bytes and returning reply bytes
 //!   plus the publications to send. Unit-testable without zenoh.
@@ -37,7 +37,7 @@
 //!   `risk_graph`, `events`, `result`) the server declares one publisher on `{p}/env/*/{topic}` and
 //!   keeps its zenoh matching status in an atomic flag; a topic without any matching subscriber
 //!   is neither encoded nor put. While somebody matches a topic, each open env gets a publisher
-//!   of its own on it (`net::EnvWatch`), whose matching status gates that env: a subscriber of
+//!   of its own on it (`watch::EnvWatch`), whose matching status gates that env: a subscriber of
 //!   one env's topic costs the other envs nothing.
 //! * **Scene variations.** An env with variations (`CreateEnv.variations`, else its pool
 //!   entry's) draws one variation seed per episode from a stream seeded by its seed

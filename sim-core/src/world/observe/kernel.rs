@@ -1,16 +1,16 @@
 //! One observer's edges (stage 4 of a step, the inner loops): which agents it perceives, its
 //! belief update about each ([`Belief::update`], model.md 3), the clearance, `psi`
-//! ([`risk::edge_psi`], model.md 4) and the weighted repulsion ([`crate::pedestrian::ModelForces::edge_force`],
+//! ([`risk::edge_psi`], model.md 4) and the weighted repulsion ([`crate::model::pedestrian::ModelForces::edge_force`],
 //! model.md 5). This file only gathers their inputs and stores their outputs; every number of
 //! the model comes from those functions.
 
 use std::mem::MaybeUninit;
 
 use super::{disc_radius, ObserveInputs, ObserveWorker, TargetInfo};
-use crate::cognition::Belief;
 use crate::geometry::{self, clearance_and_normal_oriented, Placed, Vec2};
-use crate::pedestrian::{lane_max, lane_sum};
-use crate::risk;
+use crate::model::cognition::Belief;
+use crate::model::pedestrian::{lane_max, lane_sum};
+use crate::model::risk;
 use crate::world::store::EdgeSink;
 use crate::world::Agents;
 use crate::world::Control;
@@ -169,7 +169,7 @@ impl ObserveWorker {
     /// [`SMALL_OBSERVER_EDGES`] targets: one loop over the edges instead of three passes over
     /// structure-of-arrays scratch whose set-up costs more than a few edges' work (most
     /// observers of a small scene). Both paths compute each edge with [`edge_state`],
-    /// [`risk::edge_psi`] and [`crate::pedestrian::ModelForces::edge_force`] and sum with the same lane functions, so the result is
+    /// [`risk::edge_psi`] and [`crate::model::pedestrian::ModelForces::edge_force`] and sum with the same lane functions, so the result is
     /// bit-identical to the three passes.
     #[inline(always)]
     fn small_observer_edges(
@@ -405,7 +405,7 @@ fn contact(
 /// The repulsion direction `(nnx, nny, rect)` and `1 / dist` of the edge from slot `i` to slot
 /// `j`, exactly as the observe pass computed them for the current state: for a move that sums a
 /// pedestrian's repulsions again after agents left (`motion.rs`), with the same
-/// [`crate::pedestrian::ModelForces::edge_force`].
+/// [`crate::model::pedestrian::ModelForces::edge_force`].
 pub(in crate::world) fn edge_direction(a: &Agents, i: usize, j: usize) -> ((f64, f64, f64), f64) {
     let placed = |k: usize| Placed {
         shape: a.shape[k],

@@ -11,12 +11,12 @@ use std::ops::Range;
 
 use super::store::{EdgeSink, EdgeStore};
 use super::{AgentId, Agents, StepScratch, World};
-use crate::cognition::VarianceSchedule;
 use crate::geometry::{self, Shape, Vec2};
-use crate::grid::Grid;
+use crate::model::cognition::VarianceSchedule;
+use crate::model::pedestrian::ModelForces;
 use crate::params::{PedestrianModel, WorldParams};
-use crate::pedestrian::ModelForces;
 use crate::scenario::AgentKind;
+use crate::support::grid::Grid;
 
 mod kernel;
 
@@ -290,10 +290,10 @@ pub struct KernelsUnavailable(pub Kernels);
 ///
 /// Each observer is done in three passes over its edges (`kernel.rs`): a gather of the
 /// candidates within the perception radius (branch-free compaction), a pass that reads the
-/// targets' state and updates the beliefs ([`crate::cognition::Belief::update`]; random access),
+/// targets' state and updates the beliefs ([`crate::model::cognition::Belief::update`]; random access),
 /// writing the edges straight into the edge store, and one branch-free loop over
-/// structure-of-arrays scratch for the risk ([`crate::risk::edge_psi`]) and the social forces
-/// ([`crate::pedestrian::edge_force`]), which the compiler vectorises. The whole pass is one
+/// structure-of-arrays scratch for the risk ([`crate::model::risk::edge_psi`]) and the social forces
+/// ([`crate::model::pedestrian::edge_force`]), which the compiler vectorises. The whole pass is one
 /// source compiled three times, portable, AVX2 and AVX-512 ([`Kernels`], chosen at run time).
 /// A threaded pass runs in two halves ([`ObserveWorker::gather_all`], then
 /// [`ObserveWorker::edges_into`]) so that the workers write into one store.

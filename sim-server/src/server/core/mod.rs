@@ -33,7 +33,7 @@ use sim_core::world::StepScratch;
 use super::env::{BufMut, Buffers, Env, EnvSpec, Gates, Publication, Watch};
 use super::fair::FairTurns;
 use super::pools::ServedPool;
-use sim_core::helpers::Helpers;
+use sim_core::support::threads::Helpers;
 
 mod batch;
 mod create;

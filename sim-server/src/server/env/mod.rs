@@ -13,8 +13,8 @@ use sim_core::geometry::Shape;
 use sim_core::metrics::EpisodeStatus;
 use sim_core::params::VehicleModel;
 use sim_core::params::{PedestrianModel, WorldParams};
-use sim_core::rng::{derive_seed, SplitMix64};
 use sim_core::scenario::{AgentKind, Split};
+use sim_core::support::rng::{derive_seed, SplitMix64};
 use sim_core::variation::{Variation, VariationSpec};
 use sim_core::world::{
     AgentId, Control, EpisodeConfig, Event as SimEvent, StepError, StepOutcome, StepScratch, World,

@@ -10,10 +10,10 @@
 //!
 //! Which models exist, their names and their parameter sets: [`crate::params::PedestrianModel`].
 
-use crate::fastmath;
 use crate::geometry::Vec2;
+use crate::model::risk;
 use crate::params::{PedestrianModel, SocialForceParams};
-use crate::risk;
+use crate::support::fastmath;
 
 /// Goal force `(v0 e_goal - v) / tau`; `e_goal` is the unit vector to the goal (zero at the goal).
 #[inline]

@@ -10,7 +10,7 @@
 //!   free room ahead.
 //!
 //! The corridor scan that finds the leader and the free room needs the other agents' footprints
-//! and lives with the world's stages (`world/traffic.rs`).
+//! and lives with the world's stages (`world/reactive_vehicles.rs`).
 
 use crate::geometry::Vec2;
 use crate::params::TrafficParams;
@@ -157,7 +157,10 @@ impl RecordedPath {
         let seg = Vec2::new(q[0], q[1]) - start;
         let len = self.cumulative[k + 1] - self.cumulative[k];
         let t = (s - self.cumulative[k]) / len; // len > 0: cumulative[k] <= s < cumulative[k + 1]
-        (start + seg * t, crate::fastmath::atan2(seg.y, seg.x))
+        (
+            start + seg * t,
+            crate::support::fastmath::atan2(seg.y, seg.x),
+        )
     }
 }
 

@@ -7,9 +7,9 @@
 use std::cell::RefCell;
 
 use crate::geometry::Vec2;
-use crate::risk;
+use crate::model::risk;
+use crate::model::vehicle::wrap_angle;
 use crate::scenario::AgentKind;
-use crate::vehicle::wrap_angle;
 use crate::world::{AgentId, World};
 
 /// Features per node.

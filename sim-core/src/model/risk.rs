@@ -46,7 +46,7 @@ pub fn edge_psi(
     let radial_speed = along.abs() * inv_dist;
     let k = if along > 0.0 { -1.0 } else { 1.0 };
     let z = params.gamma1 * k * (radial_speed + acc_norm);
-    let one_plus_e = 1.0 + crate::fastmath::exp(-2.0 * z);
+    let one_plus_e = 1.0 + crate::support::fastmath::exp(-2.0 * z);
     let psi = one_plus_e / (one_plus_e + 2.0 * params.gamma2 * clearance);
     // d_virtual = 0 (the agent rushes at the observer): psi = 1, as the unfolded form.
     let psi = if one_plus_e == f64::INFINITY {

@@ -1,4 +1,4 @@
-//! Stage 2, last part: the reactive vehicles move ([`crate::traffic`], docs/MODEL.md "Traffic").
+//! Stage 2, last part: the reactive vehicles move ([`crate::model::traffic`], docs/MODEL.md "Traffic").
 //!
 //! They move after every other agent, one after the other in slot order, each against the
 //! footprints as they already are at `t + 1` (and, for the reactive vehicles after it, as they
@@ -8,8 +8,8 @@
 use super::agents::v2;
 use super::{Control, World};
 use crate::geometry::{clearance, Placed, Vec2};
+use crate::model::traffic::{self, AdvanceInputs, RecordedPath};
 use crate::params::VehicleModel;
-use crate::traffic::{self, AdvanceInputs, RecordedPath};
 
 /// Spacing of the poses at which the corridor ahead is checked, m.
 const SAMPLE_SPACING: f64 = 0.25;
