@@ -101,8 +101,13 @@ def trainer(args: argparse.Namespace) -> None:
     rng = random.Random(args.seed)
     np_rng = np.random.default_rng(args.seed)
     client = SimClient(args.endpoint, timeout=30.0)
-    vec = VectorClient(args.envs, client=client, seed=args.seed, autoreset=True)
-    vec.reset()
+
+    def fresh_envs(seed: int) -> VectorClient:
+        vec = VectorClient(args.envs, client=client, seed=seed, autoreset=True)
+        vec.reset()
+        return vec
+
+    vec = fresh_envs(args.seed)
     next_churn = time.time() + rng.uniform(0.5, 1.5) * args.churn_s
     tick = time.time() + 1.0
     steps, lat, errors, ops = 0, [], [], {"recreate": 0, "reset": 0}
@@ -116,13 +121,7 @@ def trainer(args: argparse.Namespace) -> None:
             if time.time() >= next_churn:
                 if rng.random() < 0.5:
                     vec.close()
-                    vec = VectorClient(
-                        args.envs,
-                        client=client,
-                        seed=rng.randrange(1 << 30),
-                        autoreset=True,
-                    )
-                    vec.reset()
+                    vec = fresh_envs(rng.randrange(1 << 30))
                     ops["recreate"] += 1
                 else:
                     vec.reset(env_index=rng.sample(range(args.envs), args.envs // 2))
@@ -131,13 +130,7 @@ def trainer(args: argparse.Namespace) -> None:
         except Exception as exc:  # noqa: BLE001 - every error is reported, then we go on
             errors.append(f"{type(exc).__name__}: {exc}")
             try:
-                vec = VectorClient(
-                    args.envs,
-                    client=client,
-                    seed=rng.randrange(1 << 30),
-                    autoreset=True,
-                )
-                vec.reset()
+                vec = fresh_envs(rng.randrange(1 << 30))
             except Exception as exc2:  # noqa: BLE001
                 errors.append(f"recreate: {type(exc2).__name__}: {exc2}")
                 time.sleep(1.0)
