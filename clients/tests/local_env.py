@@ -66,9 +66,9 @@ class LocalBatchedEnv(EnvBase):
             ``K`` = split size every scenario is played exactly once by the first episodes).
         scenarios: explicit pool indices to use instead of ``split``.
         pool: scenario dicts or the path of a scenario file (default: hbs-paper.json).
-        params: ``WorldParams`` overrides (reference.py's nested dict); ``None``: the server's
-            shipped defaults (:func:`shipped_params`), ``{}``: model.md's starting values.
         pedestrian_model: ``cr_sfm`` (default), ``ra_sfm``, ``sfm``, ``cv`` or ``replay``.
+
+    Its worlds run the server's shipped parameters (:func:`shipped_params`), on the CPU.
     """
 
     batch_locked = True
@@ -82,15 +82,13 @@ class LocalBatchedEnv(EnvBase):
         scenario_order: str = "random",
         scenarios: Sequence[int] | None = None,
         pool: str | Path | Sequence[Mapping[str, Any]] | None = None,
-        params: Mapping[str, Any] | None = None,
         pedestrian_model: str = "cr_sfm",
-        device: str | torch.device = "cpu",
     ):
         if num_envs < 1 or max_agents < 1:
             raise ValueError("num_envs and max_agents must be at least 1")
         if scenario_order not in ("random", "sequential"):
             raise ValueError(f"unknown scenario_order {scenario_order!r}")
-        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        super().__init__(device="cpu", batch_size=torch.Size([num_envs]))
         self.num_envs = k = int(num_envs)
         self.max_agents = m = int(max_agents)
         self.pool = load_pool(pool) if pool is None or isinstance(pool, str | Path) else list(pool)
@@ -101,8 +99,8 @@ class LocalBatchedEnv(EnvBase):
         )
         self.split = split
         self.scenario_order = scenario_order
-        # No params: the server's shipped defaults, not model.md's starting values.
-        self.world_params = dict(params) if params is not None else shipped_params(pedestrian_model)
+        # The server's shipped defaults, not model.md's starting values.
+        self.world_params = shipped_params(pedestrian_model)
         self.pedestrian_model = pedestrian_model
         probe = ReferenceWorld(self.pool[self.scenario_ids[0]], self.world_params, pedestrian_model)
         self.dt = probe.dt
