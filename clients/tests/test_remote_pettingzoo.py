@@ -180,6 +180,7 @@ def test_pickle_and_deepcopy_make_envs_of_their_own(sim_server, sim_client):
         for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
             try:
                 assert clone.agents == [] and clone.possible_agents == env.possible_agents
+                assert clone.spec == env.spec  # the spec travels whole
                 o, _ = clone.reset(seed=7)  # its own server env and connection, same seed
                 assert clone.env_id != env.env_id
                 np.testing.assert_array_equal(

@@ -106,11 +106,14 @@ def test_pickle_and_deepcopy_make_envs_of_their_own(sim_client):
     import copy
     import pickle
 
-    env = RemoteBatchedEnv(num_envs=2, max_agents=5, seed=3, client=sim_client)
+    env = RemoteBatchedEnv(
+        num_envs=2, max_agents=5, seed=3, client=sim_client, reward_weights={"danger": -0.5}
+    )
     try:
         first = env.reset()
         for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
             try:
+                assert clone.vec.spec == env.vec.spec  # the spec travels whole
                 assert clone.batch_size == env.batch_size
                 assert set(clone.vec.env_ids).isdisjoint(env.vec.env_ids)
                 td = clone.reset()  # seeded like the original at creation: same first episodes
@@ -119,5 +122,30 @@ def test_pickle_and_deepcopy_make_envs_of_their_own(sim_client):
             finally:
                 clone.close()
         env.rand_step(first)  # the original is untouched
+    finally:
+        env.close()
+
+
+def test_an_env_option_is_checked_before_any_env_is_made(sim_client):
+    """A misspelt option, an ill-typed field and a connection beside a shared client are
+    refused by name at construction; the server is not asked."""
+    open_envs = sim_client.info(sim_client.servers()[0]["server_id"])["load"]
+    with pytest.raises(TypeError, match="max_agent"):
+        RemoteBatchedEnv(num_envs=2, max_agent=5, client=sim_client)
+    with pytest.raises(ValueError, match="EnvSpec.vehicle_model"):
+        RemoteBatchedEnv(num_envs=2, vehicle_model="teleport", client=sim_client)
+    with pytest.raises(ValueError, match="endpoint"):
+        RemoteBatchedEnv(num_envs=2, endpoint="tcp/127.0.0.1:1", client=sim_client)
+    assert sim_client.info(sim_client.servers()[0]["server_id"])["load"] == open_envs
+
+
+def test_a_spec_built_once_is_passed_whole(sim_client):
+    from sharedspace.wire import EnvSpec
+
+    spec = EnvSpec(max_agents=5, seed=2, split="test", reward_weights={"danger": -0.5})
+    env = RemoteBatchedEnv(spec, 2, client=sim_client, scenario_order="sequential")
+    try:
+        assert env.vec.spec == spec.replace(autoreset=False)  # autoreset: the adapter's
+        assert env.reset()["features"].shape == (2, 5, 11)
     finally:
         env.close()
