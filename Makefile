@@ -72,6 +72,7 @@ test: $(VENV)/.installed $(VIEWER_PAGE) browser $(CARGO_MODULES) ## every test: 
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	PATH="$(CURDIR)/.tools/bin:$$PATH" $(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
+	$(PYTHON) scripts/long_functions.py --limit 80 sim-server/src clients/src
 	$(CARGO) test --workspace
 	$(CARGO) build -p sim-server
 	@# a hung interpreter exit must fail CI in minutes, not eat its whole budget

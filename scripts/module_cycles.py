@@ -108,7 +108,9 @@ def main(crates: list[str]) -> int:
         bad = []
         for parent, edges in sorted(sibling_edges(modules, uses).items()):
             for comp in cycles(edges):
-                inside = {(a, b): e for (a, b), e in edges.items() if a in comp and b in comp}
+                inside = {
+                    (a, b): e for (a, b), e in edges.items() if a in comp and b in comp
+                }
                 bad.append((parent, comp, inside))
         if not bad:
             print(f"{crate}: {len(modules)} modules, no cycle")
