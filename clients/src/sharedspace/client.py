@@ -459,8 +459,8 @@ class Connection(Checked):
         it stops when the process exits)."""
         if zenoh_config:
             settings = zenoh_file_settings(zenoh_config)
-            return cls(endpoint=None, prefix=prefix, zenoh_mode=settings.pop("mode", "client"),
-                       config=settings)  # fmt: skip
+            mode = settings.pop("mode", "client")
+            return cls(endpoint=None, prefix=prefix, zenoh_mode=mode, config=settings)
         if endpoint:
             return cls(endpoint=endpoint, prefix=prefix)
         from .local_server import shared_server
@@ -490,14 +490,14 @@ def env_options(
     Connection). Any other name raises ``TypeError`` naming it; connection fields beside a
     shared :class:`SimClient` raise ``ValueError`` (that client says where it is connected;
     ``failover`` alone may be given)."""
-    spec_fields = {k: v for k, v in options.items() if k in EnvSpec.__struct_fields__}
-    conn_fields = {k: v for k, v in options.items() if k in Connection.__struct_fields__}
+    spec_fields = {k: v for k, v in options.items() if k in EnvSpec.fields()}
+    conn_fields = {k: v for k, v in options.items() if k in Connection.fields()}
     unknown = sorted(set(options) - set(spec_fields) - set(conn_fields))
     if unknown:
         raise TypeError(
             f"unknown env option(s) {', '.join(map(repr, unknown))}: not a field of EnvSpec "
-            f"({', '.join(EnvSpec.__struct_fields__)}) nor of Connection "
-            f"({', '.join(Connection.__struct_fields__)})"
+            f"({', '.join(EnvSpec.fields())}) nor of Connection "
+            f"({', '.join(Connection.fields())})"
         )
     spec = EnvSpec.of(spec, **spec_fields)
     if isinstance(client, SimClient):
@@ -507,6 +507,7 @@ def env_options(
                 f"{where}: a shared client is already connected (pass one or the other)"
             )
         return EnvOptions(spec, client, bool(conn_fields.get("failover", False)))
-    connection = (client or Connection()).replace(**conn_fields) if conn_fields else client
-    connection = connection or Connection()
+    connection = client or Connection()
+    if conn_fields:
+        connection = connection.replace(**conn_fields)
     return EnvOptions(spec, connection, connection.failover)

@@ -68,6 +68,11 @@ class Checked(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
                 raise ValueError(f"{name}: {what} (got {value!r})") from None
             setattr(self, field.name, checked)
 
+    @classmethod
+    def fields(cls) -> tuple[str, ...]:
+        """The field names, in wire order."""
+        return cls.__struct_fields__
+
     def replace(self, **changes: Any):
         """A copy with ``changes`` applied (checked like a new one)."""
         return type(self)(**{**msgspec.structs.asdict(self), **changes})
@@ -148,11 +153,6 @@ class EnvSpec(Checked):
     #: How the cars nobody controls move (:data:`sharedspace.models.VEHICLE_MODELS`; None:
     #: the pool's).
     vehicle_model: Literal[VEHICLE_MODELS] | None = None  # type: ignore[valid-type]
-
-    @classmethod
-    def fields(cls) -> tuple[str, ...]:
-        """The field names, in wire order."""
-        return cls.__struct_fields__
 
     @classmethod
     def of(cls, spec: EnvSpec | None = None, **fields: Any) -> EnvSpec:
