@@ -198,6 +198,7 @@ impl Env {
             |f: fn(&_) -> f64| F64Array::from_slice(&edges.iter().map(f).collect::<Vec<_>>());
         let src = U32Array::from_slice(&edges.iter().map(|e| e.observer).collect::<Vec<_>>());
         let dst = U32Array::from_slice(&edges.iter().map(|e| e.target).collect::<Vec<_>>());
+        let u = column(|e| e.u);
         let (episode, step, t) = (self.episode, world.step_index(), world.time());
         let uncertainty = gates.uncertainty.then(|| UncertaintyMsg {
             env_id: self.id.clone(),
@@ -206,7 +207,7 @@ impl Env {
             t,
             src: src.clone(),
             dst: dst.clone(),
-            u: column(|e| e.u),
+            u: u.clone(),
         });
         let risk_graph = gates.risk_graph.then(|| RiskGraphMsg {
             env_id: self.id.clone(),
@@ -217,7 +218,7 @@ impl Env {
             src,
             dst,
             psi: column(|e| e.psi),
-            u: column(|e| e.u),
+            u,
             a: column(|e| e.a),
         });
         (uncertainty, risk_graph)
