@@ -548,3 +548,12 @@ def test_client_layout_decoder_names_a_malformed_array(field, value, says):
         layout(msgspec.msgpack.encode(reply))
     with pytest.raises(errors.NonFiniteAction):
         layout((GOLDEN / "reply_error.msgpack").read_bytes())
+
+
+def test_an_ill_typed_connection_is_refused_by_name():
+    from sharedspace.client import Connection
+
+    with pytest.raises(ValueError, match=re.escape("Connection.zenoh_mode")):
+        Connection(zenoh_mode="router")
+    with pytest.raises(ValueError, match=re.escape("Connection.timeout")):
+        Connection().replace(timeout="soon")

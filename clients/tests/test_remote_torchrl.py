@@ -149,3 +149,8 @@ def test_a_spec_built_once_is_passed_whole(sim_client):
         assert env.reset()["features"].shape == (2, 5, 11)
     finally:
         env.close()
+
+
+def test_two_controlled_vehicles_are_refused_by_the_single_vehicle_env(sim_client):
+    with pytest.raises(ValueError, match="one external agent"):
+        RemoteBatchedEnv(num_envs=1, external_agents=("vehicle_0", "vehicle_1"), client=sim_client)

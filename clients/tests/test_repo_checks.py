@@ -1,0 +1,40 @@
+"""The two structure checks of `make test` (scripts/module_cycles.py, scripts/long_functions.py)
+on small inputs: each finds what it is for, and nothing else."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+
+import long_functions  # noqa: E402
+import module_cycles  # noqa: E402
+
+MODULES = {"c", "c::a", "c::b", "c::d", "c::d::x", "c::d::y"}
+
+
+def test_a_cycle_between_sibling_modules_is_found_with_its_uses():
+    uses = [("c::a::F", "c::b::G"), ("c::b::G::m", "c::a::H"), ("c::d::x::f", "c::a::F")]
+    edges = module_cycles.sibling_edges(MODULES, uses)
+    assert set(edges["c"]) == {("c::a", "c::b"), ("c::b", "c::a"), ("c::d", "c::a")}
+    assert module_cycles.cycles(edges["c"]) == [["c::a", "c::b"]]
+
+
+def test_uses_within_a_module_and_of_ancestors_are_no_sibling_edges():
+    uses = [("c::a::F::m", "c::a::F"), ("c::d::x::f", "c::d"), ("c", "c::a::F")]
+    assert not module_cycles.sibling_edges(MODULES, uses)
+    deeper = module_cycles.sibling_edges(MODULES, [("c::d::x::f", "c::d::y::g")])
+    assert module_cycles.cycles(deeper["c::d"]) == []
+
+
+def test_long_functions_are_measured_in_both_languages(tmp_path):
+    py = tmp_path / "m.py"
+    py.write_text("def f():\n" + "    x = 1\n" * 5 + "\n\ndef g():\n    pass\n")
+    assert dict(long_functions.python_functions(py)) == {"f": 6, "g": 2}
+    rs = tmp_path / "m.rs"
+    rs.write_text(
+        'fn f() {\n    let s = "}";\n    if true {\n    }\n}\n'
+        "fn g();\n#[cfg(test)]\nmod tests {\n    fn t() {\n    }\n}\n"
+    )
+    assert dict(long_functions.rust_functions(rs)) == {"f": 5, "g": 1}
