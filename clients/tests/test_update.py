@@ -43,15 +43,19 @@ def replay_batch(gen: torch.Generator) -> TensorDict:
     return TensorDict({**obs(), "action": action, "next": TensorDict(nxt, [B])}, [B])
 
 
-def reference_and_update(variant: str):
+def reference_and_update(variant: str, layer_norm: bool = False):
     """TorchRL's SACLoss and an SACUpdate holding the same actor and the same critic weights;
     the targets are moved away from the critics so that the target path is exercised."""
-    cfg = TrainConfig(variant=variant, gamma=0.97)
+    cfg = TrainConfig(variant=variant, gamma=0.97, critic_layer_norm=layer_norm)
     spec = Bounded(-1.0, 1.0, (2,))
     actor, critic = make_actor(cfg, spec), make_critic(cfg, spec)
     probe = replay_batch(torch.Generator().manual_seed(1))
     with torch.no_grad():
         critic(actor(probe))
+        for m in critic.modules():  # off LayerNorm's initial affine (1, 0): both paths count
+            if isinstance(m, torch.nn.LayerNorm):
+                m.weight.add_(0.3 * torch.randn_like(m.weight))
+                m.bias.add_(0.3 * torch.randn_like(m.bias))
     loss, _ = make_loss(cfg, actor, critic)
     with torch.no_grad():
         targets = loss.target_qvalue_network_params.flatten_keys(".")
@@ -79,10 +83,12 @@ def reference_and_update(variant: str):
     return loss, update, actor
 
 
+@pytest.mark.parametrize("layer_norm", [False, True], ids=["plain", "layer_norm"])
 @pytest.mark.parametrize("variant", VARIANTS)
-def test_losses_and_gradients_equal_torchrl_sacloss(variant):
+def test_losses_and_gradients_equal_torchrl_sacloss(variant, layer_norm):
     torch.manual_seed(0)
-    loss, update, actor = reference_and_update(variant)
+    loss, update, actor = reference_and_update(variant, layer_norm)
+
     batch = replay_batch(torch.Generator().manual_seed(2))
     torch.manual_seed(7)
     ref = loss(batch.clone())

@@ -10,6 +10,9 @@ success rate is reachable on our scenario extraction at all:
 - :class:`PursuitDriver` steers toward the goal within the yaw-rate limit at a cruise speed,
   slows where the turn to the goal needs a tighter circle than the yaw-rate limit allows at its
   speed, and brakes to a stop while a pedestrian is close ahead.
+- :class:`CarAwareDriver` steers like the pursuit but sets its speed by the intelligent driver
+  model (IDM) behind the nearest agent in its path, pedestrian or car, and also behind one whose
+  motion brings it into the path by the time the car gets there.
 - :func:`reachability` plays, for every scenario, the pursuit law with no pedestrians from the
   recorded initial state at every cruise speed of a grid and reports the earliest arrival within
   the horizon, with the vehicle limits of model.md section 2.
@@ -40,6 +43,7 @@ __all__ = [
     "HumanReplayDriver",
     "StopDriver",
     "PursuitDriver",
+    "CarAwareDriver",
     "make_driver",
     "reachability",
 ]
@@ -47,6 +51,8 @@ __all__ = [
 # Node feature columns (protocol/SPEC.md section 7).
 _REL_X, _REL_Y, _SPEED = Feature.REL_X, Feature.REL_Y, Feature.SPEED
 _GOAL_DX, _GOAL_DY, _GOAL_DIST = Feature.GOAL_DX, Feature.GOAL_DY, Feature.GOAL_DIST
+_REL_VX, _REL_VY, _RADIUS = Feature.REL_VX, Feature.REL_VY, Feature.RADIUS
+_HEADING_DIFF = Feature.HEADING_DIFF
 
 
 @dataclass(frozen=True)
@@ -141,6 +147,92 @@ class PursuitDriver(nn.Module):
         return torch.as_tensor(action, dtype=features.dtype, device=features.device)
 
 
+class CarAwareDriver(nn.Module):
+    """Pursuit toward the goal whose speed follows the intelligent driver model (Treiber et al.,
+    2000) behind the first agent in its path: pedestrians and cars alike.
+
+    An agent is in the path when its centre is ahead of the car's front and, now or when the car
+    would reach it (its lateral velocity carried over ``rel_x / speed`` seconds, at most
+    ``lookahead`` s), within ``half_width + radius + margin`` of the car's axis. The gap is its
+    distance ahead less the car's half length and its radius; its speed along the car's axis
+    is the car's speed plus ``rel_vx``. The IDM acceleration
+    ``a (1 - (v / cruise)^4 - (s* / s)^2)``, ``s* = s0 + v T + v dv / (2 sqrt(a b))``, caps the
+    pursuit's; with no one in the path the pursuit drives alone.
+
+    Args:
+        cruise: desired speed ``v0``, m/s.
+        headway: time headway ``T``, s.
+        min_gap: standstill gap ``s0``, m.
+        margin: lateral clearance added to the path's half width, m.
+        lookahead: the longest time ahead a crossing agent is projected, s.
+        comfort_decel: IDM's comfortable deceleration ``b``, m/s^2.
+        half_length, half_width: the car's footprint (model.md section 2: 4.0 x 1.8 m), m.
+        limits: vehicle limits (``acc_max`` is IDM's ``a``; the action normalisation).
+    """
+
+    def __init__(
+        self,
+        cruise: float = 4.0,
+        headway: float = 1.0,
+        min_gap: float = 2.0,
+        margin: float = 0.5,
+        lookahead: float = 3.0,
+        comfort_decel: float = 2.0,
+        half_length: float = 2.0,
+        half_width: float = 0.9,
+        limits: VehicleLimits = VehicleLimits(),  # noqa: B008 - frozen dataclass
+    ):
+        super().__init__()
+        self.cruise, self.headway, self.min_gap = cruise, headway, min_gap
+        self.margin, self.lookahead, self.comfort_decel = margin, lookahead, comfort_decel
+        self.half_length, self.half_width = half_length, half_width
+        self.limits = limits
+
+    def idm_acceleration(self, f: np.ndarray, present: np.ndarray) -> np.ndarray:
+        """IDM's acceleration ``[*]`` behind the first agent in the path (``+inf`` when the path
+        is free) of node features ``f [*, M, F]`` and mask ``present [*, M]``."""
+        v = f[..., 0, _SPEED][..., None]
+        others = f[..., 1:, :]
+        x, y = others[..., _REL_X], others[..., _REL_Y]
+        reach = np.clip(x / np.maximum(v, 1.0), 0.0, self.lookahead)
+        y_then = y + others[..., _REL_VY] * reach
+        # Half the other's extent across the car's axis: its radius for a pedestrian; for a car
+        # (taken to have this car's footprint; the observation gives only its radius) the
+        # rectangle's, so a parked car alongside is not in the path.
+        hd = others[..., _HEADING_DIFF]
+        across = self.half_length * np.abs(np.sin(hd)) + self.half_width * np.abs(np.cos(hd))
+        extent = np.where(others[..., Feature.IS_VEHICLE] > 0.5, across, others[..., _RADIUS])
+        corridor = self.half_width + extent + self.margin
+        in_path = (
+            present[..., 1:]
+            & (x > 0.0)
+            & ((np.abs(y) < corridor) | (np.abs(y_then) < corridor) | (y * y_then < 0.0))
+        )
+        along = self.half_length * np.abs(np.cos(hd)) + self.half_width * np.abs(np.sin(hd))
+        ahead = np.where(others[..., Feature.IS_VEHICLE] > 0.5, along, others[..., _RADIUS])
+        gap = np.maximum(x - self.half_length - ahead, 1e-3)
+        closing = v - (v + others[..., _REL_VX])  # v - v_leader along the car's axis
+        a, b = self.limits.acc_max, self.comfort_decel
+        desired = self.min_gap + np.maximum(
+            0.0, v * self.headway + v * closing / (2.0 * np.sqrt(a * b))
+        )
+        acc = a * (1.0 - (v / self.cruise) ** 4 - (desired / gap) ** 2)
+        return np.where(in_path, acc, np.inf).min(-1)
+
+    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        f = features.detach().cpu().numpy().astype(np.float64)
+        present = mask.detach().cpu().numpy().astype(bool)
+        ego = f[..., 0, :]
+        heading_error = np.arctan2(ego[..., _GOAL_DY], ego[..., _GOAL_DX])
+        acc, omega = pursuit_action(
+            heading_error, ego[..., _GOAL_DIST], ego[..., _SPEED], self.cruise, self.limits
+        )
+        acc = np.minimum(acc, self.idm_acceleration(f, present))
+        acc = np.clip(acc, -self.limits.acc_max, self.limits.acc_max)
+        action = np.stack([acc / self.limits.acc_max, omega / self.limits.omega_max], -1)
+        return torch.as_tensor(action, dtype=features.dtype, device=features.device)
+
+
 class HumanReplayDriver(nn.Module):
     """The recorded driver's speeds and headings replayed open loop as actions: at step ``t``
     the acceleration and yaw rate that take the recorded speed and heading of frame ``t`` to
@@ -189,6 +281,7 @@ DRIVERS = {
     "stop": lambda: StopDriver(),
     "pursuit_3": lambda: PursuitDriver(cruise=3.0),
     "pursuit_5": lambda: PursuitDriver(cruise=5.0),
+    "car_aware": lambda: CarAwareDriver(),
 }
 
 

@@ -40,7 +40,7 @@ from sharedspace.train.config import (
 )
 from sharedspace.train.sac import make_env
 
-__all__ = ["open_loop_search", "unavoidable_first_step"]
+__all__ = ["Cell", "cell_name", "open_loop_search", "split_cells", "unavoidable_first_step"]
 
 _GOAL_DIST = Feature.GOAL_DIST  # ego node feature: distance to the goal
 
@@ -76,6 +76,25 @@ def unavoidable_first_step(cfg: TrainConfig) -> list[int]:
     return sorted(i for i, c in collided.items() if c == 9)
 
 
+#: A search cell: a scene (pool name) and the variation seed it is played in (None: the
+#: recorded scene).
+Cell = tuple[str, "int | None"]
+
+
+def split_cells(pool: Sequence[dict[str, Any]], split: str, variations: int = 0) -> list[Cell]:
+    """The cells of every scene of ``split``: each scene once, or in the variations of seeds
+    ``0 .. variations - 1``, variation-major (as the powered test plays them)."""
+    names = [pool[i]["name"] for i in split_indices(pool, split)]
+    if variations <= 0:
+        return [(name, None) for name in names]
+    return [(name, v) for v in range(variations) for name in names]
+
+
+def cell_name(cell: Cell) -> str:
+    """``"{scene}#{variation}"``, or the scene's name for the recorded scene."""
+    return cell[0] if cell[1] is None else f"{cell[0]}#{cell[1]}"
+
+
 def open_loop_search(
     cfg: TrainConfig,
     rounds: int = 8,
@@ -85,6 +104,10 @@ def open_loop_search(
     max_steps: int = 200,
     variations: int = 0,
     spec: dict[str, Any] | None = None,
+    *,
+    split: str = "test",
+    cells: Sequence[Cell] | None = None,
+    initial: dict[str, np.ndarray] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """A planner's answer to "can any driver succeed here?": for every test scenario, a
     cross-entropy search over open-loop action sequences. Round 0 plays the 9 constant actions
@@ -100,33 +123,38 @@ def open_loop_search(
 
     With ``variations`` = M > 0 the search runs on each of the M seeded variations of every test
     scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.paper.evaluate.play_variations`
-    plays them), keyed ``"{name}#{seed}"``: the bound of the powered test."""
+    plays them), keyed ``"{name}#{seed}"``: the bound of the powered test. ``split`` names
+    another split, ``cells`` any list of (scene, variation seed) instead; ``initial`` maps a
+    cell's name to a sequence ``[T, 2]`` that round 0 plays among its first candidates (a
+    driver's actions, from which the search starts)."""
     pool = load_pool(cfg.scenario_pool or None)
-    test = split_indices(pool, "test")
-    n = len(test) * max(1, variations)  # search cells: (scenario, variation)
+    cells = list(cells) if cells is not None else split_cells(pool, split, variations)
+    n = len(cells)  # search cells: (scenario, variation)
+    names = [cell_name(c) for c in cells]
     rng = np.random.default_rng(seed)
     played: dict[str, list[tuple[float, np.ndarray]]] = {}  # name -> (score, actions)
     found: dict[str, dict[str, Any]] = {}
-    names: list[str] = []
     for round_ in range(rounds):
         shape = (n * per_round, max_steps, 2)
         if round_ == 0:
             actions = _first_round(shape, n, rng)
+            _start_from(actions, names, initial or {})
         else:
-            actions = _elite_round(shape, n, [played[name] for name in names[:n]], elites, rng)
-        names, outcome = _play_open_loop(cfg, pool, actions, variations, spec)
-        for k, name in enumerate(names):
+            actions = _elite_round(shape, n, [played[name] for name in names], elites, rng)
+        outcome = _play_open_loop(cfg, split, cells, actions, spec)
+        for k, cell in enumerate(cells * per_round):
+            name = cell_name(cell)
             status, steps, goal_dist = outcome[k] or ("timeout", max_steps, float("inf"))
             _count(found, name, status, steps, actions[k])
             score = {"success": 1e4 - steps, "timeout": -goal_dist, "collision": -1e4 + steps}
             played.setdefault(name, []).append((score[status], actions[k]))
     # Replayed in fresh envs, every best sequence must arrive again: the bound rests on it.
     replay = np.zeros((n, max_steps, 2), dtype=np.float32)
-    for j, name in enumerate(names[:n]):
+    for j, name in enumerate(names):
         best = found.get(name, {}).get("best_actions")
         if best:
             replay[j, : len(best)] = best
-    names, outcome = _play_open_loop(cfg, pool, replay, variations, spec)
+    outcome = _play_open_loop(cfg, split, cells, replay, spec)
     for name, result in zip(names, outcome, strict=True):
         if found.get(name, {}).get("best_actions"):
             found[name]["replayed"] = result[0] if result else "timeout"
@@ -144,7 +172,7 @@ def _first_round(shape: tuple[int, int, int], n: int, rng) -> np.ndarray:
     :data:`_CONSTANTS`, then random piecewise-constant sequences."""
     actions = np.empty(shape, dtype=np.float32)
     for k in range(shape[0]):
-        c = k // n  # sub-env k plays the split's scenario k % n (sequential order)
+        c = k // n  # sub-env k plays cell k % n
         if c < len(_CONSTANTS):
             actions[k] = _CONSTANTS[c]
             continue
@@ -154,6 +182,20 @@ def _first_round(shape: tuple[int, int, int], n: int, rng) -> np.ndarray:
             actions[k, t : t + length] = rng.choice(_LEVELS, size=2)
             t += length
     return actions
+
+
+def _start_from(actions: np.ndarray, names: Sequence[str], initial: dict[str, np.ndarray]):
+    """Round 0's first random candidate of each cell of ``initial`` becomes its sequence (held
+    at its last action after it ends)."""
+    n, slot = len(names), len(_CONSTANTS)
+    for j, name in enumerate(names):
+        seq = initial.get(name)
+        if seq is None or len(seq) == 0 or (slot + 1) * n > len(actions):
+            continue
+        seq = np.asarray(seq, dtype=np.float32)[: actions.shape[1]]
+        row = actions[slot * n + j]
+        row[: len(seq)] = seq
+        row[len(seq) :] = seq[-1]
 
 
 def _elite_round(shape, n: int, played: list[list[tuple[float, np.ndarray]]], elites: int, rng):
@@ -182,50 +224,43 @@ def _count(found: dict[str, dict[str, Any]], name: str, status: str, steps: int,
 
 def _play_open_loop(
     cfg: TrainConfig,
-    pool: Sequence[dict[str, Any]],
+    split: str,
+    cells: Sequence[Cell],
     actions: np.ndarray,
-    variations: int = 0,
     spec: dict[str, Any] | None = None,
-) -> tuple[list[str], list[tuple[str, int, float] | None]]:
-    """Plays ``actions[k]`` (``[K, T, 2]``) open loop in sub-env ``k`` of test-split envs in
-    sequential order (sub-env ``k`` on the split's scenario ``k % n``; with ``variations`` = M,
-    in variation ``(k // n) % M``, named ``"{name}#{variation}"``) until every sub-env's first
-    episode has ended; per sub-env its name and ``(status, steps, goal distance)``. Envs of at
-    most :data:`MAX_EVAL_ENVS` sub-envs."""
-    n = len(split_indices(pool, "test"))
-    per_env = max(1, MAX_EVAL_ENVS // n) * n
-    names: list[str] = []
+) -> list[tuple[str, int, float] | None]:
+    """Plays ``actions[k]`` (``[K, T, 2]``) open loop in sub-env ``k``, on cell ``k % n`` of the
+    ``n`` ``cells`` (scenes of ``split``), until every sub-env's first episode has ended; per
+    sub-env ``(status, steps, goal distance)``. Envs of at most :data:`MAX_EVAL_ENVS` sub-envs."""
+    n = len(cells)
     outcome: list[tuple[str, int, float] | None] = []
-    for start in range(0, actions.shape[0], per_env):
-        part = actions[start : start + per_env]
-        seeds = [((start + k) // n) % variations for k in range(len(part))] if variations else None
-        got_names, got = _play_open_loop_env(cfg, pool, part, seeds, spec)
-        if seeds is not None:
-            got_names = [f"{name}#{v}" for name, v in zip(got_names, seeds, strict=True)]
-        names += got_names
-        outcome += got
-    return names, outcome
+    for start in range(0, actions.shape[0], MAX_EVAL_ENVS):
+        part = actions[start : start + MAX_EVAL_ENVS]
+        part_cells = [cells[(start + k) % n] for k in range(len(part))]
+        outcome += _play_open_loop_env(cfg, split, part_cells, part, spec)
+    return outcome
 
 
 def _play_open_loop_env(
     cfg: TrainConfig,
-    pool: Sequence[dict[str, Any]],
+    split: str,
+    cells: Sequence[Cell],
     actions: np.ndarray,
-    variation_seeds: list[int] | None,
     spec: dict[str, Any] | None,
-) -> tuple[list[str], list[tuple[str, int, float] | None]]:
+) -> list[tuple[str, int, float] | None]:
     k_envs, max_steps = actions.shape[:2]
+    seeds = [c[1] for c in cells]
+    varied = any(s is not None for s in seeds)
     env = make_env(
         cfg,
-        split="test",
+        split=split,
         num_envs=k_envs,
-        scenario_order="sequential",
-        variations=dict(spec or BENCHMARK_VARIATIONS) if variation_seeds else None,
-        variation_seeds=variation_seeds,
+        scenarios=[c[0] for c in cells],
+        variations=dict(spec or BENCHMARK_VARIATIONS) if varied else None,
+        variation_seeds=[0 if s is None else s for s in seeds] if varied else None,
     )
     try:
         td = env.reset()
-        names = [pool[int(i)]["name"] for i in td["scenario_index"].reshape(-1).tolist()]
         outcome: list[tuple[str, int, float] | None] = [None] * k_envs
         for t in range(max_steps):
             td["action"] = torch.from_numpy(np.ascontiguousarray(actions[:, t]))
@@ -239,7 +274,7 @@ def _play_open_loop_env(
                 break
     finally:
         env.close()
-    return names, outcome
+    return outcome
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -48,6 +48,9 @@ class TrainConfig:
         default_factory=dict
     )  # scene variations of the training envs (SPEC 5.2.1; JSON on --set); {} = none
     vehicle_model: str = ""  # cars nobody controls: replay | idm (reactive); "" = the pool's
+    reward_weights: dict[str, float] = field(
+        default_factory=dict
+    )  # reward weights over the world's (SPEC 8.2 names; JSON on --set); {} = the world's
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
@@ -59,6 +62,14 @@ class TrainConfig:
     tau: float = 0.005  # soft target update coefficient (theta' <- tau theta + (1-tau) theta')
     alpha_init: float = 1.0  # initial entropy temperature (learned, target entropy = -|A|)
     loss_function: str = "l2"  # critic loss: l2 | smooth_l1
+    critic_layer_norm: bool = False  # LayerNorm after each hidden layer of the critics (RLPD)
+    # --- prior data (RLPD, Ball et al. 2023; sharedspace.train.prior, `make demos`)
+    prior_data: str = ""  # dataset directory of recorded transitions; "" = online data only
+    prior_sources: str = ""  # comma-separated sources of it to use (e.g. car_aware); "" = all
+    prior_successes_only: bool = False  # only the transitions of episodes that reached the goal
+    prior_ratio: float = 0.5  # share of every replay batch drawn from the prior data
+    bc_weight: float = 0.0  # TD3+BC term (x mean|Q|) on the prior rows of the actor loss; 0 = off
+    bc_steps: int = 0  # behaviour-cloning steps of the actor on the prior data before collecting
     # --- networks
     hidden_sizes: list[int] = field(default_factory=lambda: [256, 256])  # MLP head widths
     gcn_hidden: int = 64  # width of each GCN layer's output
@@ -79,6 +90,10 @@ class TrainConfig:
         self.env_spec("train", self.seed, self.variations)  # names a wrong env field now
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
+        if not 0.0 <= self.prior_ratio < 1.0:
+            raise ValueError(f"prior_ratio must be in [0, 1), not {self.prior_ratio}")
+        if (self.bc_weight > 0 or self.bc_steps > 0) and not self.prior_data:
+            raise ValueError("bc_weight and bc_steps clone the prior data: set prior_data")
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split``, ``seed`` and scene
@@ -91,6 +106,7 @@ class TrainConfig:
             max_agents=self.max_agents,
             variations=variations or None,
             vehicle_model=self.vehicle_model or None,
+            reward_weights=dict(self.reward_weights),
         )
 
     def connection(self) -> Connection:

@@ -94,16 +94,25 @@ def aggregate(
 
 
 def mlp(
-    sizes: Sequence[int], out: int | None = None, final_activation: bool = False
+    sizes: Sequence[int],
+    out: int | None = None,
+    final_activation: bool = False,
+    layer_norm: bool = False,
 ) -> nn.Sequential:
-    """Linear + ReLU stack through ``sizes`` (then a plain ``Linear`` to ``out`` if given)."""
+    """Linear + ReLU stack through ``sizes`` (then a plain ``Linear`` to ``out`` if given);
+    with ``layer_norm`` a ``LayerNorm`` before each ReLU (RLPD's critics)."""
     layers: list[nn.Module] = []
     for a, b in zip(sizes[:-1], sizes[1:], strict=True):
-        layers += [nn.Linear(a, b), nn.ReLU(inplace=True)]  # a Linear's backward needs no output
+        layers.append(nn.Linear(a, b))
+        if layer_norm:
+            layers.append(nn.LayerNorm(b))
+        layers.append(nn.ReLU(inplace=True))  # a Linear's backward needs no output
     if out is not None:
         layers.append(nn.Linear(sizes[-1], out))
     elif not final_activation and layers:
         layers.pop()
+        if layer_norm:
+            layers.pop()
     return nn.Sequential(*layers)
 
 
@@ -199,12 +208,21 @@ class ActorNet(nn.Module):
 
 
 class QNet(nn.Module):
-    """Encoder + MLP on (embedding ++ action) to ``Q [*, 1]``."""
+    """Encoder + MLP on (embedding ++ action) to ``Q [*, 1]``; ``layer_norm``: a LayerNorm
+    after each hidden layer of the MLP (RLPD)."""
 
-    def __init__(self, encoder: GraphEncoder, hidden_sizes: Sequence[int], action_dim: int = 2):
+    def __init__(
+        self,
+        encoder: GraphEncoder,
+        hidden_sizes: Sequence[int],
+        action_dim: int = 2,
+        layer_norm: bool = False,
+    ):
         super().__init__()
         self.encoder = encoder
-        self.head = mlp([encoder.out_features + action_dim, *hidden_sizes], out=1)
+        self.head = mlp(
+            [encoder.out_features + action_dim, *hidden_sizes], out=1, layer_norm=layer_norm
+        )
 
     def forward(self, features, adjacency, mask, action):
         return self.head(torch.cat([self.encoder(features, adjacency, mask), action], -1))

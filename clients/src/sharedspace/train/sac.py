@@ -40,17 +40,20 @@ def make_env(
     scenario_order: str = "random",
     variations: dict[str, Any] | None = None,
     variation_seeds: Sequence[int] | None = None,
+    scenarios: Sequence[str] | None = None,
 ) -> EnvBase:
     """The batched env (ENV_CONTRACT.md) of ``cfg.env_spec`` on the Rust server of
     ``cfg.connection()`` (an endpoint, a zenoh file, or a ``sim-server`` this process starts).
     ``variations`` (and fixed ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1;
-    the trainer passes ``cfg.variations`` for its training env only."""
+    the trainer passes ``cfg.variations`` for its training env only. ``scenarios``: sub-env
+    ``k`` plays ``scenarios[k]`` (scenes of ``split``), in sequential order."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
     return RemoteBatchedEnv(
         cfg.env_spec(split, cfg.seed if seed is None else seed, variations),
         num_envs or cfg.num_envs,
         scenario_order=scenario_order,
+        scenarios=scenarios,
         variation_seeds=variation_seeds,
         client=cfg.connection(),
     )
@@ -93,7 +96,9 @@ def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
 
 def make_critic(cfg: TrainConfig, action_spec) -> ValueOperator:
     """``Q(s, a)``: its own graph encoder + MLP; SACLoss makes the two critics and targets."""
-    net = QNet(_encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1])
+    net = QNet(
+        _encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1], layer_norm=cfg.critic_layer_norm
+    )
     return ValueOperator(net, in_keys=[*OBS_KEYS, "action"]).to(cfg.device)
 
 
@@ -111,14 +116,17 @@ def make_update(cfg: TrainConfig, actor, action_spec, num_critics: int = 2) -> S
         alpha_init=cfg.alpha_init,
         loss_function=cfg.loss_function,
         action_dim=action_spec.shape[-1],
+        bc_weight=cfg.bc_weight,
     ).to(cfg.device)
 
 
 def make_replay_buffer(cfg: TrainConfig) -> TensorDictReplayBuffer:
-    """Uniform replay over a preallocated (lazy) tensor storage of ``buffer_size`` transitions."""
+    """Uniform replay over a preallocated (lazy) tensor storage of ``buffer_size`` transitions;
+    its batches are the online part of a replay batch (all of it without prior data)."""
+    prior_rows = round(cfg.batch_size * cfg.prior_ratio) if cfg.prior_data else 0
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(cfg.buffer_size, device=cfg.device),
-        batch_size=cfg.batch_size,
+        batch_size=cfg.batch_size - prior_rows,
     )
 
 

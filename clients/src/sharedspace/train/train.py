@@ -32,6 +32,7 @@ from sharedspace.train.config import (
     load_config,
 )
 from sharedspace.train.evaluation import evaluate_split
+from sharedspace.train.prior import clone, make_prior, mixed_batch
 from sharedspace.train.sac import (
     make_actor,
     make_collector,
@@ -138,9 +139,10 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
 
     # ---- counters, possibly from a checkpoint
     ckpt = torch.load(resume, map_location=cfg.device, weights_only=False) if resume else None
-    counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0}
+    counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0, "clone_steps": 0}
     if ckpt is not None:
         counters.update(ckpt["counters"])
+    prior = make_prior(cfg)  # RLPD's prior data (refused here if of another world)
     seed_everything(cfg.seed + counters["frames"])
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
@@ -167,10 +169,17 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         if "torch_rng" in ckpt:
             torch.set_rng_state(ckpt["torch_rng"])
 
+    # ---- the actor cloned on the prior data first, if asked
+    logger = MetricLogger(log_dir)
+    if prior is not None and counters["clone_steps"] < cfg.bc_steps:
+        losses = clone(update, prior, cfg.bc_steps - counters["clone_steps"], cfg)
+        counters["clone_steps"] = cfg.bc_steps
+        logger.log({"train/loss_clone": float(np.mean(losses[-100:]))}, counters["frames"])
+        _checkpoint(log_dir, cfg, actor, update, counters, buffer)
+
     # ---- collector over the remaining frames
     remaining = max(cfg.total_frames - counters["frames"], 0)
     init_random = max(cfg.init_random_frames - counters["frames"], 0)
-    logger = MetricLogger(log_dir)
     tracker = EpisodeTracker(env.batch_size[0])
     last_eval: dict[str, float] = {}
     if remaining == 0:
@@ -206,10 +215,11 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         losses: dict[str, list[float]] = {}
         if counters["frames"] >= cfg.init_random_frames and len(buffer) >= cfg.batch_size:
             for _ in range(num_updates):
-                out = update.step(buffer.sample().to(cfg.device))
+                batch, prior_rows = mixed_batch(buffer, prior, cfg)
+                out = update.step(batch.to(cfg.device), prior_rows)
                 counters["updates"] += 1
-                for key in ("loss_qvalue", "loss_actor", "loss_alpha", "alpha", "entropy"):
-                    losses.setdefault(key, []).append(float(out[key].detach()))
+                for key, value in out.items():
+                    losses.setdefault(key, []).append(float(value.detach()))
         collector.update_policy_weights_()
 
         # ---- log

@@ -74,6 +74,17 @@ class CriticEnsemble(nn.Module):
         self.head_b = nn.ParameterList(
             [_stack([ls[i].bias for ls in linears]) for i in range(len(linears[0]))]
         )
+        # The head's module indices (QNet state-dict names) and, with LayerNorm, its affine
+        # weights after each hidden Linear.
+        self._linear_at = [i for i, m in enumerate(qnets[0].head) if isinstance(m, nn.Linear)]
+        self._norm_at = [i for i, m in enumerate(qnets[0].head) if isinstance(m, nn.LayerNorm)]
+        norms = [[m for m in q.head if isinstance(m, nn.LayerNorm)] for q in qnets]
+        self.norm_w = nn.ParameterList(
+            [_stack([ns[i].weight for ns in norms]) for i in range(len(self._norm_at))]
+        )
+        self.norm_b = nn.ParameterList(
+            [_stack([ns[i].bias for ns in norms]) for i in range(len(self._norm_at))]
+        )
         self.embed_features = self.head_w[0].shape[1] - self._action_dim(qnets[0])
 
     @staticmethod
@@ -92,9 +103,12 @@ class CriticEnsemble(nn.Module):
                 for i, (w, b) in enumerate(zip(self.enc_w, self.enc_b, strict=True)):
                     sd[f"encoder.layers.{i}.linear.weight"] = w[e].T.detach().clone()
                     sd[f"encoder.layers.{i}.bias"] = b[e].detach().clone()
-            for i, (w, b) in enumerate(zip(self.head_w, self.head_b, strict=True)):
-                sd[f"head.{2 * i}.weight"] = w[e].T.detach().clone()
-                sd[f"head.{2 * i}.bias"] = b[e].detach().clone()
+            for at, w, b in zip(self._linear_at, self.head_w, self.head_b, strict=True):
+                sd[f"head.{at}.weight"] = w[e].T.detach().clone()
+                sd[f"head.{at}.bias"] = b[e].detach().clone()
+            for at, w, b in zip(self._norm_at, self.norm_w, self.norm_b, strict=True):
+                sd[f"head.{at}.weight"] = w[e].detach().clone()
+                sd[f"head.{at}.bias"] = b[e].detach().clone()
             out.append(sd)
         return out
 
@@ -137,10 +151,21 @@ class CriticEnsemble(nn.Module):
         # in-place ReLUs: the matmuls' backward does not need their outputs, and a fresh
         # [E, B, H] buffer per activation costs more than the arithmetic on this CPU
         w_action = ws[0][:, self.embed_features :]
-        x = torch.relu_(torch.baddbmm(first, action.expand(self.size, *action.shape), w_action))
-        for w, b in zip(ws[1:-1], bs[1:-1], strict=True):
-            x = torch.relu_(torch.baddbmm(b.unsqueeze(1), x, w))
+        x = torch.baddbmm(first, action.expand(self.size, *action.shape), w_action)
+        x = torch.relu_(self._norm(x, 0, detach_params))
+        for i, (w, b) in enumerate(zip(ws[1:-1], bs[1:-1], strict=True)):
+            x = torch.relu_(self._norm(torch.baddbmm(b.unsqueeze(1), x, w), i + 1, detach_params))
         return torch.baddbmm(bs[-1].unsqueeze(1), x, ws[-1]).squeeze(-1)
+
+    def _norm(self, x: torch.Tensor, i: int, detach_params: bool) -> torch.Tensor:
+        """The ``i``-th hidden layer's LayerNorm (per critic affine weights), if any."""
+        if not self._norm_at:
+            return x
+        w, b = self.norm_w[i], self.norm_b[i]
+        if detach_params:
+            w, b = w.detach(), b.detach()
+        x = nn.functional.layer_norm(x, x.shape[-1:])
+        return torch.addcmul(b.unsqueeze(1), x, w.unsqueeze(1))
 
     def forward(self, h, a_hat, m, action) -> torch.Tensor:
         """``Q [E, B]`` of prepared inputs and actions."""
@@ -176,6 +201,7 @@ class SACUpdate(nn.Module):
         alpha_init: float,
         loss_function: str = "l2",
         action_dim: int = 2,
+        bc_weight: float = 0.0,
     ):
         super().__init__()
         if loss_function not in ("l2", "smooth_l1"):
@@ -184,7 +210,7 @@ class SACUpdate(nn.Module):
         self.critics = CriticEnsemble(qnets)
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.log_alpha = nn.Parameter(torch.tensor(math.log(alpha_init)))
-        self.gamma, self.tau = gamma, tau
+        self.gamma, self.tau, self.bc_weight = gamma, tau, bc_weight
         self.loss_function = loss_function
         self.target_entropy = -float(action_dim)
         fused = {"fused": True} if _fused_adam_ok(self.log_alpha.device) else {}
@@ -195,14 +221,22 @@ class SACUpdate(nn.Module):
         }
 
     def _policy(self, h, a_hat, m) -> TanhNormal:
-        net = self.actor.net
-        loc, scale = self.actor.extract(net.head(net.encoder.embed(h, a_hat, m)))
-        return TanhNormal(loc, scale, low=-1.0, high=1.0, tanh_loc=False)
+        return TanhNormal(*self._policy_params(h, a_hat, m), low=-1.0, high=1.0, tanh_loc=False)
 
-    def losses(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    def _policy_params(self, h, a_hat, m) -> tuple[torch.Tensor, torch.Tensor]:
+        """The actor's ``(loc, scale)``: its deterministic action is ``tanh(loc)``."""
+        net = self.actor.net
+        return self.actor.extract(net.head(net.encoder.embed(h, a_hat, m)))
+
+    def losses(self, batch: TensorDictBase, bc_rows: int = 0) -> dict[str, torch.Tensor]:
         """SACLoss's ``loss_qvalue``, ``loss_actor``, ``loss_alpha`` (with graphs), ``alpha``
         and ``entropy`` on a replay batch. Random draws in SACLoss's order: the next actions
-        (target) first, then the actions of the actor loss."""
+        (target) first, then the actions of the actor loss.
+
+        With ``bc_weight`` > 0 and ``bc_rows`` > 0 (the batch's first rows are prior data) the
+        actor loss adds TD3+BC's term: ``bc_weight * mean|Q|`` (detached) times the squared
+        distance of the policy's deterministic action ``tanh(loc)`` to the recorded one on
+        those rows, so that the weight does not depend on the scale of the returns."""
         encoder = self.actor.net.encoder
         nxt = batch["next"]
         alpha = self.log_alpha.detach().exp()
@@ -226,9 +260,17 @@ class SACUpdate(nn.Module):
                 .mean()
             )
 
-        action, log_prob = rsample_and_log_prob(self._policy(h, a_hat, m))
+        loc, scale = self._policy_params(h, a_hat, m)
+        policy = TanhNormal(loc, scale, low=-1.0, high=1.0, tanh_loc=False)
+        action, log_prob = rsample_and_log_prob(policy)
         q_new = self.critics.q_values(first.detach(), action, detach_params=True).min(0)[0]
         loss_actor = (alpha * log_prob - q_new).mean()
+        out = {}
+        if self.bc_weight > 0 and bc_rows > 0:
+            mode = torch.tanh(loc[:bc_rows])
+            loss_bc = (mode - batch["action"][:bc_rows]).square().sum(-1).mean()
+            loss_actor = loss_actor + self.bc_weight * q_new.detach().abs().mean() * loss_bc
+            out["loss_bc"] = loss_bc.detach()
         loss_alpha = (-self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
         return {
             "loss_qvalue": loss_q,
@@ -236,11 +278,13 @@ class SACUpdate(nn.Module):
             "loss_alpha": loss_alpha,
             "alpha": alpha,
             "entropy": -log_prob.detach().mean(),
+            **out,
         }
 
-    def step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """One gradient step on ``batch`` and the soft target update; returns the losses."""
-        out = self.losses(batch)
+    def step(self, batch: TensorDictBase, bc_rows: int = 0) -> dict[str, torch.Tensor]:
+        """One gradient step on ``batch`` (its first ``bc_rows`` rows prior data) and the soft
+        target update; returns the losses."""
+        out = self.losses(batch, bc_rows)
         for o in self.optimizers.values():
             o.zero_grad(set_to_none=True)
         # Each loss reaches only its own network's weights (the actor loss sees detached critic
@@ -250,6 +294,18 @@ class SACUpdate(nn.Module):
             o.step()
         self.update_targets()
         return out
+
+    def clone_step(self, batch: TensorDictBase) -> torch.Tensor:
+        """One behaviour-cloning step of the actor alone: Adam on the squared distance of its
+        deterministic action ``tanh(loc)`` to the recorded ``action``; returns the loss."""
+        encoder = self.actor.net.encoder
+        h, a_hat, m = encoder.prepare(batch["features"], batch["adjacency"], batch["mask"])
+        loc, _ = self._policy_params(h, a_hat, m)
+        loss = (torch.tanh(loc) - batch["action"]).square().sum(-1).mean()
+        self.optimizers["actor"].zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizers["actor"].step()
+        return loss.detach()
 
     @torch.no_grad()
     def update_targets(self) -> None:
