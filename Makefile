@@ -13,7 +13,7 @@ UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean
+.PHONY: help run build serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -152,6 +152,24 @@ table2v: $(SERVER) $(VENV)/.installed ## Table II on seeded variations: the ship
 	$(PY) -m sharedspace.paper.powered --policies results/table2/policies \
 		--drivers pursuit_3 pursuit_5 hold stop $(POWERED_ARGS) \
 		--json results/variations/baseline.json --markdown results/variations/baseline.md
+
+# hbs-general (every pedestrian and car of each car's window) as a file: Table II-G's pool.
+GENERAL_POOL := out/table2g/pool-general.json
+$(GENERAL_POOL): scenarios/data/hbs.csv.gz
+	mkdir -p $(dir $@)
+	csv=$$(mktemp) && gunzip -c $< > $$csv && \
+		$(CARGO) run --quiet --release -p scenarios --bin extract-hbs -- --csv $$csv --pool general --out $@; \
+		status=$$?; rm -f $$csv; exit $$status
+
+# Prior data for the learner (sharedspace.paper.demos): the car-aware and pursuit scripts, a
+# noisy copy and the planner on the TRAIN split of each world; cached, re-recorded only when the
+# world or the recipe changes.
+DEMOS_G := out/demos/table2g
+DEMOS_PAPER := out/demos/table2
+demos: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## prior data: demonstrations on the train scenes of Table II-G's and Table II's worlds (out/demos/)
+	$(PY) -m sharedspace.paper.demos --pool $(GENERAL_POOL) --params params/table2g.json5 \
+		--set max_agents=10 --out $(DEMOS_G)
+	$(PY) -m sharedspace.paper.demos --params params/table2.json5 --scale 4 --out $(DEMOS_PAPER)
 
 table2g: $(SERVER) $(VENV)/.installed ## Table II-G, the crowded benchmark: hbs-general with reactive traffic, 3 variants x 3 seeds (docs/RESULTS.md)
 	TABLE2_POOL=general TABLE2_OUT=$${TABLE2_OUT:-out/table2g} TABLE2_PARAMS=params/table2g.json5 \
