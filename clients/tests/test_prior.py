@@ -207,3 +207,29 @@ def test_the_trainer_learns_from_recorded_demonstrations(sim_server, tmp_path):
     assert out["counters"]["clone_steps"] == 20 and out["counters"]["updates"] > 0
     metrics = (log_dir / "metrics.csv").read_text()
     assert "train/loss_clone" in metrics and "train/loss_bc" in metrics
+
+
+def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
+    """``base_driver``: the env executes the script's action plus the policy's; a fresh actor's
+    deterministic residual is 0, so its episodes are the script's, step for step, while the
+    replay buffer sees the residual."""
+    from sharedspace.train.evaluation import run_episodes
+    from sharedspace.train.sac import make_actor
+
+    base = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
+    residual = apply_overrides(base, ["base_driver=car_aware"])
+    env = make_env(residual, split="train", num_envs=4, scenario_order="sequential")
+    try:
+        actor = make_actor(residual, env.action_spec_unbatched)
+        learned = run_episodes(env, actor)
+    finally:
+        env.close()
+    env = make_env(base, split="train", num_envs=4, scenario_order="sequential")
+    try:
+        scripted = run_episodes(env, make_driver("car_aware"))
+    finally:
+        env.close()
+    for a, b in zip(learned, scripted, strict=True):
+        assert (a["status"], a["steps"]) == (b["status"], b["steps"])
+        assert np.allclose(a["speeds"], b["speeds"], atol=1e-5)
+        assert np.allclose(a["actions"], 0.0)  # what the learner chose: no correction

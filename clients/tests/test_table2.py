@@ -15,7 +15,9 @@ pytest.importorskip("torchrl")
 
 from conftest import TINY_TRAIN  # noqa: E402
 
+from sharedspace.names import Feature  # noqa: E402
 from sharedspace.paper.drivers import (  # noqa: E402
+    CarAwareDriver,
     PursuitDriver,
     VehicleLimits,
     reachability,
@@ -88,6 +90,33 @@ def test_pursuit_driver_steers_to_the_goal_and_brakes_for_a_pedestrian_ahead():
     assert action[1, 0] == pytest.approx(-1.0)  # full braking
 
 
+def test_car_aware_driver_follows_the_first_agent_in_its_path_car_or_pedestrian():
+    """Sub-envs: 0 nothing near; 1 a standing car 8 m ahead in the lane; 2 a car parked
+    alongside (3 m to the right, parallel); 3 a pedestrian 6 m ahead, 4 m to the left, walking
+    into the path at 2 m/s; 4 the same pedestrian walking away."""
+    f = torch.zeros(5, 2, 11)
+    mask = torch.ones(5, 2, dtype=torch.bool)
+    f[:, 0, Feature.SPEED] = 3.0
+    f[:, 0, Feature.GOAL_DX], f[:, 0, Feature.GOAL_DIST] = 40.0, 40.0  # goal straight ahead
+    mask[0, 1] = False
+    car = {Feature.IS_VEHICLE: 1.0, Feature.RADIUS: 2.19, Feature.REL_VX: -3.0}
+    for k, (x, y) in ((1, (8.0, 0.0)), (2, (0.0, -3.0))):
+        f[k, 1, Feature.REL_X], f[k, 1, Feature.REL_Y] = x, y
+        for col, v in car.items():
+            f[k, 1, col] = v
+    for k, vy in ((3, -2.0), (4, 2.0)):
+        f[k, 1, Feature.REL_X], f[k, 1, Feature.REL_Y] = 6.0, 4.0
+        f[k, 1, Feature.REL_VX], f[k, 1, Feature.REL_VY] = -3.0, vy
+        f[k, 1, Feature.RADIUS] = 0.3
+    action = CarAwareDriver(cruise=3.5)(f, mask)
+    assert action[0, 0] == pytest.approx(0.5)  # free road: (3.5 - 3) / dt / acc_max
+    assert action[1, 0] == pytest.approx(-1.0)  # closing on a standing car: full braking
+    assert action[2, 0] == pytest.approx(action[0, 0])  # a parked car alongside is not ahead
+    assert action[3, 0] < -0.5  # a pedestrian crossing into the path
+    assert action[4, 0] == pytest.approx(action[0, 0])  # one walking away is not
+    assert torch.all(action[:, 1] == 0)  # the goal is straight ahead
+
+
 def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     remote = [
         f"server_endpoint={sim_server.endpoint}",
@@ -113,7 +142,14 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     assert stats["seeds"] == [0] and stats["pooled_success"]["n"] == 18
     rates = sum(stats[f"pooled_{s}"]["rate"] for s in ("success", "collision", "timeout"))
     assert rates == pytest.approx(1.0)
-    assert set(table["drivers"]) == {"hold", "stop", "pursuit_3", "pursuit_5", "human_replay"}
+    assert set(table["drivers"]) == {
+        "hold",
+        "stop",
+        "pursuit_3",
+        "pursuit_5",
+        "car_aware",
+        "human_replay",
+    }
     assert table["human"]["success"] == 1.0
     assert len(table["reachability"]) == 18
     planner = table["planner"]

@@ -52,6 +52,8 @@ LABELS = {
     "g_sac_cog": "G-SAC-Cog",
     "g_sac_nocog": "G-SAC-NoCog",
     "s_sac": "S-SAC",
+    "car_aware": "car_aware (script)",
+    "bc_script": "BC-script (cloned car_aware)",
     "pursuit_3": "pursuit_3 (script)",
     "pursuit_5": "pursuit_5 (script)",
     "hold": "hold (script)",

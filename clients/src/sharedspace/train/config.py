@@ -12,6 +12,7 @@ from typing import Any
 
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
+from sharedspace.scripted import SCRIPTED
 from sharedspace.wire import EnvSpec
 
 __all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
@@ -63,12 +64,16 @@ class TrainConfig:
     alpha_init: float = 1.0  # initial entropy temperature (learned, target entropy = -|A|)
     loss_function: str = "l2"  # critic loss: l2 | smooth_l1
     critic_layer_norm: bool = False  # LayerNorm after each hidden layer of the critics (RLPD)
+    base_driver: str = ""  # scripted driver the actor's action adds to (residual); "" = none
+    critic_warmup: int = 0  # gradient updates of the critics alone before actor and alpha learn
     # --- prior data (RLPD, Ball et al. 2023; sharedspace.train.prior, `make demos`)
     prior_data: str = ""  # dataset directory of recorded transitions; "" = online data only
     prior_sources: str = ""  # comma-separated sources of it to use (e.g. car_aware); "" = all
     prior_successes_only: bool = False  # only the transitions of episodes that reached the goal
     prior_ratio: float = 0.5  # share of every replay batch drawn from the prior data
-    bc_weight: float = 0.0  # TD3+BC term (x mean|Q|) on the prior rows of the actor loss; 0 = off
+    bc_weight: float = (
+        0.0  # TD3+BC term (x mean|Q|) in the actor loss (prior rows; or to base); 0 off
+    )
     bc_steps: int = 0  # behaviour-cloning steps of the actor on the prior data before collecting
     # --- networks
     hidden_sizes: list[int] = field(default_factory=lambda: [256, 256])  # MLP head widths
@@ -90,10 +95,14 @@ class TrainConfig:
         self.env_spec("train", self.seed, self.variations)  # names a wrong env field now
         if self.readout not in ("ego", "ego_mean"):
             raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
+        if self.base_driver and self.base_driver not in SCRIPTED:
+            raise ValueError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
         if not 0.0 <= self.prior_ratio < 1.0:
             raise ValueError(f"prior_ratio must be in [0, 1), not {self.prior_ratio}")
-        if (self.bc_weight > 0 or self.bc_steps > 0) and not self.prior_data:
-            raise ValueError("bc_weight and bc_steps clone the prior data: set prior_data")
+        if self.bc_steps > 0 and not self.prior_data:
+            raise ValueError("bc_steps clone the prior data: set prior_data")
+        if self.bc_weight > 0 and not (self.prior_data or self.base_driver):
+            raise ValueError("bc_weight imitates the prior data or the base driver: set one")
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split``, ``seed`` and scene

@@ -156,12 +156,15 @@ class PriorData:
         return PriorData(self.transitions[idx], self.header, self.path)
 
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> TensorDict:
-        """``batch_size`` transitions drawn uniformly with replacement, a random half of them
-        mirrored (:func:`mirrored`)."""
-        idx = torch.randint(len(self), (batch_size,), generator=generator)
+        """``batch_size`` transitions drawn uniformly with replacement (:meth:`take`)."""
+        return self.take(torch.randint(len(self), (batch_size,), generator=generator), generator)
+
+    def take(self, idx: torch.Tensor, generator: torch.Generator | None = None) -> TensorDict:
+        """The transitions ``idx`` (:data:`KEYS`), those of successful episodes first, a random
+        half of them mirrored (:func:`mirrored`)."""
+        idx = idx[torch.argsort((~self.transitions["episode_success"][idx]).byte(), stable=True)]
         batch = self._data[idx].clone()
-        flip = torch.rand(batch_size, generator=generator) < 0.5
-        return _flip(batch, flip)
+        return _flip(batch, torch.rand(len(idx), generator=generator) < 0.5)
 
 
 def _flip(batch: TensorDict, flip: torch.Tensor) -> TensorDict:
@@ -247,17 +250,21 @@ def make_prior(cfg: TrainConfig) -> PriorData | None:
 def mixed_batch(buffer, prior: PriorData | None, cfg: TrainConfig) -> tuple[TensorDict, int]:
     """RLPD's symmetric sampling: a replay batch of ``batch_size`` whose first
     ``round(batch_size * prior_ratio)`` rows come from the prior data, the rest from the
-    online ``buffer``; and that row count (the rows a BC term applies to)."""
+    online ``buffer``; and how many of its first rows are prior transitions of successful
+    episodes (the rows a BC term imitates)."""
     if prior is None or cfg.prior_ratio <= 0:
         return buffer.sample(), 0
     online = buffer.sample().select(*KEYS)  # the buffer's batches are the online part
-    n_prior = cfg.batch_size - online.shape[0]
-    return torch.cat([prior.sample(n_prior), online]), n_prior
+    idx = torch.randint(len(prior), (cfg.batch_size - online.shape[0],))
+    succeeded = int(prior.transitions["episode_success"][idx].sum())
+    return torch.cat([prior.take(idx), online]), succeeded
 
 
 def clone(update, prior: PriorData, steps: int, cfg: TrainConfig) -> list[float]:
-    """``steps`` behaviour-cloning steps of the actor on batches of the prior data
-    (:meth:`~sharedspace.train.update.SACUpdate.clone_step`); the loss of each."""
+    """``steps`` behaviour-cloning steps of the actor on batches of the prior data's
+    successful episodes (:meth:`~sharedspace.train.update.SACUpdate.clone_step`); the loss
+    of each."""
+    good = prior.select(successes_only=True)
     return [
-        float(update.clone_step(prior.sample(cfg.batch_size).to(cfg.device))) for _ in range(steps)
+        float(update.clone_step(good.sample(cfg.batch_size).to(cfg.device))) for _ in range(steps)
     ]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -10,10 +11,11 @@ from tensordict.nn import InteractionType, NormalParamExtractor, TensorDictModul
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, Transform, TransformedEnv
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.modules.distributions import TanhNormal
 
+from sharedspace.scripted import SCRIPTED
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.gcn import ActorNet, GraphEncoder, QNet
 from sharedspace.train.update import SACUpdate
@@ -49,7 +51,7 @@ def make_env(
     ``k`` plays ``scenarios[k]`` (scenes of ``split``), in sequential order."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
-    return RemoteBatchedEnv(
+    env = RemoteBatchedEnv(
         cfg.env_spec(split, cfg.seed if seed is None else seed, variations),
         num_envs or cfg.num_envs,
         scenario_order=scenario_order,
@@ -57,6 +59,25 @@ def make_env(
         variation_seeds=variation_seeds,
         client=cfg.connection(),
     )
+    if not cfg.base_driver:
+        return env
+    return TransformedEnv(env, ResidualAction(SCRIPTED[cfg.base_driver]()))
+
+
+class ResidualAction(Transform):
+    """Residual policy learning (Silver et al., 2018): the policy's ``action`` is added to a
+    scripted driver's, and the env executes ``clamp(base(obs) + action, -1, 1)``. The learner
+    sees the residual (its replay buffer stores what the policy chose), so a residual of 0 is
+    the script itself; the deterministic residual of a fresh actor is about 0
+    (:func:`make_actor` starts it there with a small spread)."""
+
+    def __init__(self, base: nn.Module):
+        super().__init__(in_keys_inv=["action"], out_keys_inv=["action"])
+        self.base = base
+
+    def _inv_call(self, tensordict):
+        base = self.base(tensordict["features"], tensordict["mask"])
+        return tensordict.set("action", (tensordict["action"] + base).clamp(-1.0, 1.0))
 
 
 def _encoder(cfg: TrainConfig) -> GraphEncoder:
@@ -82,6 +103,8 @@ class _ActorParams(nn.Module):
 def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
     """Graph encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``."""
     net = _ActorParams(ActorNet(_encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1]))
+    if cfg.base_driver:
+        _start_near_zero(net.net.head[-1], action_spec.shape[-1])
     module = TensorDictModule(net, in_keys=OBS_KEYS, out_keys=["loc", "scale"])
     return ProbabilisticActor(
         module,
@@ -92,6 +115,20 @@ def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
         default_interaction_type=InteractionType.RANDOM,
         return_log_prob=False,
     ).to(cfg.device)
+
+
+#: A residual policy's initial spread: the scale of its Gaussian before the tanh.
+RESIDUAL_INIT_SCALE = 0.1
+
+
+def _start_near_zero(last: nn.Linear, action_dim: int) -> None:
+    """A residual actor starts at the script: ``loc`` = 0 (zero output weights and bias) and
+    ``scale`` = :data:`RESIDUAL_INIT_SCALE` (its bias through ``biased_softplus_1.0``)."""
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+        raw = math.log(math.expm1(RESIDUAL_INIT_SCALE)) - math.log(math.expm1(1.0))
+        last.bias[action_dim:] = raw
 
 
 def make_critic(cfg: TrainConfig, action_spec) -> ValueOperator:
@@ -117,6 +154,7 @@ def make_update(cfg: TrainConfig, actor, action_spec, num_critics: int = 2) -> S
         loss_function=cfg.loss_function,
         action_dim=action_spec.shape[-1],
         bc_weight=cfg.bc_weight,
+        residual=bool(cfg.base_driver),
     ).to(cfg.device)
 
 

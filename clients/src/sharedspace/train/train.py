@@ -216,7 +216,8 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         if counters["frames"] >= cfg.init_random_frames and len(buffer) >= cfg.batch_size:
             for _ in range(num_updates):
                 batch, prior_rows = mixed_batch(buffer, prior, cfg)
-                out = update.step(batch.to(cfg.device), prior_rows)
+                warm = counters["updates"] >= cfg.critic_warmup
+                out = update.step(batch.to(cfg.device), prior_rows, train_actor=warm)
                 counters["updates"] += 1
                 for key, value in out.items():
                     losses.setdefault(key, []).append(float(value.detach()))

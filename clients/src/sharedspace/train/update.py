@@ -202,6 +202,7 @@ class SACUpdate(nn.Module):
         loss_function: str = "l2",
         action_dim: int = 2,
         bc_weight: float = 0.0,
+        residual: bool = False,
     ):
         super().__init__()
         if loss_function not in ("l2", "smooth_l1"):
@@ -211,6 +212,7 @@ class SACUpdate(nn.Module):
         self.target_critics = copy.deepcopy(self.critics).requires_grad_(False)
         self.log_alpha = nn.Parameter(torch.tensor(math.log(alpha_init)))
         self.gamma, self.tau, self.bc_weight = gamma, tau, bc_weight
+        self.residual = residual
         self.loss_function = loss_function
         self.target_entropy = -float(action_dim)
         fused = {"fused": True} if _fused_adam_ok(self.log_alpha.device) else {}
@@ -233,10 +235,13 @@ class SACUpdate(nn.Module):
         and ``entropy`` on a replay batch. Random draws in SACLoss's order: the next actions
         (target) first, then the actions of the actor loss.
 
-        With ``bc_weight`` > 0 and ``bc_rows`` > 0 (the batch's first rows are prior data) the
-        actor loss adds TD3+BC's term: ``bc_weight * mean|Q|`` (detached) times the squared
-        distance of the policy's deterministic action ``tanh(loc)`` to the recorded one on
-        those rows, so that the weight does not depend on the scale of the returns."""
+        With ``bc_weight`` > 0 and ``bc_rows`` > 0 (the batch's first rows are prior data of
+        successful episodes) the actor loss adds TD3+BC's term: ``bc_weight * mean|Q|``
+        (detached) times the squared distance of the policy's deterministic action
+        ``tanh(loc)`` to the recorded one on those rows, so that the weight does not depend on
+        the scale of the returns. A ``residual`` learner (the actor's action adds to a scripted
+        driver's) imitates the script itself: the term pulls ``tanh(loc)`` toward 0 on every
+        row."""
         encoder = self.actor.net.encoder
         nxt = batch["next"]
         alpha = self.log_alpha.detach().exp()
@@ -266,9 +271,12 @@ class SACUpdate(nn.Module):
         q_new = self.critics.q_values(first.detach(), action, detach_params=True).min(0)[0]
         loss_actor = (alpha * log_prob - q_new).mean()
         out = {}
-        if self.bc_weight > 0 and bc_rows > 0:
-            mode = torch.tanh(loc[:bc_rows])
-            loss_bc = (mode - batch["action"][:bc_rows]).square().sum(-1).mean()
+        if self.bc_weight > 0 and (bc_rows > 0 or self.residual):
+            if self.residual:  # the script's own action: a residual of 0, on every row
+                loss_bc = torch.tanh(loc).square().sum(-1).mean()
+            else:
+                mode = torch.tanh(loc[:bc_rows])
+                loss_bc = (mode - batch["action"][:bc_rows]).square().sum(-1).mean()
             loss_actor = loss_actor + self.bc_weight * q_new.detach().abs().mean() * loss_bc
             out["loss_bc"] = loss_bc.detach()
         loss_alpha = (-self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
@@ -281,29 +289,41 @@ class SACUpdate(nn.Module):
             **out,
         }
 
-    def step(self, batch: TensorDictBase, bc_rows: int = 0) -> dict[str, torch.Tensor]:
+    def step(
+        self, batch: TensorDictBase, bc_rows: int = 0, train_actor: bool = True
+    ) -> dict[str, torch.Tensor]:
         """One gradient step on ``batch`` (its first ``bc_rows`` rows prior data) and the soft
-        target update; returns the losses."""
+        target update; returns the losses. With ``train_actor`` False only the critics learn
+        (a critic warm-up: a started actor is not steered by untrained critics)."""
         out = self.losses(batch, bc_rows)
         for o in self.optimizers.values():
             o.zero_grad(set_to_none=True)
         # Each loss reaches only its own network's weights (the actor loss sees detached critic
         # weights, the alpha loss a detached log-prob), so one backward of the sum suffices.
         (out["loss_qvalue"] + out["loss_actor"] + out["loss_alpha"]).backward()
-        for o in self.optimizers.values():
-            o.step()
+        for name, o in self.optimizers.items():
+            if train_actor or name == "critic":
+                o.step()
         self.update_targets()
         return out
 
     def clone_step(self, batch: TensorDictBase) -> torch.Tensor:
-        """One behaviour-cloning step of the actor alone: Adam on the squared distance of its
-        deterministic action ``tanh(loc)`` to the recorded ``action``; returns the loss."""
+        """One behaviour-cloning step of the actor alone; returns the squared distance of its
+        deterministic action ``tanh(loc)`` to the recorded ``action``, which the step descends.
+
+        The step also fits the policy's ``scale`` to what the clone still misses: the Gaussian
+        negative log-likelihood of the recorded action (before the tanh) around the detached
+        ``loc``. So the cloned policy explores about as far as it is unsure, rather than at the
+        initial scale of about 1 that would bury the clone in noise."""
         encoder = self.actor.net.encoder
         h, a_hat, m = encoder.prepare(batch["features"], batch["adjacency"], batch["mask"])
-        loc, _ = self._policy_params(h, a_hat, m)
-        loss = (torch.tanh(loc) - batch["action"]).square().sum(-1).mean()
+        loc, scale = self._policy_params(h, a_hat, m)
+        target = batch["action"]
+        loss = (torch.tanh(loc) - target).square().sum(-1).mean()
+        pre_tanh = torch.atanh(target.clamp(-0.999, 0.999))
+        nll = (scale.log() + (pre_tanh - loc.detach()).square() / (2 * scale.square())).mean()
         self.optimizers["actor"].zero_grad(set_to_none=True)
-        loss.backward()
+        (loss + nll).backward()
         self.optimizers["actor"].step()
         return loss.detach()
 
