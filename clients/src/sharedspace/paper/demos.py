@@ -37,7 +37,6 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.envs.utils import step_mdp
 
-from sharedspace.local_server import LocalServer
 from sharedspace.paper.drivers import make_driver
 from sharedspace.paper.planner import Cell, cell_name, open_loop_search
 from sharedspace.pool import load_pool, split_indices
@@ -310,12 +309,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{out}: cached ({header['transitions']} transitions, {header['created']})")
             return 0
     t0 = time.perf_counter()
-    pools = [args.pool] if args.pool else []
-    with LocalServer(
-        cfg=[f"pools:{json.dumps(pools)}", f"params:{json.dumps(args.params)}"]
-    ) as srv:
-        cfg = apply_overrides(cfg, [f"server_endpoint={srv.endpoint}"])
-        transitions, sources = record_demos(cfg, recipe, args.variation_spec)
+    # No endpoint: the envs share this process's server of the pool and parameters.
+    transitions, sources = record_demos(cfg, recipe, args.variation_spec)
     if out.exists():
         shutil.rmtree(out)
     command = "python -m sharedspace.paper.demos " + shlex.join(

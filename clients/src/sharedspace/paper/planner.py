@@ -28,7 +28,6 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
-from sharedspace.local_server import LocalServer
 from sharedspace.names import Feature
 from sharedspace.paper.evaluate import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
 from sharedspace.pool import load_pool, split_indices
@@ -288,14 +287,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_overrides_argument(ap, "config overrides, e.g. max_agents=10")
     args = ap.parse_args(argv)
     t0 = time.time()
-    pools = [args.pool] if args.pool else []
-    with LocalServer(
-        cfg=[f"pools:{json.dumps(pools)}", f"params:{json.dumps(args.params)}"]
-    ) as srv:
-        sets = [f"server_endpoint={srv.endpoint}", f"scenario_pool={args.pool}", *args.set]
-        found = open_loop_search(
-            apply_overrides(TrainConfig(), sets), rounds=args.rounds, per_round=args.per_round
-        )
+    # No endpoint: the envs share this process's server of the pool and parameters.
+    sets = [f"scenario_pool={args.pool}", f"server_params={args.params}", *args.set]
+    found = open_loop_search(
+        apply_overrides(TrainConfig(), sets), rounds=args.rounds, per_round=args.per_round
+    )
     solved = sorted(n for n, r in found.items() if r.get("replayed") == "success")
     summary = {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),

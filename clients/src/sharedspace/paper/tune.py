@@ -23,7 +23,6 @@ from typing import Any
 
 from tensordict.nn import TensorDictModule
 
-from sharedspace.local_server import LocalServer
 from sharedspace.paper.demos import TRAINING_VARIATIONS
 from sharedspace.paper.drivers import CarAwareDriver
 from sharedspace.paper.evaluate import play_variations
@@ -76,12 +75,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_overrides_argument(ap, "TrainConfig overrides, e.g. max_agents=10")
     args = ap.parse_args(argv)
     t0 = time.time()
-    pools = [args.pool] if args.pool else []
-    with LocalServer(
-        cfg=[f"pools:{json.dumps(pools)}", f"params:{json.dumps(args.params)}"]
-    ) as srv:
-        sets = [f"server_endpoint={srv.endpoint}", f"scenario_pool={args.pool}", *args.set]
-        rows = tune_car_aware(apply_overrides(TrainConfig(), sets), args.variations)
+    # No endpoint: the envs share this process's server of the pool and parameters.
+    sets = [f"scenario_pool={args.pool}", f"server_params={args.params}", *args.set]
+    rows = tune_car_aware(apply_overrides(TrainConfig(), sets), args.variations)
     result = {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "split": "train",
