@@ -202,7 +202,7 @@ class CarAwareDriver(nn.Module):
         along = self.half_length * np.abs(np.cos(hd)) + self.half_width * np.abs(np.sin(hd))
         ahead = np.where(others[..., Feature.IS_VEHICLE] > 0.5, along, others[..., _RADIUS])
         gap = np.maximum(x - self.half_length - ahead, 1e-3)
-        closing = v - (v + others[..., _REL_VX])  # v - v_leader along the car's axis
+        closing = -others[..., _REL_VX]  # v - v_leader along the car's axis
         a, b = self.limits.acc_max, self.comfort_decel
         desired = self.min_gap + np.maximum(
             0.0, v * self.headway + v * closing / (2.0 * np.sqrt(a * b))
