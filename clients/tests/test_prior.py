@@ -233,3 +233,34 @@ def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
         assert (a["status"], a["steps"]) == (b["status"], b["steps"])
         assert np.allclose(a["speeds"], b["speeds"], atol=1e-5)
         assert np.allclose(a["actions"], 0.0)  # what the learner chose: no correction
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"prior_ratio": 1.0}, "prior_ratio must be in"),
+        ({"prior_ratio": -0.1}, "prior_ratio must be in"),
+        ({"bc_steps": 10}, "bc_steps clone the prior data"),
+        ({"bc_weight": 0.5}, "bc_weight imitates the prior data or the base driver"),
+        ({"base_driver": "pursuit_9"}, "base_driver must be one of"),
+    ],
+)
+def test_prior_and_residual_settings_that_cannot_work_are_refused_by_name(fields, message):
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(**fields)
+    TrainConfig(bc_weight=0.5, base_driver="car_aware")  # a residual imitates its script
+
+
+def test_a_selection_of_no_transitions_or_of_an_unknown_source_is_refused(tmp_path):
+    cfg = TrainConfig(max_agents=M)
+    bad = synthetic_transitions()
+    with pytest.raises(PriorDataError, match="lack"):
+        write_prior(tmp_path / "bad", bad.exclude("episode_success"), world_of(cfg), {})
+    failed = synthetic_transitions()
+    failed["episode_success"] = torch.zeros(12, dtype=torch.bool)
+    write_prior(tmp_path / "ds", failed, world_of(cfg), {"car_aware": {}})
+    prior = load_prior(tmp_path / "ds", cfg)
+    with pytest.raises(PriorDataError, match=r"no source \['planner'\]"):
+        prior.select(["planner"])
+    with pytest.raises(PriorDataError, match="no transition"):
+        prior.select(successes_only=True)
