@@ -171,11 +171,18 @@ demos: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## prior data: demonstration
 		--set max_agents=10 --out $(DEMOS_G)
 	$(PY) -m sharedspace.paper.demos --params params/table2.json5 --scale 4 --out $(DEMOS_PAPER)
 
+# The learner's recipe (docs/RESULTS.md, "Prior data and the learner"): a residual over the
+# car-aware script, LayerNorm critics, UTD 1, critic warm-up, a BC term toward the script.
+RECIPE := base_driver=car_aware critic_layer_norm=true utd_ratio=1 init_random_frames=0 \
+	alpha_init=0.01 critic_warmup=2000 bc_weight=0.2
+TABLE2G_WORLD := max_agents=10 server_params=params/table2g.json5 \
+	variations={"position_sigma":0.5,"start_offset_steps":2,"desired_speed_scale":0.2,"mirror":true}
 table2g: $(SERVER) $(VENV)/.installed ## Table II-G, the crowded benchmark: hbs-general with reactive traffic, 3 variants x 3 seeds (docs/RESULTS.md)
-	TABLE2_POOL=general TABLE2_OUT=$${TABLE2_OUT:-out/table2g} TABLE2_PARAMS=params/table2g.json5 \
-		TABLE2_FRAMES=$${TABLE2_FRAMES:-60000} TABLE2_CKPT=10000 TABLE2_EVAL=0 TABLE2_DOC= \
-		TABLE2_JSON=results/table2g/table2g.json TABLE2_SHIP=results/table2g/policies \
-		TABLE2_SET='max_agents=10 variations={"position_sigma":0.5,"start_offset_steps":2,"desired_speed_scale":0.2,"mirror":true}' \
+	TABLE2_POOL=general TABLE2_OUT=$${TABLE2_OUT:-out/table2g_residual} TABLE2_PARAMS=params/table2g.json5 \
+		TABLE2_FRAMES=$${TABLE2_FRAMES:-15000} TABLE2_CKPT=5000 TABLE2_EVAL=0 TABLE2_DOC= \
+		TABLE2_SEARCH_ROUNDS=0 TABLE2_JSON=$${TABLE2_JSON:-results/table2g/table2g.json} \
+		TABLE2_SHIP=$${TABLE2_SHIP-results/table2g/policies} \
+		TABLE2_SET='$(TABLE2G_WORLD) $(RECIPE) $(TABLE2G_EXTRA)' \
 		./scripts/table2.sh
 
 clean:

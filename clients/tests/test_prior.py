@@ -235,6 +235,60 @@ def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
         assert np.allclose(a["actions"], 0.0)  # what the learner chose: no correction
 
 
+def test_a_residual_learner_reads_prior_actions_as_residuals_over_its_script(
+    sim_server, tmp_path
+):
+    """With ``base_driver`` the prior actions become residuals over the script: the residual env
+    turns each back into the recorded action, the residual of a mirrored transition is the
+    mirrored residual (the script is mirror-symmetric), and a residual trainer with a BC term
+    learns from them against the live server."""
+    from sharedspace.train.prior import make_prior
+
+    world = [*remote(sim_server), f"max_agents={M}"]
+    cfg = apply_overrides(TrainConfig(), world)
+    env = make_env(cfg, split="train", num_envs=4, scenario_order="sequential")
+    try:  # pursuit_3 with noise: actions far from car_aware's
+        got, _ = record_episodes(env, make_driver("pursuit_3"), noise_std=0.3, max_steps=30)
+    finally:
+        env.close()
+    got["source"] = torch.zeros(got.shape[0], dtype=torch.int64)
+    write_prior(tmp_path / "demos", got, world_of(cfg), {"pursuit_3": {}})
+    residual_cfg = apply_overrides(
+        cfg, [f"prior_data={tmp_path / 'demos'}", "base_driver=car_aware"]
+    )
+    residual = make_prior(residual_cfg).transitions
+    script = make_driver("car_aware")
+    base = script(got["features"], got["mask"])
+    recorded = got["action"]
+    within = (recorded - base).abs() <= 1.0  # where a residual in [-1, 1] reaches the action
+    executed = (base + residual["action"]).clamp(-1, 1)
+    assert torch.allclose(executed[within], recorded[within], atol=1e-5)
+    assert torch.equal(residual["action"][~within].abs(), torch.ones(int((~within).sum())))
+    assert within.float().mean() > 0.5
+    assert not torch.allclose(residual["action"], recorded, atol=1e-2)
+    flipped = mirrored(got)  # the script's action in the mirrored state is its mirror image
+    base_of_flipped = script(flipped["features"], flipped["mask"])
+    flipped_base = mirrored(got.clone().set("action", base.to(recorded.dtype)))["action"]
+    assert torch.allclose(base_of_flipped, flipped_base, atol=1e-5)
+
+    run = load_config(
+        None,
+        [
+            *TINY_TRAIN,
+            *world,
+            "eval_interval=0",
+            "total_frames=64",
+            f"log_dir={tmp_path / 'run'}",
+            f"prior_data={tmp_path / 'demos'}",
+            "base_driver=car_aware",
+            "bc_steps=10",
+            "bc_weight=0.5",
+        ],
+    )
+    out = train(run)
+    assert out["counters"]["clone_steps"] == 10 and out["counters"]["updates"] > 0
+
+
 @pytest.mark.parametrize(
     ("fields", "message"),
     [

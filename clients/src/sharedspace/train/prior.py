@@ -38,9 +38,11 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from torch import nn
 
 from sharedspace.names import FEATURE_NAMES, REWARD_TERMS, Feature
 from sharedspace.pool import DEFAULT_POOL_PATH
+from sharedspace.scripted import SCRIPTED
 from sharedspace.train.config import TrainConfig
 from sharedspace.wire import PROTOCOL_VERSION
 
@@ -155,6 +157,22 @@ class PriorData:
         idx = torch.nonzero(keep).squeeze(-1)
         return PriorData(self.transitions[idx], self.header, self.path)
 
+    def as_residual(self, base: nn.Module, chunk: int = 8192) -> PriorData:
+        """The transitions with each ``action`` made a residual over the scripted driver
+        ``base``: ``clamp(action - base(obs), -1, 1)``, which the residual env
+        (:class:`~sharedspace.train.sac.ResidualAction`) turns back into the recorded action
+        wherever that lies within 1 of the script's. The script is mirror-symmetric, so the
+        mirror augmentation holds for the residual too."""
+        actions = []
+        with torch.no_grad():
+            for start in range(0, len(self), chunk):
+                rows = self.transitions[start : start + chunk]
+                scripted = base(rows["features"], rows["mask"]).to(rows["action"].dtype)
+                actions.append((rows["action"] - scripted).clamp(-1.0, 1.0))
+        transitions = self.transitions.copy()  # shallow: the memory map stays as it is
+        transitions.set("action", torch.cat(actions) if actions else self.transitions["action"])
+        return PriorData(transitions, self.header, self.path)
+
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> TensorDict:
         """``batch_size`` transitions drawn uniformly with replacement (:meth:`take`)."""
         return self.take(torch.randint(len(self), (batch_size,), generator=generator), generator)
@@ -240,11 +258,13 @@ def load_prior(path: str | Path, cfg: TrainConfig) -> PriorData:
 
 def make_prior(cfg: TrainConfig) -> PriorData | None:
     """The prior data of ``cfg`` (``prior_data``, its ``prior_sources``, successes only if
-    ``prior_successes_only``), or None without."""
+    ``prior_successes_only``), or None without. A residual learner (``base_driver``) gets
+    the actions as residuals over its script (:meth:`PriorData.as_residual`)."""
     if not cfg.prior_data:
         return None
     sources = [s.strip() for s in cfg.prior_sources.split(",") if s.strip()]
-    return load_prior(cfg.prior_data, cfg).select(sources, cfg.prior_successes_only)
+    prior = load_prior(cfg.prior_data, cfg).select(sources, cfg.prior_successes_only)
+    return prior.as_residual(SCRIPTED[cfg.base_driver]()) if cfg.base_driver else prior
 
 
 def mixed_batch(buffer, prior: PriorData | None, cfg: TrainConfig) -> tuple[TensorDict, int]:

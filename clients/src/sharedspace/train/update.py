@@ -240,8 +240,8 @@ class SACUpdate(nn.Module):
         (detached) times the squared distance of the policy's deterministic action
         ``tanh(loc)`` to the recorded one on those rows, so that the weight does not depend on
         the scale of the returns. A ``residual`` learner (the actor's action adds to a scripted
-        driver's) imitates the script itself: the term pulls ``tanh(loc)`` toward 0 on every
-        row."""
+        driver's) imitates the script itself on every other row: the term pulls ``tanh(loc)``
+        toward the recorded residual on the prior rows and toward 0 on the rest."""
         encoder = self.actor.net.encoder
         nxt = batch["next"]
         alpha = self.log_alpha.detach().exp()
@@ -272,8 +272,10 @@ class SACUpdate(nn.Module):
         loss_actor = (alpha * log_prob - q_new).mean()
         out = {}
         if self.bc_weight > 0 and (bc_rows > 0 or self.residual):
-            if self.residual:  # the script's own action: a residual of 0, on every row
-                loss_bc = torch.tanh(loc).square().sum(-1).mean()
+            if self.residual:  # the recorded residual on prior rows, the script's (0) elsewhere
+                wanted = torch.zeros_like(loc)
+                wanted[:bc_rows] = batch["action"][:bc_rows]
+                loss_bc = (torch.tanh(loc) - wanted).square().sum(-1).mean()
             else:
                 mode = torch.tanh(loc[:bc_rows])
                 loss_bc = (mode - batch["action"][:bc_rows]).square().sum(-1).mean()
