@@ -235,9 +235,7 @@ def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
         assert np.allclose(a["actions"], 0.0)  # what the learner chose: no correction
 
 
-def test_a_residual_learner_reads_prior_actions_as_residuals_over_its_script(
-    sim_server, tmp_path
-):
+def test_a_residual_learner_reads_prior_actions_as_residuals_over_its_script(sim_server, tmp_path):
     """With ``base_driver`` the prior actions become residuals over the script: the residual env
     turns each back into the recorded action, the residual of a mirrored transition is the
     mirrored residual (the script is mirror-symmetric), and a residual trainer with a BC term
