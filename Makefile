@@ -13,7 +13,7 @@ UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
+.PHONY: help run build wheel serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -38,6 +38,26 @@ venv: $(VENV)/.installed ## create the Python virtualenv in .venv
 VIEWER_PAGE := viewer/dist/index.html
 $(VIEWER_PAGE): viewer/package-lock.json viewer/build.mjs $(wildcard viewer/src/*)
 	cd viewer && npm ci --no-audit --no-fund && npm run build
+
+# The wheels a Python user installs (README, "Install from wheels"): sharedspace-server (the
+# sim-server binary, jemalloc inside; maturin's `bin` bindings) and the pure sharedspace package.
+# deploy/Dockerfile's builder runs this target with its own maturin and uv and no venv:
+# `make wheel WHEEL_TOOLS= MATURIN=... UV=...`.
+# `make wheel WHEEL_PROFILE= DIST=DIR` builds in the dev profile (the test of the installed
+# wheels, clients/tests/test_installed_package.py, reuses make test's debug build that way).
+MATURIN := $(VENV)/bin/maturin
+WHEEL_TOOLS := $(VENV)/.installed
+WHEEL_PROFILE := --release
+DIST := dist
+# The Python wheel carries the viewer's built page (sharedspace/viewer_page), so that an installed
+# `python -m sharedspace.viewer` needs no checkout.
+PAGE_IN_PACKAGE := clients/src/sharedspace/viewer_page
+wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel and the Python package's wheel (with the viewer's page), in dist/
+	rm -f $(DIST)/sharedspace*.whl
+	$(MATURIN) build $(WHEEL_PROFILE) --locked --manifest-path sim-server/Cargo.toml --out $(DIST)
+	rm -rf $(PAGE_IN_PACKAGE) && cp -r viewer/dist $(PAGE_IN_PACKAGE)
+	$(UV) build --quiet --wheel --out-dir $(DIST) clients; status=$$?; rm -rf $(PAGE_IN_PACKAGE); exit $$status
+	@ls -l $(DIST)/*.whl
 
 # cargo-modules reads a crate's items and uses (rust-analyzer); scripts/module_cycles.py collapses
 # them to modules. Built once into .tools/ at opt-level 1: about 60 % of a release build's time,

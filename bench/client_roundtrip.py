@@ -81,7 +81,7 @@ def start_bare(reply_size: int):
     proc = subprocess.Popen(
         [sys.executable, __file__, "--bare-server", str(port), str(reply_size)]
     )
-    wait_port(port, proc)
+    wait_port(port, proc, 30.0)
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
@@ -265,7 +265,7 @@ def main(argv=None) -> int:
             ],
             env={**os.environ, "RUST_LOG": "warn"},
         )
-        wait_port(port, proc)
+        wait_port(port, proc, 30.0)
     try:
         client = SimClient(endpoint, args.prefix, timeout=10.0)
         client.servers(timeout=10.0)

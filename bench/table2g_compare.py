@@ -57,7 +57,9 @@ def main() -> int:
     ]
     powered_rows = comparisons(groups, pairs)
     table = group_table({k: groups[k] for k in ("bc_script", "rlpd_bc")})
-    print("| A − B (powered, 304 episodes per run) | success diff [95 %, scenes resampled] | collision diff |")
+    print(
+        "| A − B (powered, 304 episodes per run) | success diff [95 %, scenes resampled] | collision diff |"
+    )
     print("|---|---|---|")
     for c in powered_rows:
         print(f"| {c['a']} − {c['b']} | {row(c)} | {row(c, 'collision')} |")
@@ -67,13 +69,19 @@ def main() -> int:
     recipe = deterministic_runs("results/table2g/table2g.json", ["0", "1"])
     arms = {
         "recipe": recipe,
-        "recipe + prior data": deterministic_runs("results/prior/ablation_prior.json", ["0", "1"]),
-        "recipe, bc_weight 0": deterministic_runs("results/prior/ablation_nobc.json", ["0", "1"]),
+        "recipe + prior data": deterministic_runs(
+            "results/prior/ablation_prior.json", ["0", "1"]
+        ),
+        "recipe, bc_weight 0": deterministic_runs(
+            "results/prior/ablation_nobc.json", ["0", "1"]
+        ),
     }
     arm_rows = comparisons(arms, [(a, "recipe") for a in arms if a != "recipe"])
     arm_table = group_table(arms)
     print()
-    print("| arm (G-SAC-Cog, seeds 0 and 1) | success | collision | − recipe, success [95 %] |")
+    print(
+        "| arm (G-SAC-Cog, seeds 0 and 1) | success | collision | − recipe, success [95 %] |"
+    )
     print("|---|---:|---:|---|")
     for name, t in arm_table.items():
         diff = next((row(c) for c in arm_rows if c["a"] == name), "—")

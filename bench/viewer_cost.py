@@ -97,7 +97,7 @@ def start_server(binary: str, prefix: str) -> tuple[subprocess.Popen, str]:
         ],
         env={**os.environ, "RUST_LOG": "warn"},
     )
-    wait_port(port, proc)
+    wait_port(port, proc, 30.0)
     return proc, endpoint
 
 

@@ -58,65 +58,79 @@ def test_pip_install_into_a_fresh_venv_outside_the_checkout(sim_server, tmp_path
     assert run.stdout.startswith("episode ") and "hbs-car" in run.stdout
 
 
-def test_a_fresh_venv_with_the_train_extra_trains_against_a_server_it_starts(tmp_path):
-    """`sharedspace[train]` into a fresh venv outside the checkout, offline from uv's cache (the
-    one `make venv` filled: torch is not downloaded a second time), then ``python -m
-    sharedspace.train`` with no endpoint: it finds ``sim-server`` on PATH (as ``cargo install
-    --path sim-server`` leaves it), starts it and trains a few hundred frames."""
-    from conftest import TINY_TRAIN, sim_server_binary
+def make_wheels(out: Path) -> tuple[Path, Path]:
+    """The two wheels of ``make wheel`` (``sharedspace-server``: sim-server/pyproject.toml, maturin;
+    ``sharedspace`` with the viewer's page), built by that target in the dev profile: it reuses
+    the debug build of ``make test`` (a release build would add minutes); the packaging is the
+    same."""
+    built = subprocess.run(
+        ["make", "--no-print-directory", "wheel", "WHEEL_PROFILE=", f"DIST={out}"],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr[-3000:]
+    (server,) = out.glob("sharedspace_server-*.whl")
+    (package,) = out.glob("sharedspace-*.whl")
+    return server, package
 
-    binary = sim_server_binary()
-    assert binary is not None, "no sim-server built (make build)"
+
+def test_the_wheels_install_into_a_fresh_venv_and_train_with_the_bundled_server(tmp_path):
+    """The wheels of `make wheel` into a fresh venv outside the checkout, offline from uv's cache
+    (the one `make venv` filled: torch is not downloaded a second time). With only
+    `sharedspace[train]`, ``python -m sharedspace.train`` says where to get a server; with the
+    `sharedspace-server` wheel too (and a PATH holding no cargo, no target/ and not even the
+    venv), the trainer and ``sharedspace.LocalServer`` start the bundled ``sim-server``: 256
+    frames of training, a PettingZoo episode, and the viewer serving its page from the wheel."""
+    from conftest import TINY_TRAIN
+
     uv = Path(sys.executable).parent / "uv"
     assert uv.is_file(), f"{uv} missing: `make venv` installs uv"
+    server_wheel, package_wheel = make_wheels(tmp_path / "dist")
     venv = tmp_path / "venv"
     subprocess.run([str(uv), "venv", "-q", "--python", sys.executable, str(venv)], check=True)
     python = venv / "bin" / "python"
-    install = subprocess.run(
-        [
-            str(uv),
-            "pip",
-            "install",
-            "--offline",
-            "--python",
-            str(python),
-            f"{REPO_ROOT / 'clients'}[train]",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert install.returncode == 0, install.stderr[-3000:]
 
-    bin_dir = tmp_path / "bin"  # a PATH with sim-server on it, as `cargo install` makes one
-    bin_dir.mkdir()
-    (bin_dir / "sim-server").symlink_to(Path(binary).resolve())  # may be relative
+    def install(*what: str) -> None:
+        done = subprocess.run(
+            [str(uv), "pip", "install", "--offline", "--python", str(python), *what],
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
+        assert done.returncode == 0, done.stderr[-3000:]
+
+    install(f"sharedspace[train] @ {package_wheel.as_uri()}")
     env = {k: v for k, v in os.environ.items() if k != "SHAREDSPACE_SIM_SERVER"}
+    bare_path = "/usr/bin:/bin"
+    assert not any(
+        (Path(d) / "cargo").exists() or (Path(d) / "sim-server").exists()
+        for d in bare_path.split(":")
+    )
 
-    def run(path: str, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    def run(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
         return subprocess.run(
             [str(python), *args],
             cwd=tmp_path,
-            env={**env, "PATH": path},
+            env={**env, "PATH": bare_path},
             capture_output=True,
             text=True,
             timeout=timeout,
         )
 
-    missing = run(
-        f"{venv / 'bin'}:/usr/bin:/bin",
-        "-m",
-        "sharedspace.train",
-        "--set",
-        "total_frames=64",
-        timeout=120,
-    )
+    missing = run("-m", "sharedspace.train", "--set", "total_frames=64", timeout=120)
     assert missing.returncode != 0
-    assert "cargo install --path sim-server" in missing.stderr, missing.stderr[-2000:]
-    assert "SHAREDSPACE_SIM_SERVER" in missing.stderr, missing.stderr[-2000:]
+    for hint in (
+        "sharedspace[server]",
+        "cargo install --path sim-server",
+        "SHAREDSPACE_SIM_SERVER",
+    ):
+        assert hint in missing.stderr, missing.stderr[-2000:]
 
+    install(str(server_wheel))
+    assert (venv / "bin" / "sim-server").is_file()
     trained = run(
-        f"{bin_dir}:{venv / 'bin'}:/usr/bin:/bin",
         "-m",
         "sharedspace.train",
         "--set",
@@ -129,3 +143,33 @@ def test_a_fresh_venv_with_the_train_extra_trains_against_a_server_it_starts(tmp
     out = json.loads(trained.stdout.strip().splitlines()[-1])
     assert out["counters"]["frames"] == 256 and out["counters"]["updates"] > 0, out
     assert str(REPO_ROOT) not in trained.stderr  # nothing came from the checkout
+
+    script = textwrap.dedent(
+        """
+        import urllib.request
+        import sharedspace
+        from sharedspace.local_server import sim_server_binary
+        from sharedspace.viewer import Viewer
+        print("binary", sim_server_binary())
+        with sharedspace.LocalServer() as server:
+            env = sharedspace.parallel_env(endpoint=server.endpoint, prefix=server.prefix)
+            obs, infos = env.reset(seed=0)
+            steps = 0
+            while env.agents:
+                actions = {a: env.action_space(a).sample() for a in env.agents}
+                obs, rewards, terms, truncs, infos = env.step(actions)
+                steps += 1
+            env.close()
+            print("episode", steps)
+            # The watch command's page and router come from the wheels, not from a checkout.
+            with Viewer(server.endpoint, prefix=server.prefix) as viewer:
+                page = urllib.request.urlopen(viewer.url(), timeout=10).read().decode()
+            print("page", sharedspace.viewer.VIEWER_DIST, "viewer.js" in page)
+        """
+    )
+    played = run("-c", script, timeout=300)
+    assert played.returncode == 0, played.stderr[-3000:]
+    assert f"binary {venv / 'bin' / 'sim-server'}" in played.stdout, played.stdout
+    assert "episode " in played.stdout
+    site = venv / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
+    assert f"page {site / 'sharedspace' / 'viewer_page'} True" in played.stdout, played.stdout

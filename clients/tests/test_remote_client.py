@@ -37,6 +37,8 @@ def test_discovery_and_info(sim_server, sim_client):
     assert info["tables"]["envs"] == info["load"]
     assert {"trainers", "fair_trainers", "pooled_step_buffers"} <= set(info["tables"])
     assert info["allocator"]["in_use"] > 0
+    # The default build runs on jemalloc: its statistics (glibc's mallinfo2 has no `resident`).
+    assert {"resident", "active", "metadata", "mapped"} <= set(info["allocator"])
 
 
 def test_every_lazy_name_of_the_package_resolves():

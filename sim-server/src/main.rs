@@ -336,7 +336,7 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     .map_err(|e| e.to_string())
 }
 
-#[cfg(feature = "jemalloc")]
+#[cfg(jemalloc_allocator)]
 #[global_allocator]
 static GLOBAL: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
 

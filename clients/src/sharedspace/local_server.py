@@ -16,6 +16,7 @@ import signal
 import socket
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import threading
 import time
@@ -39,20 +40,23 @@ REPO_ROOT = Path(__file__).resolve().parents[3]
 
 
 def sim_server_binary() -> Path:
-    """``$SHAREDSPACE_SIM_SERVER``, else this checkout's release or debug build, else
-    ``sim-server`` on ``PATH``."""
+    """``$SHAREDSPACE_SIM_SERVER``, else this checkout's release or debug build, else the
+    binary of the ``sharedspace-server`` wheel in this Python environment's scripts folder
+    (found whether or not the environment is activated), else ``sim-server`` on ``PATH``."""
     env = os.environ.get("SHAREDSPACE_SIM_SERVER")
     candidates = [Path(env)] if env else []
     candidates += [REPO_ROOT / "target" / b / "sim-server" for b in ("release", "debug")]
+    candidates += [Path(sysconfig.get_path("scripts")) / "sim-server"]
     on_path = shutil.which("sim-server")
     candidates += [Path(on_path)] if on_path else []
     for path in candidates:
         if path.is_file() and os.access(path, os.X_OK):
             return path
     raise FileNotFoundError(
-        "sim-server not found: install it on PATH from a checkout of the repository "
-        "(`cargo install --path sim-server`), or set SHAREDSPACE_SIM_SERVER to a built binary "
-        "(`make build` builds target/release/sim-server)"
+        "sim-server not found: `pip install sharedspace[server]` (or a wheel of `make wheel`), "
+        "install it on PATH from a checkout of the repository (`cargo install --path "
+        "sim-server`), or set SHAREDSPACE_SIM_SERVER to a built binary (`make build` builds "
+        "target/release/sim-server)"
     )
 
 

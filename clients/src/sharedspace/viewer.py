@@ -30,8 +30,16 @@ from .local_server import die_with_parent, free_port, sim_server_binary, stop_pr
 __all__ = ["VIEWER_DIST", "Viewer"]
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
-#: The built page (``npm ci && npm run build`` in viewer/).
-VIEWER_DIST = REPO_ROOT / "viewer" / "dist"
+#: The built page: a checkout's (``npm ci && npm run build`` in viewer/), else the copy that
+#: ``make wheel`` puts in the installed package (``sharedspace/viewer_page``).
+VIEWER_DIST = next(
+    (
+        d
+        for d in (REPO_ROOT / "viewer" / "dist", Path(__file__).resolve().parent / "viewer_page")
+        if (d / "index.html").is_file()
+    ),
+    REPO_ROOT / "viewer" / "dist",
+)
 
 
 class _Page(http.server.SimpleHTTPRequestHandler):
@@ -87,7 +95,7 @@ class Viewer(Closing):
         if not (Path(dist) / "index.html").is_file():
             raise FileNotFoundError(
                 f"{dist}/index.html is missing: build the page with `npm ci && npm run build` "
-                "in viewer/ (or `make view`)"
+                "in viewer/ (or `make view`), or install the wheel of `make wheel` (it carries it)"
             )
         endpoints = [connect] if isinstance(connect, str) else list(connect)
         self.prefix = prefix

@@ -72,12 +72,14 @@ pub struct ServerConfig {
     pub batch_slots: u32,
     /// Seconds between returns of the allocator's free memory to the system (glibc
     /// `malloc_trim`); 0 = never. Without it, memory freed by the many threads' arenas stays
-    /// in the process (docs/BENCHMARKS.md, soak). Default 10.
+    /// in the process (docs/BENCHMARKS.md, soak). Default 10. A no-op with jemalloc (the
+    /// default build), which returns free pages by itself; used by `--features glibc`.
     pub memory_trim_s: f64,
     /// Most glibc malloc arenas the process keeps (`M_ARENA_MAX`, set by `sim-server serve`
     /// before its threads start); 0 = glibc's own limit (8 per core). Every thread that
     /// allocates, the batch threads included, otherwise gets its own arena, and memory freed
     /// in one stays fragmented there (docs/BENCHMARKS.md section 6, the soak). Default 2.
+    /// Only a `--features glibc` build has these arenas.
     pub malloc_arenas: u32,
     /// Passed to `zenoh::Config::from_json5` after filling defaults: mode `peer`, listening on
     /// `tcp/127.0.0.1:7447` (peer and router), multicast scouting off.

@@ -1,19 +1,20 @@
 //! The allocator's own figures (`ServerInfo::allocator`) and the periodic return of its free
 //! memory to the system (`memory_trim_s`), for whichever allocator the binary was built with:
-//! glibc malloc (the default) or jemalloc (`--features jemalloc`).
+//! jemalloc (the default, cfg `jemalloc_allocator` from build.rs) or glibc malloc
+//! (`--features glibc`, or without the `jemalloc` feature).
 
 use super::BTreeMap;
 
-#[cfg(feature = "jemalloc")]
+#[cfg(jemalloc_allocator)]
 pub use jemalloc::{allocator_figures, limit_allocator_arenas, trim_allocator};
 
-#[cfg(all(not(feature = "jemalloc"), target_os = "linux", target_env = "gnu"))]
+#[cfg(all(not(jemalloc_allocator), target_os = "linux", target_env = "gnu"))]
 pub use glibc::{allocator_figures, limit_allocator_arenas, trim_allocator};
 
-#[cfg(not(any(feature = "jemalloc", all(target_os = "linux", target_env = "gnu"))))]
+#[cfg(not(any(jemalloc_allocator, all(target_os = "linux", target_env = "gnu"))))]
 pub use unknown::{allocator_figures, limit_allocator_arenas, trim_allocator};
 
-#[cfg(all(not(feature = "jemalloc"), target_os = "linux", target_env = "gnu"))]
+#[cfg(all(not(jemalloc_allocator), target_os = "linux", target_env = "gnu"))]
 mod glibc {
     use super::*;
 
@@ -63,7 +64,7 @@ mod glibc {
 /// jemalloc's figures: `in_use` is what live allocations hold (`stats.allocated`),
 /// `free_retained` what jemalloc keeps resident beyond that (`stats.resident` minus
 /// `stats.allocated`: dirty pages not yet decayed, partly used pages, its metadata).
-#[cfg(feature = "jemalloc")]
+#[cfg(jemalloc_allocator)]
 mod jemalloc {
     use super::*;
     use tikv_jemalloc_ctl::{epoch, stats};
@@ -97,7 +98,7 @@ mod jemalloc {
 }
 
 /// An allocator this build cannot ask: no figures, nothing to trim or cap.
-#[cfg(not(any(feature = "jemalloc", all(target_os = "linux", target_env = "gnu"))))]
+#[cfg(not(any(jemalloc_allocator, all(target_os = "linux", target_env = "gnu"))))]
 mod unknown {
     use super::*;
 
