@@ -173,6 +173,35 @@ def test_two_controlled_vehicles_in_pettingzoo_pass_the_parallel_api_test(sim_se
     env.close()
 
 
+def test_each_vehicle_leaves_a_pettingzoo_episode_only_with_its_own_outcome(sim_server):
+    """Every controlled car stays in ``env.agents`` until the server ends its episode, and leaves
+    with exactly one of success, collision or timeout in its info. (The second car used to be
+    reported terminated on the first step, with no outcome: its flag was read from a variable
+    that the loop over reward terms had overwritten.)"""
+    env = SharedSpaceParallelEnv(
+        endpoint=sim_server.endpoint,
+        prefix=sim_server.prefix,
+        external_agents=("vehicle_0", "vehicle_1"),
+        synthetic=SYNTHETIC,
+        max_agents=M,
+    )
+    env.reset(seed=0)
+    left: dict[str, list[str]] = {}
+    steps = 0
+    while env.agents:
+        live = list(env.agents)
+        _, _, terms, truncs, infos = env.step({a: np.zeros(2, np.float32) for a in live})
+        steps += 1
+        if steps == 1:
+            assert env.agents == ["vehicle_0", "vehicle_1"], (terms, truncs)
+        for a in live:
+            if terms[a] or truncs[a]:
+                left[a] = [k for k in ("success", "collision", "timeout") if infos[a][k]]
+    env.close()
+    assert sorted(left) == ["vehicle_0", "vehicle_1"]
+    assert all(len(outcome) == 1 for outcome in left.values()), left
+
+
 def test_a_list_of_scenarios_is_played_in_turn(sim_server):
     with SimClient(sim_server.endpoint, sim_server.prefix) as client:
         _, names = client.scenarios(GENERAL)

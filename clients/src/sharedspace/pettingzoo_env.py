@@ -388,8 +388,8 @@ class SharedSpaceParallelEnv(ParallelEnv):
             truncs[a] = bool(trunc[e])
             info = self._info(t)
             info["action_clipped"] = bool(clipped[e])
-            for term, v in res["reward_terms"].items():
-                info[f"reward_{term}"] = float(v[0][e])
+            for name, v in res["reward_terms"].items():
+                info[f"reward_{name}"] = float(v[0][e])
             if a in metrics:
                 m = metrics[a]
                 outcome = m.get("outcome")
