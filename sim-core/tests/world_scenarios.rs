@@ -473,6 +473,27 @@ fn episode_terminates_on_av_pedestrian_collision() {
 }
 
 #[test]
+fn the_horizon_covers_the_recording_of_every_controlled_vehicle() {
+    // The ego's recording ends at step 10; a second car enters at step 6 and its recording ends
+    // at step 6 + 20 = 26. With both controlled the horizon is (26 * 0.5 + 15) / 0.5 = 56 steps,
+    // so the later car gets its own recorded time plus the margin; with the ego alone it is
+    // (10 * 0.5 + 15) / 0.5 = 40, as before.
+    let sc = scenario(
+        0,
+        vec![
+            line(AgentKind::Vehicle, 0, [0.0, 0.0], [2.0, 0.0], 11),
+            line(AgentKind::Vehicle, 6, [0.0, 20.0], [1.0, 0.0], 21),
+            line(AgentKind::Pedestrian, 0, [10.0, 10.0], [0.0, -1.0], 11),
+        ],
+    );
+    assert_eq!(world(&sc, with_external(vec![0, 1])).horizon(), 56);
+    assert_eq!(world(&sc, with_external(vec![1])).horizon(), 56);
+    assert_eq!(world(&sc, with_external(vec![0])).horizon(), 40);
+    // A controlled pedestrian does not stretch the ego's horizon.
+    assert_eq!(world(&sc, with_external(vec![0, 2])).horizon(), 40);
+}
+
+#[test]
 fn episode_truncates_at_recorded_duration_plus_fifteen_seconds() {
     // 11 samples: recorded duration 10 * 0.5 = 5 s; horizon (5 + 15)/0.5 = 40 steps. The car
     // stands still (recorded velocity 0) 10 m from its goal.

@@ -353,15 +353,21 @@ fn external_tracks(
     Ok(externals)
 }
 
-/// Steps of an episode: the ego's recorded duration plus `horizon_extra` (model.md section 7).
-fn episode_horizon(scenario: &Scenario, params: &WorldParams) -> u32 {
-    let recorded = scenario.recorded_steps();
-    let ego_len = scenario
-        .agents
-        .get(scenario.ego)
-        .map_or(recorded, |a| a.end_step() + 1);
-    (((ego_len.saturating_sub(1)) as f64 * params.dt + params.horizon_extra) / params.dt).round()
-        as u32
+/// Steps of an episode (model.md section 7): the last recorded step of the controlled vehicles
+/// (the latest one ends last; the ego's when no vehicle is controlled) plus `horizon_extra`.
+/// With several controlled cars, each must have its own recorded time and the margin: a horizon
+/// from the ego alone would cut a car that enters later or drives longer before it could arrive.
+fn episode_horizon(scenario: &Scenario, params: &WorldParams, externals: &[ExternalTrack]) -> u32 {
+    let end_of = |id: usize| scenario.agents.get(id).map(|a| a.end_step());
+    let controlled_end = externals
+        .iter()
+        .filter(|e| scenario.agents[e.id as usize].kind == AgentKind::Vehicle)
+        .filter_map(|e| end_of(e.id as usize))
+        .max();
+    let last = controlled_end
+        .or_else(|| end_of(scenario.ego))
+        .unwrap_or_else(|| scenario.recorded_steps().saturating_sub(1));
+    ((last as f64 * params.dt + params.horizon_extra) / params.dt).round() as u32
 }
 
 impl World {
@@ -381,7 +387,7 @@ impl World {
             .zip(&control_of)
             .map(|(rec, c)| matches!(c, Control::Vehicle(_)).then(|| RecordedPath::new(rec)))
             .collect();
-        let horizon = episode_horizon(&scenario, &params);
+        let horizon = episode_horizon(&scenario, &params, &externals);
         let n_total = scenario.agents.len();
         let mut pending: Vec<AgentId> = (0..n_total as AgentId).collect();
         pending.sort_by_key(|&id| {
