@@ -131,12 +131,13 @@ pub fn create_env_full() -> CreateEnv {
         split: Split::Test,
         external_agents: vec!["vehicle_0".to_string(), "vehicle_1".to_string()],
         mode: Mode::Realtime,
-        scenario: Some("synthetic-counter_flow-n12-v2-seed3".to_string()),
+        scenario: Some("synthetic-counter_flow-n12-v2-intersection-seed3".to_string()),
         realtime_factor: 2.0,
         synthetic: Some(SyntheticScenes {
             layout: "counter_flow".to_string(),
             pedestrians: 12,
             vehicles: 2,
+            routes: "intersection".to_string(),
             density: 0.5,
             seed: 3,
             scenes: 4,
@@ -506,7 +507,7 @@ pub fn all() -> Vec<Sample> {
         Sample::new(
             "create_env_full",
             "sharedspace/server/s1/env/create",
-            "CreateEnv with every optional field set: generated counter-flow scenes, seeded variations, reactive traffic, two controlled vehicles, realtime.",
+            "CreateEnv with every optional field set: generated counter-flow scenes with two cars through an intersection, seeded variations, reactive traffic, two controlled vehicles, realtime.",
             create_env_full(),
         ),
         Sample::new(

@@ -19,7 +19,14 @@
 //! `walk = min(side, max_walk)` (default `max_walk` 30 m), sampled every 0.5 s at that constant
 //! velocity (the last sample is the goal), so goals and mean speeds are defined. All agents start
 //! at step 0. The vehicle's track is sampled the same way. With `V > 1` vehicles the others
-//! (record ids `1..V`) drive on parallel lanes [`LANE_SPACING`] apart, alternately oncoming.
+//! (record ids `1..V`) drive by [`Routes`]: on parallel lanes [`LANE_SPACING`] apart, alternately
+//! oncoming (`lanes`, the default), or through a four-way intersection at the square's centre
+//! (`intersection`, at most 4 vehicles): vehicle `k` heads `k * 90°` (`+x`, `+y`, `-x`, `-y`),
+//! keeping half a lane to the right of the centre lines, from 1 m outside the square to 1 m past
+//! it, so perpendicular routes cross at the centre and opposite ones pass 4 m apart. Vehicle
+//! `k > 0` enters after a delay of 0–4 steps (0–2 s) drawn from a stream of its own
+//! (`SplitMix64::new(seed ^ ROUTE_STREAM)`), so who reaches the crossing first varies with the
+//! seed while the pedestrians stay those of the `lanes` scene of the same seed.
 //!
 //! Initial positions are uniform in `[0.3 + ε, side - 0.3 - ε]²` and pairwise non-overlapping
 //! (centre distance `> 0.6 m + ε`, ε = 1e-6 m, so clearance `> 0`): rejection sampling with at
@@ -93,11 +100,59 @@ impl FromStr for Layout {
     }
 }
 
+/// How the vehicles of a scene drive (see the module docs).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Routes {
+    /// Parallel lanes [`LANE_SPACING`] apart, alternately oncoming.
+    #[default]
+    Lanes,
+    /// A four-way intersection at the square's centre; at most [`MAX_INTERSECTION_VEHICLES`].
+    Intersection,
+}
+
+impl Routes {
+    pub const ALL: [Routes; 2] = [Routes::Lanes, Routes::Intersection];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Routes::Lanes => "lanes",
+            Routes::Intersection => "intersection",
+        }
+    }
+}
+
+impl fmt::Display for Routes {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Routes {
+    type Err = SyntheticError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Routes::ALL
+            .into_iter()
+            .find(|r| r.as_str() == s)
+            .ok_or_else(|| SyntheticError::UnknownRoutes(s.to_string()))
+    }
+}
+
+/// Arms of the intersection: at most one vehicle per heading.
+pub const MAX_INTERSECTION_VEHICLES: usize = 4;
+/// Most steps a vehicle's entry is delayed by in an `intersection` scene.
+pub const MAX_ENTRY_DELAY_STEPS: u64 = 4;
+/// Mixed into the seed for the vehicles' own random stream (entry delays), so that the
+/// pedestrians' draws are untouched by the routes.
+const ROUTE_STREAM: u64 = 0x9E37_79B9_7F4A_7C15;
+
 /// An unusable synthetic configuration.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SyntheticError {
     #[error("unknown layout `{0}` (expected crossing, counter_flow or random)")]
     UnknownLayout(String),
+    #[error("unknown routes `{0}` (expected lanes or intersection)")]
+    UnknownRoutes(String),
     #[error("field `{field}`: {value} is invalid: {problem}")]
     Invalid {
         field: &'static str,
@@ -140,6 +195,8 @@ pub struct SyntheticConfig {
     /// [`LANE_SPACING`] apart (alternately below and above the ego's line), odd ones oncoming
     /// (`-x`), even ones along `+x`, at `vehicle_speed`.
     pub vehicles: usize,
+    /// How the vehicles drive: parallel lanes (default) or through an intersection.
+    pub routes: Routes,
 }
 
 /// Distance between the vehicles' parallel lanes (m): a car's width plus clearance.
@@ -160,6 +217,7 @@ impl Default for SyntheticConfig {
             vehicle_speed: 3.0,
             split: Split::Train,
             vehicles: 1,
+            routes: Routes::Lanes,
         }
     }
 }
@@ -212,6 +270,13 @@ impl SyntheticConfig {
         if self.vehicles == 0 || self.vehicles > MAX_VEHICLES {
             return invalid("vehicles", self.vehicles as f64, "must be between 1 and 64");
         }
+        if self.routes == Routes::Intersection && self.vehicles > MAX_INTERSECTION_VEHICLES {
+            return invalid(
+                "vehicles",
+                self.vehicles as f64,
+                "an intersection has 4 arms: at most 4 vehicles",
+            );
+        }
         if self.pedestrians > MAX_PEDESTRIANS {
             return Err(SyntheticError::TooMany(self.pedestrians));
         }
@@ -226,12 +291,12 @@ impl SyntheticConfig {
     }
 
     /// The scenario name: `synthetic-<layout>-n<N>-seed<seed>`, with `-v<V>` after `n<N>`
-    /// when there is more than one vehicle.
+    /// when there is more than one vehicle, and `-intersection` after it for those routes.
     pub fn name(&self) -> String {
-        let vehicles = if self.vehicles > 1 {
-            format!("-v{}", self.vehicles)
-        } else {
-            String::new()
+        let vehicles = match (self.vehicles > 1, self.routes) {
+            (false, Routes::Lanes) => String::new(),
+            (true, Routes::Lanes) => format!("-v{}", self.vehicles),
+            (_, Routes::Intersection) => format!("-v{}-intersection", self.vehicles),
         };
         format!(
             "synthetic-{}-n{}{vehicles}-seed{}",
@@ -390,6 +455,45 @@ fn place(
     Ok(out)
 }
 
+/// Each vehicle's start, goal and entry step (see the module docs).
+fn vehicle_routes(cfg: &SyntheticConfig, side: f64) -> Vec<([f64; 2], [f64; 2], u32)> {
+    let margin = 0.5 * VEHICLE_LENGTH + 1.0;
+    let centre = 0.5 * side;
+    match cfg.routes {
+        // Vehicle 0 (the ego) drives along the centre line, left to right; the others alternate
+        // direction on lanes either side of it, drawn without randomness so that V = 1 scenes
+        // stay as they were.
+        Routes::Lanes => (0..cfg.vehicles)
+            .map(|k| {
+                let side_sign = if k % 2 == 1 { -1.0 } else { 1.0 };
+                let y = centre + (k as f64 / 2.0).ceil() * LANE_SPACING * side_sign;
+                if k % 2 == 1 {
+                    ([side + margin, y], [-margin, y], 0)
+                } else {
+                    ([-margin, y], [side + margin, y], 0)
+                }
+            })
+            .collect(),
+        Routes::Intersection => {
+            let mut delays = SplitMix64::new(cfg.seed ^ ROUTE_STREAM);
+            let reach = centre + margin;
+            (0..cfg.vehicles)
+                .map(|k| {
+                    let (sin, cos) = (k as f64 * 0.25 * TAU).sin_cos();
+                    // Half a lane to the right of the heading: right normal (sin, -cos).
+                    let offset = 0.5 * LANE_SPACING;
+                    let (cx, cy) = (centre + offset * sin, centre - offset * cos);
+                    let from = [cx - reach * cos, cy - reach * sin];
+                    let to = [cx + reach * cos, cy + reach * sin];
+                    // The ego is there from the first step, as in every scene.
+                    let delay = (delays.next_u64() % (MAX_ENTRY_DELAY_STEPS + 1)) as u32;
+                    (from, to, if k == 0 { 0 } else { delay })
+                })
+                .collect()
+        }
+    }
+}
+
 /// Generate one synthetic scenario (see the module docs).
 pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
     cfg.check()?;
@@ -398,23 +502,12 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
     let starts = place(cfg, side, &mut rng)?;
     let walk = side.min(cfg.max_walk);
     let mut agents = Vec::with_capacity(cfg.pedestrians + cfg.vehicles);
-    let margin = 0.5 * VEHICLE_LENGTH + 1.0;
-    // Vehicle 0 (the ego) drives along the centre line, left to right; the others alternate
-    // direction on lanes either side of it, drawn without randomness so that V = 1 scenes stay
-    // as they were.
-    for k in 0..cfg.vehicles {
-        let lane = (k as f64 / 2.0).ceil() * LANE_SPACING * if k % 2 == 1 { -1.0 } else { 1.0 };
-        let y = 0.5 * side + lane;
-        let (from, to) = if k % 2 == 1 {
-            ([side + margin, y], [-margin, y])
-        } else {
-            ([-margin, y], [side + margin, y])
-        };
+    for (k, (from, to, start_step)) in vehicle_routes(cfg, side).into_iter().enumerate() {
         let (pos, vel) = straight_track(from, to, cfg.vehicle_speed);
         agents.push(AgentRecord {
             record_id: k as u64,
             kind: AgentKind::Vehicle,
-            start_step: 0,
+            start_step,
             positions: pos,
             velocities: vel,
             non_reactive: false,

@@ -1,12 +1,16 @@
 //! Contract: synthetic scenarios are reproducible from their seed, start non-overlapping
 //! (clearance above 0 under the model's footprints), have straight start-to-goal tracks at
-//! 1.0-1.5 m/s, fill a square of side sqrt(N / density), and scale to 10 000 pedestrians.
+//! 1.0-1.5 m/s, fill a square of side sqrt(N / density), and scale to 10 000 pedestrians;
+//! intersection routes cross at the square's centre.
 
 use std::time::Instant;
 
 use scenarios::footprint::{first_spawn_overlap, PED_RADIUS};
 use scenarios::pool::{load_pool, save_pool, validate_pool, OverlapCheck};
-use scenarios::synthetic::{generate, generate_pool, Layout, SyntheticConfig, SyntheticError};
+use scenarios::synthetic::{
+    generate, generate_pool, Layout, Routes, SyntheticConfig, SyntheticError, LANE_SPACING,
+    MAX_ENTRY_DELAY_STEPS,
+};
 use sim_core::scenario::AgentKind;
 
 #[test]
@@ -84,6 +88,58 @@ fn initial_positions_never_overlap_even_when_dense() {
             }
         }
     }
+}
+
+#[test]
+fn intersection_routes_cross_at_the_centre_and_keep_the_crowd_of_the_lanes_scene() {
+    let side = SyntheticConfig::new(Layout::Crossing, 40, 5).side();
+    let centre = 0.5 * side;
+    let mut delays = Vec::new();
+    for seed in 0..16 {
+        let mut cfg = SyntheticConfig::new(Layout::Crossing, 40, seed);
+        cfg.vehicles = 4;
+        let lanes = generate(&cfg).unwrap();
+        cfg.routes = Routes::Intersection;
+        let s = generate(&cfg).unwrap();
+        assert_eq!(
+            s.name,
+            format!("synthetic-crossing-n40-v4-intersection-seed{seed}")
+        );
+        // The pedestrians are those of the lanes scene of the same seed.
+        assert_eq!(s.agents[4..], lanes.agents[4..]);
+        for (k, car) in s.agents[..4].iter().enumerate() {
+            assert_eq!(car.kind, AgentKind::Vehicle);
+            let (from, to) = (car.positions[0], *car.positions.last().unwrap());
+            let heading = (to[1] - from[1]).atan2(to[0] - from[0]);
+            let want = k as f64 * std::f64::consts::FRAC_PI_2;
+            assert!((heading - want).sin().abs() < 1e-9 && (heading - want).cos() > 0.0);
+            // Half a lane right of the centre line through the square's centre.
+            let (sin, cos) = want.sin_cos();
+            let across = (from[0] - centre) * -sin + (from[1] - centre) * cos;
+            assert!(
+                (across + 0.5 * LANE_SPACING).abs() < 1e-9,
+                "car {k}: {across}"
+            );
+            // From outside the square to past it.
+            assert!(from.iter().chain(&to).any(|&c| c < 0.0 || c > side));
+            if k == 0 {
+                assert_eq!(car.start_step, 0, "the ego is there from the first step");
+            } else {
+                assert!(u64::from(car.start_step) <= MAX_ENTRY_DELAY_STEPS);
+                delays.push(car.start_step);
+            }
+        }
+        // Perpendicular routes cross inside the square: car 0 (+x) at y = c - 2, car 1 (+y) at
+        // x = c + 2.
+        assert!((s.agents[0].positions[0][1] - (centre - 2.0)).abs() < 1e-9);
+        assert!((s.agents[1].positions[0][0] - (centre + 2.0)).abs() < 1e-9);
+    }
+    // The entry delays vary with the seed.
+    assert!(delays.iter().min() < delays.iter().max(), "{delays:?}");
+    let mut cfg = SyntheticConfig::new(Layout::Crossing, 10, 1);
+    (cfg.vehicles, cfg.routes) = (5, Routes::Intersection);
+    assert!(generate(&cfg).unwrap_err().to_string().contains("4 arms"));
+    assert!("roundabout".parse::<Routes>().is_err());
 }
 
 #[test]

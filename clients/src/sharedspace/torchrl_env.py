@@ -113,9 +113,10 @@ def contract_tensordict(
 
 def synthetic_names(synthetic: SyntheticScenes, split: str) -> list[tuple[str, str]]:
     """The scenes a ``CreateEnv.synthetic`` request makes, as ``(name, split)`` in order (the
-    server names them ``synthetic-{layout}-n{N}[-v{V}]-seed{seed}``, SPEC 5.2)."""
+    server names them ``synthetic-{layout}-n{N}[-v{V}[-intersection]]-seed{seed}``, SPEC 5.2)."""
     s = synthetic
-    vehicles = f"-v{s.vehicles}" if s.vehicles > 1 else ""
+    vehicles = f"-v{s.vehicles}" if s.vehicles > 1 or s.routes == "intersection" else ""
+    vehicles += "-intersection" if s.routes == "intersection" else ""
     return [
         (f"synthetic-{s.layout}-n{s.pedestrians}{vehicles}-seed{s.seed + i}", split)
         for i in range(s.scenes)

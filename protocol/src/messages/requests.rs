@@ -108,9 +108,12 @@ pub struct SyntheticScenes {
     pub layout: String,
     /// Pedestrians per scene.
     pub pedestrians: u32,
-    /// Vehicles per scene: the ego drives +x through the crowd, the others on parallel lanes
-    /// 4 m apart, alternately oncoming.
+    /// Vehicles per scene: the ego drives +x through the crowd, the others by `routes`.
     pub vehicles: u32,
+    /// `"lanes"` (parallel lanes 4 m apart, alternately oncoming) or `"intersection"` (at most
+    /// 4 vehicles heading +x, +y, -x, -y through a crossing at the square's centre, the others
+    /// entering 0–2 s late).
+    pub routes: String,
     /// Pedestrians per square metre of the crowd's square.
     pub density: f64,
     /// Seed of the first scene.
@@ -125,6 +128,7 @@ impl Default for SyntheticScenes {
             layout: "crossing".into(),
             pedestrians: 10,
             vehicles: 1,
+            routes: "lanes".into(),
             density: 0.25,
             seed: 0,
             scenes: 1,

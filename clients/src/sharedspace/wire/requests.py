@@ -89,8 +89,12 @@ class SyntheticScenes(Checked):
     layout: Literal["crossing", "counter_flow", "random"] = "crossing"
     #: Pedestrians per scene.
     pedestrians: _NonNegative = 10
-    #: Vehicles per scene (the ego first, the others on parallel lanes 4 m apart).
+    #: Vehicles per scene (the ego first, the others by ``routes``).
     vehicles: Annotated[int, msgspec.Meta(ge=1)] = 1
+    #: ``lanes``: parallel lanes 4 m apart, alternately oncoming. ``intersection``: at most 4
+    #: vehicles heading +x, +y, -x, -y through a crossing at the square's centre, the others
+    #: entering 0-2 s late (seeded).
+    routes: Literal["lanes", "intersection"] = "lanes"
     #: Pedestrians per square metre of the crowd's square.
     density: float = 0.25
     #: Seed of the first scene (scene ``i`` has ``seed + i``).

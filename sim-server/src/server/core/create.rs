@@ -47,11 +47,17 @@ pub const MAX_SYNTHETIC_SCENES: u32 = 256;
 /// The pool `synthetic` of a `CreateEnv.synthetic` request: its scenes, seeds `seed`,
 /// `seed + 1`, ..., all in `split`.
 fn synthetic_pool(req: &SyntheticScenes, split: Split) -> Result<ServedPool, ErrorReply> {
-    use scenarios::synthetic::{generate_pool, Layout, SyntheticConfig};
+    use scenarios::synthetic::{generate_pool, Layout, Routes, SyntheticConfig};
     let layout: Layout = req.layout.parse().map_err(|_| {
         bad(format!(
             "synthetic.layout {:?}: expected one of crossing, counter_flow, random",
             req.layout
+        ))
+    })?;
+    let routes: Routes = req.routes.parse().map_err(|_| {
+        bad(format!(
+            "synthetic.routes {:?}: expected one of lanes, intersection",
+            req.routes
         ))
     })?;
     if req.pedestrians > MAX_SYNTHETIC_PEDESTRIANS {
@@ -74,6 +80,7 @@ fn synthetic_pool(req: &SyntheticScenes, split: Split) -> Result<ServedPool, Err
             layout,
             pedestrians: req.pedestrians as usize,
             vehicles: req.vehicles as usize,
+            routes,
             density: req.density,
             seed: req.seed.wrapping_add(i),
             split,
