@@ -24,9 +24,7 @@ import datetime
 import json
 import os
 import platform
-import signal
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
@@ -35,65 +33,29 @@ from client_roundtrip import bench_batch  # noqa: E402
 from step_vs_pysocialforce import time_rust  # noqa: E402
 
 from sharedspace.client import SimClient  # noqa: E402
-from sharedspace.local_server import free_port, wait_port  # noqa: E402
+from sharedspace.local_server import LocalServer  # noqa: E402
 
 
 def batch_env_steps_per_s(server: str, k: int, seconds: float) -> float:
     """Env-steps per second of a K-env batch against a fresh ``server``."""
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    proc = subprocess.Popen(
-        [
-            server,
-            "serve",
-            "--cfg",
-            f'zenoh/listen/endpoints:["{endpoint}"]',
-            "--cfg",
-            "zenoh/scouting/multicast/enabled:false",
-            "--cfg",
-            "server_id:alloc-ab",
-        ],
-        env={**os.environ, "RUST_LOG": "warn"},
-    )
-    try:
-        wait_port(port, proc, 30.0)
-        client = SimClient(endpoint, timeout=10.0)
+    with LocalServer(binary=server) as local:
+        client = SimClient(local.endpoint, local.prefix, timeout=10.0)
         client.servers(timeout=10.0)
         rate = bench_batch(client, k, seconds)["env_steps_per_s"]
         client.shutdown()
         return rate
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
 
 
 def allocator_of(server: str) -> str:
     """The allocator a build runs on, from the figures a fresh one reports in
     ``ServerInfo.allocator``: only jemalloc's have ``resident``, glibc's ``mallinfo2`` has not."""
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    proc = subprocess.Popen(
-        [
-            server,
-            "serve",
-            "--cfg",
-            f'zenoh/listen/endpoints:["{endpoint}"]',
-            "--cfg",
-            "zenoh/scouting/multicast/enabled:false",
-        ],
-        env={**os.environ, "RUST_LOG": "warn"},
-    )
-    try:
-        wait_port(port, proc, 30.0)
-        client = SimClient(endpoint, timeout=10.0)
+    with LocalServer(binary=server) as local:
+        client = SimClient(local.endpoint, local.prefix, timeout=10.0)
         figures = client.servers(timeout=10.0)[0].get("allocator", {})
         client.shutdown()
         return (
             "jemalloc" if "resident" in figures else "glibc" if figures else "unknown"
         )
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=10)
 
 
 def main() -> int:
