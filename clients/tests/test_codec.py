@@ -226,6 +226,7 @@ def test_env_spec_holds_the_fields_of_the_rust_create_env():
         ({"seed": -1}, "EnvSpec.seed"),
         ({"variations": {"positon_sigma": 0.5}}, "positon_sigma"),
         ({"synthetic": {"layout": "grid"}}, "EnvSpec.synthetic"),
+        ({"synthetic": {"routes": "ring"}}, "EnvSpec.synthetic"),
     ],
 )
 def test_an_ill_typed_env_field_is_refused_where_it_is_written(fields, names):

@@ -254,6 +254,17 @@ fn synthetic_scenes_with_two_controlled_vehicles_are_created_and_stepped() {
             Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().vehicles = 0),
             "vehicles",
         ),
+        (
+            Box::new(|r: &mut CreateEnv| r.synthetic.as_mut().unwrap().routes = "ring".into()),
+            "synthetic.routes",
+        ),
+        (
+            Box::new(|r: &mut CreateEnv| {
+                let s = r.synthetic.as_mut().unwrap();
+                (s.routes, s.vehicles) = ("intersection".into(), 5);
+            }),
+            "4 arms",
+        ),
     ] {
         let mut bad_req = req.clone();
         change(&mut bad_req);
