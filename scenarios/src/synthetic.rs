@@ -24,9 +24,12 @@
 //! (`intersection`, at most 4 vehicles): vehicle `k` heads `k * 90°` (`+x`, `+y`, `-x`, `-y`),
 //! keeping half a lane to the right of the centre lines, from 1 m outside the square to 1 m past
 //! it, so perpendicular routes cross at the centre and opposite ones pass 4 m apart. Vehicle
-//! `k > 0` enters after a delay of 0–4 steps (0–2 s) drawn from a stream of its own
-//! (`SplitMix64::new(seed ^ ROUTE_STREAM)`), so who reaches the crossing first varies with the
-//! seed while the pedestrians stay those of the `lanes` scene of the same seed.
+//! `k > 0` starts a lag of 0–4 steps (0–2 s) of driving farther back on its route, drawn from a
+//! stream of its own (`SplitMix64::new(seed ^ ROUTE_STREAM)`), so who reaches the crossing first
+//! varies with the seed while the pedestrians stay those of the `lanes` scene of the same seed.
+//! Every vehicle is there from step 0, outside the square, where no pedestrian starts: a car
+//! that entered later could appear on top of a pedestrian walking out of the square, a collision
+//! no driver could avoid.
 //!
 //! Initial positions are uniform in `[0.3 + ε, side - 0.3 - ε]²` and pairwise non-overlapping
 //! (centre distance `> 0.6 m + ε`, ε = 1e-6 m, so clearance `> 0`): rejection sampling with at
@@ -140,9 +143,10 @@ impl FromStr for Routes {
 
 /// Arms of the intersection: at most one vehicle per heading.
 pub const MAX_INTERSECTION_VEHICLES: usize = 4;
-/// Most steps a vehicle's entry is delayed by in an `intersection` scene.
-pub const MAX_ENTRY_DELAY_STEPS: u64 = 4;
-/// Mixed into the seed for the vehicles' own random stream (entry delays), so that the
+/// Most steps of driving a vehicle of an `intersection` scene starts behind the others' start
+/// line (its lag, `lag * vehicle_speed * 0.5 s` metres).
+pub const MAX_ENTRY_LAG_STEPS: u64 = 4;
+/// Mixed into the seed for the vehicles' own random stream (their lags), so that the
 /// pedestrians' draws are untouched by the routes.
 const ROUTE_STREAM: u64 = 0x9E37_79B9_7F4A_7C15;
 
@@ -455,8 +459,8 @@ fn place(
     Ok(out)
 }
 
-/// Each vehicle's start, goal and entry step (see the module docs).
-fn vehicle_routes(cfg: &SyntheticConfig, side: f64) -> Vec<([f64; 2], [f64; 2], u32)> {
+/// Each vehicle's start and goal (see the module docs).
+fn vehicle_routes(cfg: &SyntheticConfig, side: f64) -> Vec<([f64; 2], [f64; 2])> {
     let margin = 0.5 * VEHICLE_LENGTH + 1.0;
     let centre = 0.5 * side;
     match cfg.routes {
@@ -468,14 +472,14 @@ fn vehicle_routes(cfg: &SyntheticConfig, side: f64) -> Vec<([f64; 2], [f64; 2], 
                 let side_sign = if k % 2 == 1 { -1.0 } else { 1.0 };
                 let y = centre + (k as f64 / 2.0).ceil() * LANE_SPACING * side_sign;
                 if k % 2 == 1 {
-                    ([side + margin, y], [-margin, y], 0)
+                    ([side + margin, y], [-margin, y])
                 } else {
-                    ([-margin, y], [side + margin, y], 0)
+                    ([-margin, y], [side + margin, y])
                 }
             })
             .collect(),
         Routes::Intersection => {
-            let mut delays = SplitMix64::new(cfg.seed ^ ROUTE_STREAM);
+            let mut lags = SplitMix64::new(cfg.seed ^ ROUTE_STREAM);
             let reach = centre + margin;
             (0..cfg.vehicles)
                 .map(|k| {
@@ -483,11 +487,17 @@ fn vehicle_routes(cfg: &SyntheticConfig, side: f64) -> Vec<([f64; 2], [f64; 2], 
                     // Half a lane to the right of the heading: right normal (sin, -cos).
                     let offset = 0.5 * LANE_SPACING;
                     let (cx, cy) = (centre + offset * sin, centre - offset * cos);
-                    let from = [cx - reach * cos, cy - reach * sin];
+                    // The draw is made for the ego too, so that car k's lag stays its own
+                    // whatever the number of cars; the ego keeps the start line.
+                    let lag = (lags.next_u64() % (MAX_ENTRY_LAG_STEPS + 1)) as f64;
+                    let back = if k == 0 {
+                        0.0
+                    } else {
+                        lag * cfg.vehicle_speed * DT
+                    };
+                    let from = [cx - (reach + back) * cos, cy - (reach + back) * sin];
                     let to = [cx + reach * cos, cy + reach * sin];
-                    // The ego is there from the first step, as in every scene.
-                    let delay = (delays.next_u64() % (MAX_ENTRY_DELAY_STEPS + 1)) as u32;
-                    (from, to, if k == 0 { 0 } else { delay })
+                    (from, to)
                 })
                 .collect()
         }
@@ -502,12 +512,12 @@ pub fn generate(cfg: &SyntheticConfig) -> Result<Scenario, SyntheticError> {
     let starts = place(cfg, side, &mut rng)?;
     let walk = side.min(cfg.max_walk);
     let mut agents = Vec::with_capacity(cfg.pedestrians + cfg.vehicles);
-    for (k, (from, to, start_step)) in vehicle_routes(cfg, side).into_iter().enumerate() {
+    for (k, (from, to)) in vehicle_routes(cfg, side).into_iter().enumerate() {
         let (pos, vel) = straight_track(from, to, cfg.vehicle_speed);
         agents.push(AgentRecord {
             record_id: k as u64,
             kind: AgentKind::Vehicle,
-            start_step,
+            start_step: 0,
             positions: pos,
             velocities: vel,
             non_reactive: false,

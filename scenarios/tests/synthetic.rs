@@ -5,11 +5,11 @@
 
 use std::time::Instant;
 
-use scenarios::footprint::{first_spawn_overlap, PED_RADIUS};
+use scenarios::footprint::{first_spawn_overlap, PED_RADIUS, VEHICLE_LENGTH};
 use scenarios::pool::{load_pool, save_pool, validate_pool, OverlapCheck};
 use scenarios::synthetic::{
     generate, generate_pool, Layout, Routes, SyntheticConfig, SyntheticError, LANE_SPACING,
-    MAX_ENTRY_DELAY_STEPS,
+    MAX_ENTRY_LAG_STEPS,
 };
 use sim_core::scenario::AgentKind;
 
@@ -94,7 +94,7 @@ fn initial_positions_never_overlap_even_when_dense() {
 fn intersection_routes_cross_at_the_centre_and_keep_the_crowd_of_the_lanes_scene() {
     let side = SyntheticConfig::new(Layout::Crossing, 40, 5).side();
     let centre = 0.5 * side;
-    let mut delays = Vec::new();
+    let mut lags = Vec::new();
     for seed in 0..16 {
         let mut cfg = SyntheticConfig::new(Layout::Crossing, 40, seed);
         cfg.vehicles = 4;
@@ -107,6 +107,7 @@ fn intersection_routes_cross_at_the_centre_and_keep_the_crowd_of_the_lanes_scene
         );
         // The pedestrians are those of the lanes scene of the same seed.
         assert_eq!(s.agents[4..], lanes.agents[4..]);
+        let reach = centre + 0.5 * VEHICLE_LENGTH + 1.0;
         for (k, car) in s.agents[..4].iter().enumerate() {
             assert_eq!(car.kind, AgentKind::Vehicle);
             let (from, to) = (car.positions[0], *car.positions.last().unwrap());
@@ -120,22 +121,37 @@ fn intersection_routes_cross_at_the_centre_and_keep_the_crowd_of_the_lanes_scene
                 (across + 0.5 * LANE_SPACING).abs() < 1e-9,
                 "car {k}: {across}"
             );
-            // From outside the square to past it.
-            assert!(from.iter().chain(&to).any(|&c| c < 0.0 || c > side));
-            if k == 0 {
-                assert_eq!(car.start_step, 0, "the ego is there from the first step");
-            } else {
-                assert!(u64::from(car.start_step) <= MAX_ENTRY_DELAY_STEPS);
-                delays.push(car.start_step);
+            // Every car is there from the first step, outside the square, where no pedestrian
+            // is: none can appear on top of one.
+            assert_eq!(car.start_step, 0, "car {k}");
+            assert!(from.iter().any(|&c| c < 0.0 || c > side));
+            let front = VEHICLE_LENGTH / 2.0;
+            for ped in &s.agents[4..] {
+                let p = ped.positions[0];
+                let ahead = (p[0] - from[0]) * cos + (p[1] - from[1]) * sin;
+                assert!(ahead > front, "car {k} starts on a pedestrian");
             }
+            // It ends 1 m past the square; the ego starts 1 m before it, the others a lag of
+            // whole steps of driving behind that line.
+            let to_centre = (centre - from[0]) * cos + (centre - from[1]) * sin;
+            let lag = (to_centre - reach) / (cfg.vehicle_speed * 0.5);
+            assert!((lag - lag.round()).abs() < 1e-9, "car {k}: lag {lag}");
+            assert!(lag.round() as u64 <= MAX_ENTRY_LAG_STEPS);
+            if k == 0 {
+                assert!(lag.abs() < 1e-9, "the ego keeps the start line");
+            } else {
+                lags.push(lag.round() as u64);
+            }
+            let past = (to[0] - centre) * cos + (to[1] - centre) * sin;
+            assert!((past - reach).abs() < 1e-9);
         }
         // Perpendicular routes cross inside the square: car 0 (+x) at y = c - 2, car 1 (+y) at
         // x = c + 2.
         assert!((s.agents[0].positions[0][1] - (centre - 2.0)).abs() < 1e-9);
         assert!((s.agents[1].positions[0][0] - (centre + 2.0)).abs() < 1e-9);
     }
-    // The entry delays vary with the seed.
-    assert!(delays.iter().min() < delays.iter().max(), "{delays:?}");
+    // The lags vary with the seed.
+    assert!(lags.iter().min() < lags.iter().max(), "{lags:?}");
     let mut cfg = SyntheticConfig::new(Layout::Crossing, 10, 1);
     (cfg.vehicles, cfg.routes) = (5, Routes::Intersection);
     assert!(generate(&cfg).unwrap_err().to_string().contains("4 arms"));

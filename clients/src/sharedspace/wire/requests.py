@@ -93,7 +93,7 @@ class SyntheticScenes(Checked):
     vehicles: Annotated[int, msgspec.Meta(ge=1)] = 1
     #: ``lanes``: parallel lanes 4 m apart, alternately oncoming. ``intersection``: at most 4
     #: vehicles heading +x, +y, -x, -y through a crossing at the square's centre, the others
-    #: entering 0-2 s late (seeded).
+    #: starting 0-2 s of driving behind the ego's start line (seeded), all from step 0.
     routes: Literal["lanes", "intersection"] = "lanes"
     #: Pedestrians per square metre of the crowd's square.
     density: float = 0.25
