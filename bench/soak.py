@@ -260,7 +260,12 @@ def main() -> int:
             0.01,
             "PASS bound on the live heap's growth after warm-up (fraction, window medians)",
         ),
-        ("--heap-window-min", float, 10.0, "minutes of each window the heap growth compares"),
+        (
+            "--heap-window-min",
+            float,
+            10.0,
+            "minutes of each window the heap growth compares",
+        ),
         ("--warmup-min", float, 2.0, "RSS baseline after this"),
     ]
     for flag, kind, default, text in numbers:

@@ -57,7 +57,7 @@ def _turn_speed_cap(limits: VehicleLimits, heading_error, goal_dist):
     """Highest speed at which the circle of the yaw-rate limit still passes through the goal
     (radius ``v / omega_max`` at most ``d / (2 sin|e|)``), for arrays or floats."""
     sin_e = np.abs(np.sin(heading_error))
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # 0/0 where the where() drops it
         return np.where(sin_e > 1e-6, limits.omega_max * goal_dist / (2 * sin_e), np.inf)
 
 

@@ -5,7 +5,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -17,7 +17,16 @@ from .client import Connection, SimClient, env_options
 from .torchrl_env import NODE_FEATURES, _ServerEnvs
 from .wire.requests import EnvSpec
 
-__all__ = ["RemoteMultiAgentEnv"]
+__all__ = ["AGENT_OUTCOME_KEYS", "RemoteMultiAgentEnv"]
+
+#: Per-agent flags ``[K, A, 1]`` under the group, set on the step that ends that agent's
+#: episode: how it ended, and ``episode_car_collision`` when its collision was with a vehicle.
+AGENT_OUTCOME_KEYS = (
+    "episode_success",
+    "episode_collision",
+    "episode_timeout",
+    "episode_car_collision",
+)
 
 
 class RemoteMultiAgentEnv(_ServerEnvs):
@@ -30,9 +39,12 @@ class RemoteMultiAgentEnv(_ServerEnvs):
     ``truncated [K, A, 1]``. An agent's flags stay set once its own episode has ended (the
     server then ignores its actions and gives it reward 0, SPEC 8.3); the root ``done`` /
     ``terminated`` / ``truncated [K, 1]`` are set when every agent's episode has ended (the
-    sub-env's episode is over; ``truncated`` when some agent ran into the horizon). Sub-envs are
-    created with the server's autoreset, so the partial ``_reset`` after an episode needs no
-    round trip. With one agent it is the single-vehicle env in group form.
+    sub-env's episode is over; ``truncated`` when some agent ran into the horizon). On the step
+    that ends an agent's episode its :data:`AGENT_OUTCOME_KEYS` say how (a collision with another
+    vehicle also sets ``episode_car_collision``), so per-car rates need no second channel.
+    Sub-envs are created with the server's autoreset (unless ``scenarios`` pins them), so the
+    partial ``_reset`` after an episode needs no round trip. With one agent it is the
+    single-vehicle env in group form.
 
     Args:
         spec: the envs (:class:`~sharedspace.wire.EnvSpec`); its ``external_agents`` are the
@@ -41,6 +53,8 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             default here: ``vehicle_0`` and ``vehicle_1``). ``**options`` naming its fields or
             :class:`~sharedspace.client.Connection` fields apply over it and ``client``.
         num_envs: K.
+        scenarios: scenario names to play instead of the server's draws: sub-env ``k`` plays
+            ``scenarios[k]`` at every reset (no autoreset then; an evaluation's fixed set).
         client: a :class:`~sharedspace.client.SimClient` to share, or the ``Connection`` to
             open.
         device: the device of the env's tensors.
@@ -54,19 +68,23 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         spec: EnvSpec | None = None,
         num_envs: int = 4,
         *,
+        scenarios: Sequence[str] | None = None,
         client: SimClient | Connection | None = None,
         device: str | torch.device = "cpu",
         **options: Any,
     ):
         if num_envs < 1:
             raise ValueError("num_envs must be at least 1")
-        self._init_kwargs = {"num_envs": num_envs, "device": device}
+        if scenarios is not None and len(scenarios) != num_envs:
+            raise ValueError(f"scenarios: {len(scenarios)} names for {num_envs} sub-envs")
+        self._init_kwargs = {"num_envs": num_envs, "device": device, "scenarios": scenarios}
+        self._scenarios = None if scenarios is None else [str(n) for n in scenarios]
         spec = spec or EnvSpec(external_agents=("vehicle_0", "vehicle_1"))
         opts = env_options(options, spec, client)
         if not opts.spec.external_agents:
             raise ValueError("external_agents must not be empty")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
-        spec = self._connect(num_envs, opts, autoreset=True)
+        spec = self._connect(num_envs, opts, autoreset=scenarios is None)
         self.num_envs = k = int(num_envs)
         self.n_agents = a = len(spec.external_agents)
         self.max_agents = m = spec.max_agents
@@ -81,6 +99,9 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         self._agent_done = np.zeros((k, a), dtype=bool)
         self._agent_term = np.zeros((k, a), dtype=bool)
         self._agent_trunc = np.zeros((k, a), dtype=bool)
+        # Per sub-env: the ids of the episode's vehicles, and each external agent's id.
+        self._vehicle_ids: list[frozenset[int]] = [frozenset()] * k
+        self._external_ids: list[dict[int, int]] = [{}] * k
         self._pending: list[dict[str, Any] | None] = [None] * k
         self._needs_reset = np.ones(k, dtype=bool)
         self._reseed: int | None = None
@@ -110,6 +131,11 @@ class RemoteMultiAgentEnv(_ServerEnvs):
             action=Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev)
         )
         self.reward_spec = grouped(reward=Unbounded((k, a, 1), dtype=torch.float32, device=dev))
+        outcome_specs = {
+            key: Categorical(2, shape=(k, a, 1), dtype=torch.bool, device=dev)
+            for key in AGENT_OUTCOME_KEYS
+        }
+        self.observation_spec[self.group].update(outcome_specs)
         self.done_spec = Composite(
             {**flags((k, 1)), self.group: Composite(flags((k, a, 1)), shape=(k, a), device=dev)},
             shape=(k,),
@@ -120,10 +146,16 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         for key in ("features", "adjacency", "mask"):
             self._obs[key][k] = result["obs"][key]
         self.scenarios[k] = result["scenario"]
+        agents = result.get("agents") or []
+        self._vehicle_ids[k] = frozenset(int(d["id"]) for d in agents if d["kind"] == "vehicle")
+        names = {d["name"]: int(d["id"]) for d in agents}
+        self._external_ids[k] = {names[n]: i for i, n in enumerate(self.agent_names) if n in names}
         self._agent_done[k] = self._agent_term[k] = self._agent_trunc[k] = False
         self._needs_reset[k] = False
 
-    def _td(self, reward: np.ndarray | None = None) -> TensorDictBase:
+    def _td(
+        self, reward: np.ndarray | None = None, outcomes: dict[str, np.ndarray] | None = None
+    ) -> TensorDictBase:
         k, a = self.num_envs, self.n_agents
         over = self._agent_done.all(1, keepdims=True)
         trunc = over & self._agent_trunc.any(1, keepdims=True)
@@ -137,6 +169,10 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         }
         if reward is not None:
             group["reward"] = torch.from_numpy(reward.reshape(k, a, 1).astype(np.float32))
+        if outcomes is None:
+            outcomes = {key: np.zeros((k, a), dtype=bool) for key in AGENT_OUTCOME_KEYS}
+        for key, flags in outcomes.items():
+            group[key] = torch.from_numpy(flags.reshape(k, a, 1))
         return TensorDict(
             {
                 self.group: TensorDict(group, batch_size=(k, a)),
@@ -162,9 +198,9 @@ class RemoteMultiAgentEnv(_ServerEnvs):
                 queries.append(k)
         if queries:
             ids = self.vec.env_ids
-            for k, r in zip(
-                queries, self.vec.client.reset_many([ids[k] for k in queries]), strict=True
-            ):
+            named = None if self._scenarios is None else [self._scenarios[k] for k in queries]
+            results = self.vec.client.reset_many([ids[k] for k in queries], scenarios=named)
+            for k, r in zip(queries, results, strict=True):
                 self._take_reset(k, r)
         return self._td()
 
@@ -182,17 +218,44 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         self._agent_term |= term
         self._agent_trunc |= trunc
         self._agent_done |= term | trunc
-        td = self._td(np.asarray(res["reward"], dtype=np.float32))
+        td = self._td(np.asarray(res["reward"], dtype=np.float32), self._outcomes(res))
         resets = res["resets"]
+        agents = resets.get("agents") or [[] for _ in resets["index"]]
         for j, k in enumerate(resets["index"]):
             k = int(k)
             self._pending[k] = {
                 "obs": {key: resets["obs"][key][j] for key in ("features", "adjacency", "mask")},
                 "scenario": resets["scenario"][j],
+                "agents": agents[j],
             }
         over = self._agent_done.all(1)
         self._needs_reset |= over
         return td
+
+    def _outcomes(self, res: Mapping[str, Any]) -> dict[str, np.ndarray]:
+        """The :data:`AGENT_OUTCOME_KEYS` flags ``[K, A]`` of one ``BatchStep`` reply, from its
+        episode metrics (how each ended) and collision events (with whom)."""
+        out = {
+            key: np.zeros((self.num_envs, self.n_agents), dtype=bool) for key in AGENT_OUTCOME_KEYS
+        }
+        column = {name: i for i, name in enumerate(self.agent_names)}
+        for entry in res["metrics"]:
+            met = entry["metrics"]
+            i = column.get(met.get("agent"))
+            if i is not None and met.get("outcome") in ("success", "collision", "timeout"):
+                out["episode_" + met["outcome"]][int(entry["index"]), i] = True
+        for entry in res["events"]:
+            event, k = entry["event"], int(entry["index"])
+            if event.get("kind") != "collision":
+                continue
+            pair = [int(x) for x in event.get("agents", ())]
+            if not all(x in self._vehicle_ids[k] for x in pair):
+                continue
+            for x in pair:
+                i = self._external_ids[k].get(x)
+                if i is not None:
+                    out["episode_car_collision"][k, i] = True
+        return out
 
     def _set_seed(self, seed: int | None) -> None:
         # Sub-env k is re-seeded with seed + k at its next reset (SPEC 5.3).

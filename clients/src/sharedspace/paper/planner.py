@@ -39,7 +39,16 @@ from sharedspace.train.config import (
 )
 from sharedspace.train.sac import make_env
 
-__all__ = ["Cell", "cell_name", "open_loop_search", "split_cells", "unavoidable_first_step"]
+__all__ = [
+    "Cell",
+    "cell_name",
+    "count_candidate",
+    "elite_round",
+    "first_round",
+    "open_loop_search",
+    "split_cells",
+    "unavoidable_first_step",
+]
 
 _GOAL_DIST = Feature.GOAL_DIST  # ego node feature: distance to the goal
 
@@ -136,15 +145,15 @@ def open_loop_search(
     for round_ in range(rounds):
         shape = (n * per_round, max_steps, 2)
         if round_ == 0:
-            actions = _first_round(shape, n, rng)
+            actions = first_round(shape, n, rng)
             _start_from(actions, names, initial or {})
         else:
-            actions = _elite_round(shape, n, [played[name] for name in names], elites, rng)
+            actions = elite_round(shape, n, [played[name] for name in names], elites, rng)
         outcome = _play_open_loop(cfg, split, cells, actions, spec)
         for k, cell in enumerate(cells * per_round):
             name = cell_name(cell)
             status, steps, goal_dist = outcome[k] or ("timeout", max_steps, float("inf"))
-            _count(found, name, status, steps, actions[k])
+            count_candidate(found, name, status, steps, actions[k])
             score = {"success": 1e4 - steps, "timeout": -goal_dist, "collision": -1e4 + steps}
             played.setdefault(name, []).append((score[status], actions[k]))
     # Replayed in fresh envs, every best sequence must arrive again: the bound rests on it.
@@ -166,7 +175,7 @@ _CONSTANTS = np.array(list(itertools.product((-1.0, 0.0, 1.0), repeat=2)), dtype
 _LEVELS = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
 
 
-def _first_round(shape: tuple[int, int, int], n: int, rng) -> np.ndarray:
+def first_round(shape: tuple[int, int, int], n: int, rng) -> np.ndarray:
     """Round 0: sub-env ``k`` (cell ``k % n``, candidate ``k // n``) plays a constant action of
     :data:`_CONSTANTS`, then random piecewise-constant sequences."""
     actions = np.empty(shape, dtype=np.float32)
@@ -197,7 +206,7 @@ def _start_from(actions: np.ndarray, names: Sequence[str], initial: dict[str, np
         row[len(seq) :] = seq[-1]
 
 
-def _elite_round(shape, n: int, played: list[list[tuple[float, np.ndarray]]], elites: int, rng):
+def elite_round(shape, n: int, played: list[list[tuple[float, np.ndarray]]], elites: int, rng):
     """A later round: each cell's candidates from a per-step Gaussian fitted to its ``elites``
     best sequences so far (``played[c]``: cell ``c``'s scored sequences)."""
     actions = np.empty(shape, dtype=np.float32)
@@ -209,7 +218,9 @@ def _elite_round(shape, n: int, played: list[list[tuple[float, np.ndarray]]], el
     return actions
 
 
-def _count(found: dict[str, dict[str, Any]], name: str, status: str, steps: int, actions) -> None:
+def count_candidate(
+    found: dict[str, dict[str, Any]], name: str, status: str, steps: int, actions
+) -> None:
     """One played candidate of cell ``name``: its outcome counted, a faster success kept."""
     rec = found.setdefault(
         name, {"candidates": 0, "success": 0, "collision": 0, "timeout": 0, "best_steps": None}

@@ -1,0 +1,165 @@
+"""Per-car outcomes on the crossing task's test scenes, and the figures built from them.
+
+:func:`play` runs one episode of every test scene with every car driven by ``act`` (a function of
+the grouped observation to the cars' actions), and returns one row per car and scene: how its
+episode ended and whether a collision was with another car. The scripted baseline, a trained
+policy and the planner's open-loop sequences all play through it, so their rows pair up by
+(scene, car).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from sharedspace.client import Connection, SimClient
+from sharedspace.marl.task import CrossingTask, make_env
+from sharedspace.names import Feature
+from sharedspace.scripted import SCRIPTED
+from sharedspace.stats import wilson
+
+__all__ = [
+    "STATUSES",
+    "Act",
+    "paired_difference",
+    "play",
+    "policy_act",
+    "scripted_act",
+    "summarize",
+]
+
+STATUSES = ("success", "collision", "timeout")
+#: ``act(td, step) -> actions [K, A, 2]`` (the env's actions, in [-1, 1]) from the grouped
+#: observation ``td`` (keys ``("vehicle", "features")``, ``("vehicle", "mask")``) at step ``step``.
+Act = Callable[[TensorDictBase, int], torch.Tensor]
+
+
+def scripted_act(driver: str = "car_aware") -> Act:
+    """Every car runs the scripted ``driver`` on its own observation."""
+    module = SCRIPTED[driver]()
+
+    def act(td: TensorDictBase, step: int) -> torch.Tensor:
+        return module(td["vehicle", "features"], td["vehicle", "mask"])
+
+    return act
+
+
+def policy_act(policy: Any, base_driver: str = "") -> Act:
+    """A trained policy (a TensorDict module writing ``("vehicle", "action")``), deterministic,
+    its action added to ``base_driver``'s when it is a residual learner."""
+    base = SCRIPTED[base_driver]() if base_driver else None
+
+    def act(td: TensorDictBase, step: int) -> torch.Tensor:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            out = policy(td.clone(False))["vehicle", "action"]
+        if base is not None:
+            out = (base(td["vehicle", "features"], td["vehicle", "mask"]) + out).clamp(-1.0, 1.0)
+        return out
+
+    return act
+
+
+def play(
+    task: CrossingTask,
+    act: Act,
+    client: SimClient | Connection,
+    *,
+    split: str = "test",
+    scenes: Sequence[str] | None = None,
+    max_steps: int = 400,
+) -> list[dict[str, Any]]:
+    """One episode of each of ``scenes`` (default: every scene of ``split``) with the cars
+    driven by ``act``: rows ``{scene, car, status, car_collision, steps, goal_dist}`` (the steps
+    the car's episode took, its distance to the goal at the end): row ``i * cars + j`` is car
+    ``j`` of sub-env ``i`` (``scenes[i]``; a scene may be listed more than once)."""
+    names = list(scenes) if scenes is not None else task.scene_names(split)
+    env = make_env(task, split, len(names), client, scenarios=names)
+    k, a = len(names), task.cars
+    status: list[list[str | None]] = [[None] * a for _ in range(k)]
+    car_hit = np.zeros((k, a), dtype=bool)
+    steps = np.zeros((k, a), dtype=np.int64)
+    goal_dist = np.zeros((k, a))
+    try:
+        td = env.reset()
+        for t in range(max_steps):
+            td.set(("vehicle", "action"), act(td, t).to(torch.float32))
+            out, td = env.step_and_maybe_reset(td)
+            nxt = out["next", "vehicle"]
+            flags = {s: nxt[f"episode_{s}"].reshape(k, a).numpy() for s in STATUSES}
+            hit = nxt["episode_car_collision"].reshape(k, a).numpy()
+            dist = nxt["features"][..., 0, Feature.GOAL_DIST].reshape(k, a).numpy()
+            for i in range(k):
+                for j in range(a):
+                    if status[i][j] is not None:
+                        continue
+                    ended = next((s for s in STATUSES if flags[s][i, j]), None)
+                    if ended is not None:
+                        status[i][j], car_hit[i, j], steps[i, j] = ended, hit[i, j], t + 1
+                        goal_dist[i, j] = dist[i, j]
+            if all(s is not None for row in status for s in row):
+                break
+    finally:
+        env.close()
+    return [
+        {
+            "scene": names[i],
+            "car": task.agents[j],
+            "status": status[i][j] or "timeout",
+            "car_collision": bool(car_hit[i, j]),
+            "steps": int(steps[i, j]),
+            "goal_dist": float(goal_dist[i, j]),
+        }
+        for i in range(k)
+        for j in range(a)
+    ]
+
+
+def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Per-car rates with Wilson 95 % intervals: ``success``, ``collision`` (any), ``timeout``,
+    ``car_collision`` (with another car), over all cars, and each car's success."""
+    n = len(rows)
+    out: dict[str, Any] = {"car_episodes": n}
+    for key in (*STATUSES, "car_collision"):
+        hits = sum(
+            r["car_collision"] if key == "car_collision" else r["status"] == key for r in rows
+        )
+        lo, hi = wilson(hits, n)
+        out[key] = {"rate": hits / max(n, 1), "count": hits, "ci95": [lo, hi]}
+    cars = sorted({r["car"] for r in rows})
+    out["success_by_car"] = {
+        c: float(np.mean([r["status"] == "success" for r in rows if r["car"] == c])) for c in cars
+    }
+    return out
+
+
+def paired_difference(
+    rows: Sequence[dict[str, Any]],
+    baseline: Sequence[dict[str, Any]],
+    *,
+    resamples: int = 10_000,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Success of ``rows`` minus ``baseline``'s on the same (scene, car) cells: the mean
+    difference and a 95 % bootstrap interval over scenes (the cars of one scene share its
+    crowd, so scenes are the resampled unit). ``rows`` may hold several seeds' plays of the
+    cells: each is paired with the baseline's one play."""
+    base = {(r["scene"], r["car"]): r["status"] == "success" for r in baseline}
+    by_scene: dict[str, list[float]] = {}
+    for r in rows:
+        diff = float(r["status"] == "success") - float(base[(r["scene"], r["car"])])
+        by_scene.setdefault(r["scene"], []).append(diff)
+    scenes = sorted(by_scene)
+    sums = np.array([sum(by_scene[s]) for s in scenes])
+    counts = np.array([len(by_scene[s]) for s in scenes])
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(scenes), size=(resamples, len(scenes)))
+    boot = sums[pick].sum(1) / counts[pick].sum(1)
+    return {
+        "mean": float(sums.sum() / counts.sum()),
+        "ci95": [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))],
+    }

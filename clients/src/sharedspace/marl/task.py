@@ -1,0 +1,141 @@
+"""The crossing task: several cars through one intersection among a crowd (issue 41).
+
+Four cars head +x, +y, -x and -y through a four-way crossing at the centre of a square of
+pedestrians who walk across the square (``CreateEnv.synthetic``, routes ``intersection``: every
+car is there from step 0, the others 0-2 s of driving behind the first's start line, drawn from
+the scene's seed). Each car is a learner (``vehicle_0 .. vehicle_3``); the crowd follows CR-SFM
+with the parameters of Table II-G's world (``params/table2g.json5``), sent with the env
+request, so that any server plays the same task. Scenes are seeded: training draws from the
+``train_scenes`` scenes from ``train_seed``, the test set is the ``test_scenes`` scenes from
+``test_seed``, far apart, and never trained on.
+
+With every car running the car-aware script a car reaches its goal in about 0.70 of the test
+episodes; docs/RESULTS.md ("Several cars per scene") has the figures and the planner's bound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from tensordict import TensorDictBase
+from torchrl.envs import Transform
+
+from sharedspace.client import Connection, SimClient
+from sharedspace.scripted import SCRIPTED
+from sharedspace.torchrl_env import synthetic_names
+from sharedspace.torchrl_multiagent import RemoteMultiAgentEnv
+from sharedspace.wire.requests import EnvSpec, SyntheticScenes
+
+__all__ = ["CROSSING_CROWD", "CrossingTask", "ResidualOverScript", "make_env"]
+
+#: CR-SFM parameters of Table II-G's world (params/table2g.json5: the calibrated crowd and its
+#: risk weights), as per-env overrides.
+CROSSING_CROWD: dict[str, float] = {
+    "tau": 0.74303,
+    "a_ped": 1.0562,
+    "b_ped": 0.1,
+    "a_veh": 5.0,
+    "b_veh": 0.66589,
+    "lambda1": 1.3439,
+    "lambda2": 0.63559,
+    "lambda3": 0.0,
+    "gamma1": 0.5,
+    "gamma2": 1.0,
+}
+
+
+@dataclass(frozen=True)
+class CrossingTask:
+    """The frozen multi-car task; one field per choice, the defaults are the task."""
+
+    cars: int = 4  # controlled cars per scene (vehicle_0 .. vehicle_{cars-1}), 2-4
+    pedestrians: int = 12  # pedestrians per scene
+    density: float = 0.06  # pedestrians per m² of the crowd's square (side 14.1 m at 12)
+    layout: str = "crossing"  # where the pedestrians walk (SyntheticScenes.layout)
+    train_seed: int = 0  # seed of the first training scene
+    train_scenes: int = 256  # training scenes (seeds train_seed ..; a request makes at most 256)
+    test_seed: int = 1_000_000  # seed of the first test scene
+    test_scenes: int = 100  # test scenes: cars x test_scenes car-episodes
+    max_agents: int = 10  # M, nodes per observation (the car and its 9 nearest agents)
+    crowd: dict[str, float] = field(default_factory=lambda: dict(CROSSING_CROWD))  # CR-SFM
+
+    def __hash__(self) -> int:  # a dict field: hash the values that define the task
+        return hash((self.cars, self.pedestrians, self.density, self.layout, self.test_seed))
+
+    @property
+    def agents(self) -> tuple[str, ...]:
+        return tuple(f"vehicle_{k}" for k in range(self.cars))
+
+    def scenes(self, split: str) -> SyntheticScenes:
+        """The generated scenes of ``split`` (``train`` or ``test``)."""
+        seed, count = {
+            "train": (self.train_seed, self.train_scenes),
+            "test": (self.test_seed, self.test_scenes),
+        }[split]
+        return SyntheticScenes(
+            layout=self.layout,
+            pedestrians=self.pedestrians,
+            density=self.density,
+            vehicles=self.cars,
+            routes="intersection",
+            seed=seed,
+            scenes=count,
+        )
+
+    def scene_names(self, split: str) -> list[str]:
+        return [name for name, _ in synthetic_names(self.scenes(split), split)]
+
+    def spec(self, split: str, seed: int = 0) -> EnvSpec:
+        """The envs of ``split``; ``seed`` seeds the server's draw of training scenes."""
+        return EnvSpec(
+            synthetic=self.scenes(split),
+            external_agents=self.agents,
+            max_agents=self.max_agents,
+            pedestrian_params=dict(self.crowd),
+            seed=seed,
+        )
+
+
+def make_env(
+    task: CrossingTask,
+    split: str,
+    num_envs: int,
+    client: SimClient | Connection,
+    *,
+    seed: int = 0,
+    scenarios: list[str] | None = None,
+    reward_weights: dict[str, float] | None = None,
+) -> RemoteMultiAgentEnv:
+    """``num_envs`` server envs of the task in TorchRL's multi-agent layout (group
+    ``vehicle``); ``scenarios`` pins sub-env ``k`` to ``scenarios[k]`` (an evaluation);
+    ``reward_weights`` overrides the world's (SPEC 8.2: a learner's shaping, not the task's
+    measure, which is per-car success)."""
+    spec = task.spec(split, seed)
+    if reward_weights:
+        spec = spec.replace(reward_weights=dict(reward_weights))
+    return RemoteMultiAgentEnv(spec, num_envs, client=client, scenarios=scenarios)
+
+
+class ResidualOverScript(Transform):
+    """The policy's action is a residual over a scripted driver's: on the way into the env,
+    ``action <- clip(script(observation) + action, -1, 1)`` per car, so a learner starts from the
+    script's behaviour at action 0 (``TrainConfig.base_driver``'s idea, for the grouped env).
+    Collected data keep the policy's own (residual) action."""
+
+    def __init__(self, driver: str = "car_aware", group: str = "vehicle"):
+        super().__init__(in_keys_inv=[(group, "action")], out_keys_inv=[(group, "action")])
+        self.driver_name = driver
+        self.driver = SCRIPTED[driver]()
+        self.group = group
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        features = tensordict.get((self.group, "features"))
+        mask = tensordict.get((self.group, "mask"))
+        residual = tensordict.get((self.group, "action"))
+        base = self.driver(features, mask).to(residual.dtype)
+        out = tensordict.clone(False)
+        out.set((self.group, "action"), (base + residual).clamp(-1.0, 1.0))
+        return out
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return tensordict

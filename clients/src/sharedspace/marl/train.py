@@ -1,0 +1,336 @@
+"""MAPPO, IPPO and MASAC on the crossing task, top to bottom.
+
+    python -m sharedspace.marl --set algorithm=mappo --set seed=0 [--resume]
+
+TorchRL's ``sota-implementations/multiagent`` scripts (mappo_ippo.py, sac.py) over a live server:
+the cars of :class:`~sharedspace.marl.task.CrossingTask` are one agent group of
+:class:`~sharedspace.torchrl_multiagent.RemoteMultiAgentEnv`; each car's policy is a
+``MultiAgentMLP`` over its own observation (its node features, flattened), one set of weights
+for every car; its action is a residual over the car-aware script (``base_driver``). MAPPO's
+critic sees every car's observation (centralised), IPPO's only the car's own; MASAC's two
+Q-critics are centralised. Writes ``config.json``, ``metrics.csv`` (``train/*`` per collected
+batch, ``eval/*`` on the test scenes every ``eval_every`` frames: curves, never used to pick a
+policy), ``checkpoint.pt`` (resumable) and ``eval.json`` (the final policy's per-car rows on the
+test scenes) into ``log_dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers.samplers import RandomSampler, SamplerWithoutReplacement
+from torchrl.envs import TransformedEnv
+from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, ValueEstimators
+
+from sharedspace.client import Connection
+from sharedspace.marl.config import MarlConfig, apply_overrides
+from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
+from sharedspace.marl.task import CrossingTask, ResidualOverScript, make_env
+from sharedspace.names import NODE_FEATURES
+from sharedspace.train.gcn import FEATURE_SCALE
+from sharedspace.train.train import MetricLogger
+
+__all__ = ["CarObservation", "make_actor", "make_critic", "make_loss", "train", "main"]
+
+GROUP = "vehicle"
+OBS = (GROUP, "observation")
+ACTION = (GROUP, "action")
+
+
+class CarObservation(nn.Module):
+    """Each car's observation as one vector: its ``M`` nodes' features (scaled to O(1),
+    padding zeroed) and the mask, flattened: ``[*, A, M, F]`` -> ``[*, A, M * (F + 1)]``."""
+
+    def __init__(self):
+        super().__init__()
+        self.register_buffer("scale", torch.tensor(FEATURE_SCALE[:NODE_FEATURES]))
+
+    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        m = mask.to(features.dtype).unsqueeze(-1)
+        return torch.cat([features / self.scale * m, m], -1).flatten(-2)
+
+
+def _observation() -> TensorDictModule:
+    return TensorDictModule(
+        CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
+    )
+
+
+def make_actor(cfg: MarlConfig, task: CrossingTask) -> ProbabilisticActor:
+    """Tanh-normal policy per car; at initialisation its mean is ~0 (the script's action, for a
+    residual learner) and its standard deviation ``init_scale``."""
+    obs_dim = task.max_agents * (NODE_FEATURES + 1)
+    mlp = MultiAgentMLP(
+        n_agent_inputs=obs_dim,
+        n_agent_outputs=4,
+        n_agents=task.cars,
+        centralized=False,
+        share_params=cfg.share_params,
+        depth=cfg.depth,
+        num_cells=cfg.hidden,
+        activation_class=nn.Tanh,
+    )
+    with torch.no_grad():  # the last layer: mean and raw scale start near 0
+        for p in list(mlp.parameters())[-2:]:  # the output layer's weight and bias
+            p.mul_(0.01)
+    head = TensorDictModule(
+        nn.Sequential(mlp, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}")),
+        in_keys=[OBS],
+        out_keys=[(GROUP, "loc"), (GROUP, "scale")],
+    )
+    return ProbabilisticActor(
+        module=TensorDictSequential(_observation(), head),
+        in_keys=[(GROUP, "loc"), (GROUP, "scale")],
+        out_keys=[ACTION],
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": -1.0, "high": 1.0},
+        return_log_prob=True,
+    )
+
+
+def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
+    """PPO: the state value per car (centralised for MAPPO). MASAC: ``Q(s, a)`` per car over
+    every car's observation and action."""
+    obs_dim = task.max_agents * (NODE_FEATURES + 1)
+    sac = cfg.algorithm == "masac"
+    mlp = MultiAgentMLP(
+        n_agent_inputs=obs_dim + (2 if sac else 0),
+        n_agent_outputs=1,
+        n_agents=task.cars,
+        centralized=cfg.algorithm != "ippo",
+        share_params=cfg.share_params,
+        depth=cfg.depth,
+        num_cells=cfg.hidden,
+        activation_class=nn.Tanh,
+    )
+    value = ValueOperator(
+        module=mlp,
+        in_keys=[OBS, ACTION] if sac else [OBS],
+        out_keys=[(GROUP, "state_action_value" if sac else "state_value")],
+    )
+    return TensorDictSequential(_observation(), value)
+
+
+def make_loss(cfg: MarlConfig, actor, critic) -> nn.Module:
+    """TorchRL's ``ClipPPOLoss`` with GAE, or ``SACLoss`` with TD(0), on the group's keys."""
+    keys = dict(
+        reward=(GROUP, "reward"),
+        action=ACTION,
+        done=(GROUP, "done"),
+        terminated=(GROUP, "terminated"),
+    )
+    if cfg.algorithm == "masac":
+        loss = SACLoss(
+            actor_network=actor,
+            qvalue_network=critic,
+            num_qvalue_nets=2,
+            delay_qvalue=True,
+            alpha_init=cfg.alpha_init,
+            target_entropy=-2.0,  # per car: -|A|
+        )
+        loss.set_keys(state_action_value=(GROUP, "state_action_value"), **keys)
+        loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+        return loss
+    loss = ClipPPOLoss(
+        actor_network=actor,
+        critic_network=critic,
+        clip_epsilon=cfg.clip_epsilon,
+        entropy_coeff=cfg.entropy_coeff,
+        normalize_advantage=True,
+        normalize_advantage_exclude_dims=(-2,),  # each car's advantages normalised apart
+    )
+    loss.set_keys(value=(GROUP, "state_value"), **keys)
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
+    return loss
+
+
+def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
+    """``train/*``: per-car episode outcomes that ended in a collected batch, and its reward."""
+    nxt = data["next", GROUP]
+    ended = sum(int(nxt[f"episode_{s}"].sum()) for s in STATUSES)
+    out = {"train/reward": float(nxt["reward"].mean()), "train/car_episodes": float(ended)}
+    if ended:
+        for s in (*STATUSES, "car_collision"):
+            out[f"train/{s}"] = float(nxt[f"episode_{s}"].sum()) / ended
+    return out
+
+
+def _evaluate(task, actor, cfg, client) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    rows = play(task, policy_act(actor, cfg.base_driver), client)
+    return rows, summarize(rows)
+
+
+def train(cfg: MarlConfig, task: CrossingTask | None = None, resume: bool = False) -> dict:
+    """One run; returns the final evaluation's summary."""
+    task = task or CrossingTask()
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(max(1, cfg.num_threads))
+    log_dir = Path(cfg.log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    (log_dir / "config.json").write_text(
+        json.dumps({"config": cfg.to_dict(), "task": _task_dict(task)}, indent=1)
+    )
+
+    server = None
+    if not cfg.server_endpoint:
+        from sharedspace.local_server import LocalServer
+
+        server = LocalServer(prefix=cfg.server_prefix, log=log_dir / "server.log")
+    connection = Connection(
+        endpoint=cfg.server_endpoint or server.endpoint, prefix=cfg.server_prefix
+    )
+    client = connection.open()
+    try:
+        return _train(cfg, task, client, log_dir, resume)
+    finally:
+        client.shutdown()
+        if server is not None:
+            server.close()
+
+
+def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
+    env = make_env(
+        task, "train", cfg.num_envs, client, seed=cfg.seed, reward_weights=cfg.reward_weights
+    )
+    if cfg.base_driver:
+        env = TransformedEnv(env, ResidualOverScript(cfg.base_driver, GROUP))
+    actor = make_actor(cfg, task)
+    critic = make_critic(cfg, task)
+    loss = make_loss(cfg, actor, critic)
+    optim = torch.optim.Adam(loss.parameters(), cfg.lr)
+    sac = cfg.algorithm == "masac"
+    target_update = SoftUpdate(loss, eps=1.0 - cfg.tau) if sac else None
+
+    frames, iteration, wall = 0, 0, 0.0
+    ckpt_path = log_dir / "checkpoint.pt"
+    if resume and ckpt_path.exists():
+        ckpt = torch.load(ckpt_path, weights_only=False)
+        loss.load_state_dict(ckpt["loss"])
+        optim.load_state_dict(ckpt["optim"])
+        frames, iteration, wall = ckpt["frames"], ckpt["iteration"], ckpt["wall_s"]
+    if frames >= cfg.total_frames:
+        env.close()
+        return json.loads((log_dir / "eval.json").read_text())["summary"]
+
+    frames_per_batch = cfg.frames_per_batch - cfg.frames_per_batch % cfg.num_envs
+    collector = Collector(
+        env,
+        actor,
+        frames_per_batch=max(frames_per_batch, cfg.num_envs),
+        total_frames=cfg.total_frames - frames,
+    )
+    if sac:
+        buffer = TensorDictReplayBuffer(
+            storage=LazyTensorStorage(cfg.buffer_size),
+            sampler=RandomSampler(),
+            batch_size=cfg.batch_size,
+        )
+    else:
+        buffer = TensorDictReplayBuffer(
+            storage=LazyTensorStorage(frames_per_batch),
+            sampler=SamplerWithoutReplacement(),
+            batch_size=cfg.minibatch_size,
+        )
+    logger = MetricLogger(log_dir, tensorboard=False)
+    next_eval = (frames // cfg.eval_every + 1) * cfg.eval_every
+    t0 = time.perf_counter() - wall
+    for data in collector:
+        frames += data.numel()
+        iteration += 1
+        metrics = batch_outcomes(data)
+        if sac:
+            buffer.extend(data.reshape(-1))
+            updates = max(1, round(cfg.utd_ratio * data.numel()))
+        else:
+            with torch.no_grad():
+                loss.value_estimator(
+                    data,
+                    params=loss.critic_network_params,
+                    target_params=loss.target_critic_network_params,
+                )
+            buffer.extend(data.reshape(-1))
+            updates = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
+        for _ in range(updates):
+            out = loss(buffer.sample())
+            total = sum(v for k, v in out.items() if k.startswith("loss_"))
+            optim.zero_grad()
+            total.backward()
+            nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+            optim.step()
+            if target_update is not None:
+                target_update.step()
+        metrics.update(
+            {
+                f"train/{k}": float(v.detach().mean())
+                for k, v in out.items()
+                if k.startswith("loss_")
+            }
+        )
+        collector.update_policy_weights_()
+        wall = time.perf_counter() - t0
+        metrics["train/wall_s"] = wall
+        if frames >= next_eval or frames >= cfg.total_frames:
+            _, summary = _evaluate(task, actor, cfg, client)
+            for key in (*STATUSES, "car_collision"):
+                metrics[f"eval/{key}"] = summary[key]["rate"]
+            next_eval += cfg.eval_every
+            torch.save(
+                {
+                    "loss": loss.state_dict(),
+                    "optim": optim.state_dict(),
+                    "frames": frames,
+                    "iteration": iteration,
+                    "wall_s": wall,
+                },
+                ckpt_path,
+            )
+        logger.log(metrics, frames)
+    collector.shutdown()
+    rows, summary = _evaluate(task, actor, cfg, client)
+    summary["wall_s"] = time.perf_counter() - t0
+    summary["frames"] = frames
+    torch.save(actor.state_dict(), log_dir / "policy.pt")
+    (log_dir / "eval.json").write_text(
+        json.dumps({"summary": summary, "rows": rows, "config": cfg.to_dict()}, indent=1)
+    )
+    logger.close()
+    if not env.is_closed:
+        env.close()
+    return summary
+
+
+def _task_dict(task: CrossingTask) -> dict[str, Any]:
+    return {k: v for k, v in vars(task).items()}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m sharedspace.marl", description=__doc__)
+    ap.add_argument("--set", action="append", default=[], help="key=value (MarlConfig field)")
+    ap.add_argument("--resume", action="store_true", help="continue from log_dir's checkpoint")
+    args = ap.parse_args(argv)
+    cfg = apply_overrides(MarlConfig(), args.set)
+    summary = train(cfg, resume=args.resume)
+    print(
+        f"{cfg.algorithm} seed {cfg.seed}: per-car success {summary['success']['rate']:.3f}, "
+        f"collision {summary['collision']['rate']:.3f}, "
+        f"car-car {summary['car_collision']['rate']:.3f} on the test scenes; "
+        f"{summary.get('wall_s', 0):.0f} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

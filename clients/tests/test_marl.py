@@ -1,0 +1,140 @@
+"""Several learning cars per scene (sharedspace.marl) against a live server: MAPPO, IPPO and MASAC
+train a few iterations and resume, per-car outcomes count car-car collisions apart, and the
+planner's per-car bound starts from the script's own drive."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from sharedspace.client import Connection
+from sharedspace.marl.bound import per_car_bound
+from sharedspace.marl.config import MarlConfig, apply_overrides
+from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
+from sharedspace.marl.task import CrossingTask, ResidualOverScript, make_env
+from sharedspace.marl.train import train
+
+#: Two cars through the crossing, two test scenes: a few seconds per run.
+TINY_TASK = CrossingTask(cars=2, pedestrians=6, density=0.03, test_scenes=2)
+
+
+def _connection(sim_server) -> Connection:
+    return Connection(endpoint=sim_server.endpoint, prefix=sim_server.prefix)
+
+
+def _tiny(algorithm: str, sim_server, log_dir, total_frames: int) -> MarlConfig:
+    return MarlConfig(
+        algorithm=algorithm,
+        total_frames=total_frames,
+        num_envs=4,
+        frames_per_batch=64,
+        minibatch_size=32,
+        batch_size=32,
+        utd_ratio=0.25,
+        hidden=16,
+        eval_every=128,
+        log_dir=str(log_dir),
+        server_endpoint=sim_server.endpoint,
+        server_prefix=sim_server.prefix,
+    )
+
+
+def _frames_logged(log_dir) -> list[int]:
+    rows = (log_dir / "metrics.csv").read_text().splitlines()[1:]
+    return sorted({int(r.split(",")[0]) for r in rows})
+
+
+@pytest.mark.parametrize("algorithm", ["mappo", "ippo", "masac"])
+def test_each_algorithm_trains_against_a_live_server_and_resumes(algorithm, sim_server, tmp_path):
+    cfg = _tiny(algorithm, sim_server, tmp_path, total_frames=192)
+    summary = train(cfg, TINY_TASK)
+    assert summary["car_episodes"] == 2 * 2  # every (test scene, car)
+    rows = json.loads((tmp_path / "eval.json").read_text())["rows"]
+    assert {(r["scene"], r["car"]) for r in rows} == {
+        (s, c) for s in TINY_TASK.scene_names("test") for c in TINY_TASK.agents
+    }
+    metrics = (tmp_path / "metrics.csv").read_text()
+    losses = {"mappo": "loss_objective", "ippo": "loss_critic", "masac": "loss_qvalue"}
+    assert f"train/{losses[algorithm]}" in metrics and "eval/success" in metrics
+    assert _frames_logged(tmp_path)[-1] == 192
+    # Resumed with a larger budget, the run goes on from its checkpoint's frames.
+    train(apply_overrides(cfg, ["total_frames=320"]), TINY_TASK, resume=True)
+    frames = _frames_logged(tmp_path)
+    assert frames[-1] == 320 and 192 < frames[-2] < 320, frames
+
+
+def test_a_residual_policy_at_zero_drives_like_its_script(sim_server):
+    env = make_env(TINY_TASK, "test", 2, _connection(sim_server), scenarios=None)
+    wrapped = ResidualOverScript("car_aware")
+    td = env.reset()
+    td.set(("vehicle", "action"), torch.zeros(2, 2, 2))
+    sent = wrapped.inv(td)[("vehicle", "action")]
+    want = scripted_act("car_aware")(td, 0)
+    assert torch.allclose(sent, want)
+    assert torch.equal(td["vehicle", "action"], torch.zeros(2, 2, 2))  # the data keep the residual
+    env.close()
+
+
+def test_car_collisions_are_counted_apart_from_pedestrian_ones(sim_server):
+    """Cars that hold their speed through the crossing (action 0) run into each other in some
+    scenes: those rows are collisions with ``car_collision`` set, two cars of one scene at one
+    step; a collision with a pedestrian leaves it unset."""
+    task = CrossingTask(cars=2, pedestrians=2, density=0.01, test_scenes=40)
+
+    def hold(td, step):
+        return torch.zeros(td["vehicle", "features"].shape[:-2] + (2,))
+
+    rows = play(task, hold, _connection(sim_server))
+    hits = [r for r in rows if r["car_collision"]]
+    assert hits, "no car-car collision among 40 scenes of cars holding their speed"
+    assert all(r["status"] == "collision" for r in hits)
+    for scene in {r["scene"] for r in hits}:
+        pair = [r for r in hits if r["scene"] == scene]
+        assert len(pair) == 2 and pair[0]["steps"] == pair[1]["steps"]
+    summary = summarize(rows)
+    assert summary["car_collision"]["count"] == len(hits)
+    assert summary["collision"]["count"] >= len(hits)
+
+
+def test_the_per_car_bound_is_at_least_the_scripts_own_success(sim_server):
+    client = _connection(sim_server).open()
+    try:
+        script = play(TINY_TASK, scripted_act("car_aware"), client)
+        found = per_car_bound(TINY_TASK, client, rounds=1, per_round=10, max_steps=60)
+    finally:
+        client.shutdown()
+    for r in script:
+        if r["status"] == "success":
+            assert found[f"{r['scene']}/{r['car']}"]["replayed"] == "success", r
+
+
+def test_paired_difference_resamples_scenes_and_pairs_cells():
+    base = [
+        {"scene": f"s{i}", "car": c, "status": "success" if i % 2 else "timeout"}
+        for i in range(10)
+        for c in ("a", "b")
+    ]
+    same = paired_difference(base, base)
+    assert same["mean"] == 0.0 and same["ci95"] == [0.0, 0.0]
+    better = [dict(r, status="success") for r in base] * 3  # three seeds, each every cell
+    diff = paired_difference(better, base)
+    assert diff["mean"] == pytest.approx(0.5)
+    assert 0.0 < diff["ci95"][0] <= 0.5 <= diff["ci95"][1] <= 1.0
+    with pytest.raises(KeyError):
+        paired_difference([{"scene": "other", "car": "a", "status": "success"}], base)
+
+
+def test_bad_configs_name_what_was_wrong():
+    with pytest.raises(ValueError, match="algorithm"):
+        MarlConfig(algorithm="qmix")
+    with pytest.raises(ValueError, match="total_frames"):
+        apply_overrides(MarlConfig(), ["total_frames=lots"])
+    with pytest.raises(ValueError, match="key one of"):
+        apply_overrides(MarlConfig(), ["frames=3"])
+    assert apply_overrides(MarlConfig(), ['reward_weights={"danger": 2}']).reward_weights == {
+        "danger": 2
+    }
+    assert np.isclose(apply_overrides(MarlConfig(), ["lr=1"]).lr, 1.0)
