@@ -14,12 +14,15 @@ from importlib import resources
 
 _DOC = json.loads(resources.files(__package__).joinpath("names.json").read_text())
 
-__all__ = ["FEATURE_NAMES", "NODE_FEATURES", "REWARD_TERMS", "Feature"]
+__all__ = ["FEATURE_NAMES", "FEATURE_SCALE", "NODE_FEATURES", "REWARD_TERMS", "Feature"]
 
 #: Node features of an observation, in order (protocol/SPEC.md section 7).
 FEATURE_NAMES: tuple[str, ...] = tuple(_DOC["feature_names"])
 #: Features per node, ``F``.
 NODE_FEATURES: int = len(FEATURE_NAMES)
+#: A fixed scale per node feature (FEATURE_NAMES order): features divided by it are O(1), the
+#: networks' inputs (m, m, m/s, m/s, m/s, rad, m, flag, m, m, m).
+FEATURE_SCALE: tuple[float, ...] = (10.0, 10.0, 5.0, 5.0, 5.0, 3.14159, 1.0, 1.0, 20.0, 20.0, 20.0)
 #: The reward terms, in order (``reward`` is their sum; SPEC section 8.2).
 REWARD_TERMS: tuple[str, ...] = tuple(_DOC["reward_terms"])
 

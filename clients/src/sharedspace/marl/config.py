@@ -21,7 +21,7 @@ class MarlConfig:
     # --- run
     algorithm: str = "mappo"  # mappo | ippo | masac
     seed: int = 0  # seed of torch and of the server's draw of training scenes
-    total_frames: int = 96_000  # sub-env steps to collect (each moves every car once)
+    total_frames: int = 300_000  # sub-env steps to collect (each moves every car once)
     num_envs: int = 64  # K, sub-envs stepped together
     num_threads: int = 1  # torch CPU threads
     log_dir: str = "runs/marl"  # config.json, metrics.csv, checkpoint.pt, eval.json go here
@@ -30,13 +30,14 @@ class MarlConfig:
     reward_weights: dict[str, float] = dataclasses.field(
         default_factory=dict
     )  # overrides of the world's reward weights (SPEC 8.2 names; JSON on --set); {} = the world's
-    eval_every: int = 24_000  # frames between evaluations on the test scenes (curves only)
+    eval_every: int = 60_000  # frames between evaluations on the test scenes (curves only)
     # --- policy
     base_driver: str = "car_aware"  # the policy's action is a residual over this script; "" off
+    residual_scale: float = 2.0  # the env's action = clip(script + residual_scale * policy's)
     hidden: int = 128  # width of each hidden layer (actor and critic)
     depth: int = 2  # hidden layers
     share_params: bool = True  # one network for every car (the cars are interchangeable)
-    init_scale: float = 0.1  # the policy's initial action standard deviation (tanh-normal)
+    init_scale: float = 0.4  # the policy's initial action standard deviation (tanh-normal)
     # --- PPO (mappo, ippo)
     frames_per_batch: int = 2048  # frames per collected batch (PPO: per iteration)
     ppo_epochs: int = 4  # passes over each batch
@@ -48,7 +49,7 @@ class MarlConfig:
     lr: float = 3e-4  # Adam learning rate
     max_grad_norm: float = 1.0  # gradient clip
     # --- SAC (masac)
-    utd_ratio: float = 0.125  # gradient updates per collected frame
+    utd_ratio: float = 0.02  # gradient updates per collected frame
     batch_size: int = 256  # replay minibatch (sub-env steps, all cars)
     buffer_size: int = 100_000  # replay capacity (sub-env steps)
     tau: float = 0.005  # target soft-update coefficient

@@ -49,16 +49,18 @@ def scripted_act(driver: str = "car_aware") -> Act:
     return act
 
 
-def policy_act(policy: Any, base_driver: str = "") -> Act:
+def policy_act(policy: Any, base_driver: str = "", residual_scale: float = 1.0) -> Act:
     """A trained policy (a TensorDict module writing ``("vehicle", "action")``), deterministic,
-    its action added to ``base_driver``'s when it is a residual learner."""
+    its action times ``residual_scale`` added to ``base_driver``'s when it is a residual
+    learner (as :class:`~sharedspace.marl.task.ResidualOverScript` sends it)."""
     base = SCRIPTED[base_driver]() if base_driver else None
 
     def act(td: TensorDictBase, step: int) -> torch.Tensor:
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
             out = policy(td.clone(False))["vehicle", "action"]
         if base is not None:
-            out = (base(td["vehicle", "features"], td["vehicle", "mask"]) + out).clamp(-1.0, 1.0)
+            script = base(td["vehicle", "features"], td["vehicle", "mask"])
+            out = (script + residual_scale * out).clamp(-1.0, 1.0)
         return out
 
     return act

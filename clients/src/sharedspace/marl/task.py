@@ -17,16 +17,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import torch
 from tensordict import TensorDictBase
+from torch import nn
+from torchrl.data import Composite, Unbounded
 from torchrl.envs import Transform
 
 from sharedspace.client import Connection, SimClient
+from sharedspace.names import FEATURE_SCALE, NODE_FEATURES
 from sharedspace.scripted import SCRIPTED
 from sharedspace.torchrl_env import synthetic_names
 from sharedspace.torchrl_multiagent import RemoteMultiAgentEnv
 from sharedspace.wire.requests import EnvSpec, SyntheticScenes
 
-__all__ = ["CROSSING_CROWD", "CrossingTask", "ResidualOverScript", "make_env"]
+__all__ = [
+    "CROSSING_CROWD",
+    "CarObservation",
+    "CrossingTask",
+    "FlatObservation",
+    "ResidualOverScript",
+    "make_env",
+]
 
 #: CR-SFM parameters of Table II-G's world (params/table2g.json5: the calibrated crowd and its
 #: risk weights), as per-env overrides.
@@ -116,17 +127,59 @@ def make_env(
     return RemoteMultiAgentEnv(spec, num_envs, client=client, scenarios=scenarios)
 
 
+class CarObservation(nn.Module):
+    """Each car's observation as one vector: its ``M`` nodes' features (scaled to O(1),
+    padding zeroed) and the mask, flattened: ``[*, A, M, F]`` -> ``[*, A, M * (F + 1)]``."""
+
+    def __init__(self):
+        super().__init__()
+        self.register_buffer("scale", torch.tensor(FEATURE_SCALE[:NODE_FEATURES]))
+
+    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        m = mask.to(features.dtype).unsqueeze(-1)
+        return torch.cat([features / self.scale * m, m], -1).flatten(-2)
+
+
+class FlatObservation(Transform):
+    """Adds ``(group, "observation")``, :class:`CarObservation` of the group's features and
+    mask, to the env's outputs and specs: the one vector per car that generic multi-agent
+    models (BenchMARL's) read."""
+
+    def __init__(self, group: str = "vehicle"):
+        keys = [(group, "features"), (group, "mask")]
+        super().__init__(in_keys=keys, out_keys=[(group, "observation")])
+        self.group = group
+        self.encode = CarObservation()
+
+    def _call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        features, mask = (tensordict.get(k) for k in self.in_keys)
+        tensordict.set(self.out_keys[0], self.encode(features, mask))
+        return tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase):
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        group = observation_spec[self.group]
+        m, f = group["features"].shape[-2:]
+        shape = (*group.shape, m * (f + 1))
+        group["observation"] = Unbounded(shape, dtype=torch.float32, device=group.device)
+        return observation_spec
+
+
 class ResidualOverScript(Transform):
     """The policy's action is a residual over a scripted driver's: on the way into the env,
-    ``action <- clip(script(observation) + action, -1, 1)`` per car, so a learner starts from the
-    script's behaviour at action 0 (``TrainConfig.base_driver``'s idea, for the grouped env).
-    Collected data keep the policy's own (residual) action."""
+    ``action <- clip(script(observation) + scale * action, -1, 1)`` per car, so a learner starts
+    from the script's behaviour at action 0 (``TrainConfig.base_driver``'s idea, for the grouped
+    env); with ``scale`` 2 a residual of 1 overrides the script's full braking. Collected data
+    keep the policy's own (residual) action."""
 
-    def __init__(self, driver: str = "car_aware", group: str = "vehicle"):
+    def __init__(self, driver: str = "car_aware", group: str = "vehicle", scale: float = 1.0):
         super().__init__(in_keys_inv=[(group, "action")], out_keys_inv=[(group, "action")])
         self.driver_name = driver
         self.driver = SCRIPTED[driver]()
         self.group = group
+        self.scale = scale
 
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         features = tensordict.get((self.group, "features"))
@@ -134,7 +187,7 @@ class ResidualOverScript(Transform):
         residual = tensordict.get((self.group, "action"))
         base = self.driver(features, mask).to(residual.dtype)
         out = tensordict.clone(False)
-        out.set((self.group, "action"), (base + residual).clamp(-1.0, 1.0))
+        out.set((self.group, "action"), (base + self.scale * residual).clamp(-1.0, 1.0))
         return out
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:

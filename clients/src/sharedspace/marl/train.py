@@ -38,29 +38,15 @@ from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, ValueEstimators
 from sharedspace.client import Connection
 from sharedspace.marl.config import MarlConfig, apply_overrides
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
-from sharedspace.marl.task import CrossingTask, ResidualOverScript, make_env
+from sharedspace.marl.task import CarObservation, CrossingTask, ResidualOverScript, make_env
 from sharedspace.names import NODE_FEATURES
-from sharedspace.train.gcn import FEATURE_SCALE
 from sharedspace.train.train import MetricLogger
 
-__all__ = ["CarObservation", "make_actor", "make_critic", "make_loss", "train", "main"]
+__all__ = ["make_actor", "make_critic", "make_loss", "train", "main"]
 
 GROUP = "vehicle"
 OBS = (GROUP, "observation")
 ACTION = (GROUP, "action")
-
-
-class CarObservation(nn.Module):
-    """Each car's observation as one vector: its ``M`` nodes' features (scaled to O(1),
-    padding zeroed) and the mask, flattened: ``[*, A, M, F]`` -> ``[*, A, M * (F + 1)]``."""
-
-    def __init__(self):
-        super().__init__()
-        self.register_buffer("scale", torch.tensor(FEATURE_SCALE[:NODE_FEATURES]))
-
-    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        m = mask.to(features.dtype).unsqueeze(-1)
-        return torch.cat([features / self.scale * m, m], -1).flatten(-2)
 
 
 def _observation() -> TensorDictModule:
@@ -169,7 +155,7 @@ def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
 
 
 def _evaluate(task, actor, cfg, client) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    rows = play(task, policy_act(actor, cfg.base_driver), client)
+    rows = play(task, policy_act(actor, cfg.base_driver, cfg.residual_scale), client)
     return rows, summarize(rows)
 
 
@@ -206,7 +192,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         task, "train", cfg.num_envs, client, seed=cfg.seed, reward_weights=cfg.reward_weights
     )
     if cfg.base_driver:
-        env = TransformedEnv(env, ResidualOverScript(cfg.base_driver, GROUP))
+        env = TransformedEnv(env, ResidualOverScript(cfg.base_driver, GROUP, cfg.residual_scale))
     actor = make_actor(cfg, task)
     critic = make_critic(cfg, task)
     loss = make_loss(cfg, actor, critic)

@@ -20,6 +20,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from sharedspace.names import FEATURE_SCALE
+
 __all__ = [
     "FEATURE_SCALE",
     "GCNLayer",
@@ -31,9 +33,6 @@ __all__ = [
     "mlp",
     "readout",
 ]
-
-#: Fixed scale of the node features (FEATURE_NAMES order), so that inputs are O(1).
-FEATURE_SCALE = (10.0, 10.0, 5.0, 5.0, 5.0, 3.14159, 1.0, 1.0, 20.0, 20.0, 20.0)
 
 
 def present_nodes(mask: torch.Tensor) -> int:
