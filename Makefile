@@ -13,7 +13,7 @@ UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build wheel serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
+.PHONY: help run build wheel marl benchmarl serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -33,6 +33,17 @@ $(VENV)/.installed: clients/requirements-dev.txt clients/requirements-train.txt 
 	@touch $@
 
 venv: $(VENV)/.installed ## create the Python virtualenv in .venv
+
+# BenchMARL 1.5.2 pins torchrl < 0.12 (its experiment builds a SyncDataCollector, which torchrl
+# 0.13 removed): its own venv, the package installed editable beside it without the `train`
+# extra. torch comes from uv's cache (the same 2.15.0 as .venv): about 20 s.
+BENCHMARL_VENV := .venv-benchmarl
+$(BENCHMARL_VENV)/.installed: clients/requirements-benchmarl.txt clients/pyproject.toml
+	$(PYTHON) -m venv $(BENCHMARL_VENV)
+	$(BENCHMARL_VENV)/bin/python -m pip install --quiet uv==$(UV_VERSION)
+	$(BENCHMARL_VENV)/bin/uv pip install --quiet --python $(BENCHMARL_VENV)/bin/python \
+		-r clients/requirements-benchmarl.txt -e clients
+	@touch $@
 
 # The live viewer's page (viewer/, npm with its committed lock file).
 VIEWER_PAGE := viewer/dist/index.html
@@ -88,7 +99,7 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
 	$(SERVER) router --config deploy/router.json5 $(ARGS)
 
-test: $(VENV)/.installed $(VIEWER_PAGE) browser $(CARGO_MODULES) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
+test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(CARGO_MODULES) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	PATH="$(CURDIR)/.tools/bin:$$PATH" $(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
@@ -98,6 +109,8 @@ test: $(VENV)/.installed $(VIEWER_PAGE) browser $(CARGO_MODULES) ## every test: 
 	@# a hung interpreter exit must fail CI in minutes, not eat its whole budget
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server SHAREDSPACE_REQUIRE_BROWSER=1 timeout --kill-after=30 1800 $(PY) -m pytest clients/tests -q -p no:cacheprovider \
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
+	@# the other end of the torchrl range (0.11, BenchMARL's pin): the envs and a BenchMARL experiment
+	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 600 $(BENCHMARL_VENV)/bin/python -m pytest clients/tests_benchmarl -q -p no:cacheprovider
 	$(PY) -m ruff check clients calibration bench
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
@@ -186,6 +199,12 @@ $(GENERAL_POOL): scenarios/data/hbs.csv.gz
 # world or the recipe changes.
 DEMOS_G := out/demos/table2g
 DEMOS_PAPER := out/demos/table2
+marl: $(SERVER) $(VENV)/.installed ## several learning cars: MAPPO, IPPO, MASAC x 3 seeds on the crossing task vs the car-aware script (results/marl/)
+	$(PY) -m sharedspace.marl.table --out results/marl
+
+benchmarl: $(SERVER) $(BENCHMARL_VENV)/.installed ## one BenchMARL MAPPO experiment on the crossing task (its own venv; results/marl/benchmarl/)
+	SHAREDSPACE_SIM_SERVER=$(SERVER) $(BENCHMARL_VENV)/bin/python -m sharedspace.marl.benchmarl_task --out results/marl/benchmarl
+
 demos: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## prior data: demonstrations on the train scenes of Table II-G's and Table II's worlds (out/demos/)
 	$(PY) -m sharedspace.paper.demos --pool $(GENERAL_POOL) --params params/table2g.json5 \
 		--set max_agents=10 --out $(DEMOS_G)

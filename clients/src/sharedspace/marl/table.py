@@ -46,6 +46,30 @@ def _launch(out: Path, algorithm: str, seed: int, sets: Sequence[str]) -> subpro
     return subprocess.Popen(cmd, stdout=open(log_dir / "stdout.log", "w"), stderr=subprocess.STDOUT)
 
 
+def _markdown(table: dict) -> list[str]:
+    """The table's rows in markdown."""
+    lines = [
+        "| drivers | per-car success [95 % CI] | collision | car-car "
+        "| paired vs car_aware [95 % CI] |",
+        "|---|---|---|---|---|",
+    ]
+    for name, entry in table.items():
+        s = entry["summary"]
+        pair = entry.get("paired_vs_car_aware")
+        lines.append(
+            f"| {name} | {s['success']['rate']:.3f} [{s['success']['ci95'][0]:.3f}, "
+            f"{s['success']['ci95'][1]:.3f}] | {s['collision']['rate']:.3f} | "
+            f"{s['car_collision']['rate']:.3f} | "
+            + (
+                f"{pair['mean']:+.3f} [{pair['ci95'][0]:+.3f}, {pair['ci95'][1]:+.3f}]"
+                if pair
+                else "—"
+            )
+            + " |"
+        )
+    return lines
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sharedspace.marl.table", description=__doc__)
     ap.add_argument("--out", default="results/marl")
@@ -104,25 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "baseline_rows": baseline,
     }
     (out / "table.json").write_text(json.dumps(report, indent=1))
-    lines = [
-        "| drivers | per-car success [95 % CI] | collision | car-car "
-        "| paired vs car_aware [95 % CI] |",
-        "|---|---|---|---|---|",
-    ]
-    for name, entry in table.items():
-        s = entry["summary"]
-        pair = entry.get("paired_vs_car_aware")
-        lines.append(
-            f"| {name} | {s['success']['rate']:.3f} [{s['success']['ci95'][0]:.3f}, "
-            f"{s['success']['ci95'][1]:.3f}] | {s['collision']['rate']:.3f} | "
-            f"{s['car_collision']['rate']:.3f} | "
-            + (
-                f"{pair['mean']:+.3f} [{pair['ci95'][0]:+.3f}, {pair['ci95'][1]:+.3f}]"
-                if pair
-                else "—"
-            )
-            + " |"
-        )
+    lines = _markdown(table)
     (out / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"wall time of this call: {wall / 60:.1f} min")

@@ -154,6 +154,50 @@ def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
     return out
 
 
+def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
+    """SAC: a replay buffer sampled at random. PPO: the last batch, in minibatches without
+    replacement."""
+    if cfg.algorithm == "masac":
+        return TensorDictReplayBuffer(
+            storage=LazyTensorStorage(cfg.buffer_size),
+            sampler=RandomSampler(),
+            batch_size=cfg.batch_size,
+        )
+    return TensorDictReplayBuffer(
+        storage=LazyTensorStorage(frames_per_batch),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=cfg.minibatch_size,
+    )
+
+
+def learn(cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update) -> dict:
+    """One collected batch's gradient steps: PPO's epochs of minibatches over the batch (its
+    advantages by GAE first), or SAC's ``utd_ratio`` updates per frame from the replay buffer.
+    Returns the last step's losses (``train/loss_*``)."""
+    if cfg.algorithm == "masac":
+        buffer.extend(data.reshape(-1))
+        updates = max(1, round(cfg.utd_ratio * data.numel()))
+    else:
+        with torch.no_grad():
+            loss.value_estimator(
+                data,
+                params=loss.critic_network_params,
+                target_params=loss.target_critic_network_params,
+            )
+        buffer.extend(data.reshape(-1))
+        updates = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
+    for _ in range(updates):
+        out = loss(buffer.sample())
+        total = sum(v for k, v in out.items() if k.startswith("loss_"))
+        optim.zero_grad()
+        total.backward()
+        nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+        optim.step()
+        if target_update is not None:
+            target_update.step()
+    return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+
+
 def _evaluate(task, actor, cfg, client) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     rows = play(task, policy_act(actor, cfg.base_driver, cfg.residual_scale), client)
     return rows, summarize(rows)
@@ -218,18 +262,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         frames_per_batch=max(frames_per_batch, cfg.num_envs),
         total_frames=cfg.total_frames - frames,
     )
-    if sac:
-        buffer = TensorDictReplayBuffer(
-            storage=LazyTensorStorage(cfg.buffer_size),
-            sampler=RandomSampler(),
-            batch_size=cfg.batch_size,
-        )
-    else:
-        buffer = TensorDictReplayBuffer(
-            storage=LazyTensorStorage(frames_per_batch),
-            sampler=SamplerWithoutReplacement(),
-            batch_size=cfg.minibatch_size,
-        )
+    buffer = make_buffer(cfg, frames_per_batch)
     logger = MetricLogger(log_dir, tensorboard=False)
     next_eval = (frames // cfg.eval_every + 1) * cfg.eval_every
     t0 = time.perf_counter() - wall
@@ -237,34 +270,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         frames += data.numel()
         iteration += 1
         metrics = batch_outcomes(data)
-        if sac:
-            buffer.extend(data.reshape(-1))
-            updates = max(1, round(cfg.utd_ratio * data.numel()))
-        else:
-            with torch.no_grad():
-                loss.value_estimator(
-                    data,
-                    params=loss.critic_network_params,
-                    target_params=loss.target_critic_network_params,
-                )
-            buffer.extend(data.reshape(-1))
-            updates = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
-        for _ in range(updates):
-            out = loss(buffer.sample())
-            total = sum(v for k, v in out.items() if k.startswith("loss_"))
-            optim.zero_grad()
-            total.backward()
-            nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
-            optim.step()
-            if target_update is not None:
-                target_update.step()
-        metrics.update(
-            {
-                f"train/{k}": float(v.detach().mean())
-                for k, v in out.items()
-                if k.startswith("loss_")
-            }
-        )
+        metrics.update(learn(cfg, loss, optim, buffer, data, target_update))
         collector.update_policy_weights_()
         wall = time.perf_counter() - t0
         metrics["train/wall_s"] = wall
