@@ -54,6 +54,8 @@ class MarlConfig:
     buffer_size: int = 100_000  # replay capacity (sub-env steps)
     tau: float = 0.005  # target soft-update coefficient
     alpha_init: float = 0.01  # initial entropy temperature (learned)
+    actor_warmup_frames: int = 20_000  # frames of critic-only updates before the actor moves
+    actor_lr: float = 3e-5  # the actor's Adam learning rate (the critics and alpha use lr)
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:

@@ -42,7 +42,7 @@ from sharedspace.marl.task import CarObservation, CrossingTask, ResidualOverScri
 from sharedspace.names import NODE_FEATURES
 from sharedspace.train.train import MetricLogger
 
-__all__ = ["make_actor", "make_critic", "make_loss", "train", "main"]
+__all__ = ["make_actor", "make_critic", "make_loss", "make_optimizer", "train", "main"]
 
 GROUP = "vehicle"
 OBS = (GROUP, "observation")
@@ -143,6 +143,18 @@ def make_loss(cfg: MarlConfig, actor, critic) -> nn.Module:
     return loss
 
 
+def make_optimizer(cfg: MarlConfig, loss: nn.Module) -> torch.optim.Optimizer:
+    """Adam over the loss's parameters. MASAC's actor gets its own, smaller rate: Adam moves
+    each weight by about the rate per step whatever the gradient's size, and 40 steps at the
+    critics' rate shift the residual's mean by about 1 (measured: the residual turned the
+    script's 0.70 success into 0.03 within one batch)."""
+    if cfg.algorithm != "masac":
+        return torch.optim.Adam(loss.parameters(), cfg.lr)
+    actor = list(loss.actor_network_params.values(True, True))
+    others = [p for p in loss.parameters() if all(p is not a for a in actor)]
+    return torch.optim.Adam([{"params": actor, "lr": cfg.actor_lr}, {"params": others}], cfg.lr)
+
+
 def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
     """``train/*``: per-car episode outcomes that ended in a collected batch, and its reward."""
     nxt = data["next", GROUP]
@@ -170,10 +182,16 @@ def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffe
     )
 
 
-def learn(cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update) -> dict:
+def learn(
+    cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
+) -> dict:
     """One collected batch's gradient steps: PPO's epochs of minibatches over the batch (its
     advantages by GAE first), or SAC's ``utd_ratio`` updates per frame from the replay buffer.
-    Returns the last step's losses (``train/loss_*``)."""
+    SAC trains only its critics for the first ``actor_warmup_frames``: Adam moves the actor's
+    mean by about ``lr`` per weight and step whatever the gradient's size, so an untrained
+    critic would drag the residual far off the script within one batch. Returns the last
+    step's losses (``train/loss_*``)."""
+    warmup = cfg.algorithm == "masac" and frames < cfg.actor_warmup_frames
     if cfg.algorithm == "masac":
         buffer.extend(data.reshape(-1))
         updates = max(1, round(cfg.utd_ratio * data.numel()))
@@ -188,7 +206,11 @@ def learn(cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_upd
         updates = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
     for _ in range(updates):
         out = loss(buffer.sample())
-        total = sum(v for k, v in out.items() if k.startswith("loss_"))
+        total = (
+            out["loss_qvalue"]
+            if warmup
+            else sum(v for k, v in out.items() if k.startswith("loss_"))
+        )
         optim.zero_grad()
         total.backward()
         nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
@@ -240,7 +262,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
     actor = make_actor(cfg, task)
     critic = make_critic(cfg, task)
     loss = make_loss(cfg, actor, critic)
-    optim = torch.optim.Adam(loss.parameters(), cfg.lr)
+    optim = make_optimizer(cfg, loss)
     sac = cfg.algorithm == "masac"
     target_update = SoftUpdate(loss, eps=1.0 - cfg.tau) if sac else None
 
@@ -270,7 +292,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         frames += data.numel()
         iteration += 1
         metrics = batch_outcomes(data)
-        metrics.update(learn(cfg, loss, optim, buffer, data, target_update))
+        metrics.update(learn(cfg, loss, optim, buffer, data, target_update, frames))
         collector.update_policy_weights_()
         wall = time.perf_counter() - t0
         metrics["train/wall_s"] = wall
