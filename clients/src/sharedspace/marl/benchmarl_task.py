@@ -33,6 +33,7 @@ from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Compose
 
 from sharedspace.client import Connection
+from sharedspace.marl.config import LEARNER_REWARD
 from sharedspace.marl.task import CrossingTask, FlatObservation, ResidualOverScript, make_env
 from sharedspace.torchrl_multiagent import AGENT_OUTCOME_KEYS
 
@@ -45,7 +46,8 @@ _OBSERVED = ("features", "adjacency", "mask", "observation")
 class SharedspaceClass(TaskClass):
     """BenchMARL's view of the crossing task. ``config``: ``endpoint`` and ``prefix`` of the
     server, optional ``task`` (CrossingTask fields), ``base_driver`` (default ``car_aware``, ""
-    for absolute actions), ``residual_scale`` (default 2.0) and ``reward_weights``."""
+    for absolute actions), ``residual_scale`` (default 2.0) and ``reward_weights`` (default
+    the learners' own, :data:`~sharedspace.marl.config.LEARNER_REWARD`)."""
 
     def _task(self) -> CrossingTask:
         return CrossingTask(**self.config.get("task", {}))
@@ -64,7 +66,7 @@ class SharedspaceClass(TaskClass):
                 num_envs,
                 client,
                 seed=seed or 0,
-                reward_weights=cfg.get("reward_weights"),
+                reward_weights=cfg.get("reward_weights", LEARNER_REWARD),
             )
             transforms = [FlatObservation(GROUP)]
             if cfg.get("base_driver", "car_aware"):

@@ -205,7 +205,12 @@ def learn(
         buffer.extend(data.reshape(-1))
         updates = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
     for _ in range(updates):
-        out = loss(buffer.sample())
+        sample = buffer.sample()
+        out = loss(sample)
+        if cfg.algorithm == "masac" and cfg.residual_penalty and not warmup:
+            # keeps the residual near 0 (the script) unless the critics disagree by more
+            loc = loss.actor_network(sample.clone())[GROUP, "loc"]
+            out["loss_residual"] = cfg.residual_penalty * loc.pow(2).mean()
         total = (
             out["loss_qvalue"]
             if warmup
