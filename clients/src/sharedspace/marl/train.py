@@ -191,8 +191,9 @@ def learn(
     mean by about ``lr`` per weight and step whatever the gradient's size, so an untrained
     critic would drag the residual far off the script within one batch. Returns the last
     step's losses (``train/loss_*``)."""
-    warmup = cfg.algorithm == "masac" and frames < cfg.actor_warmup_frames
-    if cfg.algorithm == "masac":
+    sac = cfg.algorithm == "masac"
+    warmup = sac and frames < cfg.actor_warmup_frames
+    if sac:
         buffer.extend(data.reshape(-1))
         updates = max(1, round(cfg.utd_ratio * data.numel()))
     else:
@@ -207,7 +208,7 @@ def learn(
     for _ in range(updates):
         sample = buffer.sample()
         out = loss(sample)
-        if cfg.algorithm == "masac" and cfg.residual_penalty and not warmup:
+        if sac and cfg.residual_penalty and not warmup:
             # keeps the residual near 0 (the script) unless the critics disagree by more
             loc = loss.actor_network(sample.clone())[GROUP, "loc"]
             out["loss_residual"] = cfg.residual_penalty * loc.pow(2).mean()
