@@ -68,7 +68,7 @@ def env_batches(count: int, batch: int, seed: int = 0) -> list[TensorDict]:
     (the trainer's env on a local sim-server, a uniform random policy): real observations,
     whose masks fill 4 of the 8 nodes as the paper's scenes do."""
     from sharedspace.train.config import TrainConfig
-    from sharedspace.train.sac import make_env
+    from sharedspace.train.envs import make_env
 
     env = make_env(TrainConfig(num_envs=16, max_agents=8, seed=seed), split="train")
     torch.manual_seed(seed)

@@ -14,7 +14,8 @@ from sharedspace.client import Connection
 from sharedspace.marl.bound import per_car_bound
 from sharedspace.marl.config import MarlConfig, apply_overrides
 from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
-from sharedspace.marl.task import CrossingTask, ResidualOverScript, make_env
+from sharedspace.marl.task import CrossingTask, make_env
+from sharedspace.train.envs import ResidualAction
 from sharedspace.marl.train import (
     learn,
     make_actor,
@@ -102,7 +103,7 @@ def test_masac_moves_only_its_critics_until_the_actor_warmup_ends(sim_server, tm
 
 def test_a_residual_policy_at_zero_drives_like_its_script(sim_server):
     env = make_env(TINY_TASK, "test", 2, _connection(sim_server), scenarios=None)
-    wrapped = ResidualOverScript("car_aware")
+    wrapped = ResidualAction("car_aware", group="vehicle")
     td = env.reset()
     td.set(("vehicle", "action"), torch.zeros(2, 2, 2))
     sent = wrapped.inv(td)[("vehicle", "action")]

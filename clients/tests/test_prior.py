@@ -27,7 +27,7 @@ from sharedspace.train.prior import (  # noqa: E402
     world_of,
     write_prior,
 )
-from sharedspace.train.sac import make_env  # noqa: E402
+from sharedspace.train.envs import make_env  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
 M = 5

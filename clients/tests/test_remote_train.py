@@ -104,7 +104,7 @@ def test_without_an_endpoint_the_trainer_starts_its_own_server():
     from conftest import sim_server_binary
 
     from sharedspace import local_server
-    from sharedspace.train.sac import make_env
+    from sharedspace.train.envs import make_env
 
     if sim_server_binary() is None:
         pytest.skip("sim-server binary not found")

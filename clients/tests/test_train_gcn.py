@@ -23,7 +23,8 @@ from sharedspace.train.gcn import (  # noqa: E402
     normalized_adjacency,
     uniform_adjacency,
 )
-from sharedspace.train.sac import make_actor, make_critic, make_env  # noqa: E402
+from sharedspace.train.envs import make_env  # noqa: E402
+from sharedspace.train.sac import make_actor, make_critic  # noqa: E402
 
 
 def test_normalisation_by_hand_with_masking():

@@ -33,8 +33,9 @@ from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Compose
 
 from sharedspace.client import Connection
-from sharedspace.marl.config import LEARNER_REWARD
-from sharedspace.marl.task import CrossingTask, FlatObservation, ResidualOverScript, make_env
+from sharedspace.train.envs import ResidualAction
+from sharedspace.train.reward import LEARNER_REWARD
+from sharedspace.marl.task import CrossingTask, FlatObservation, make_env
 from sharedspace.torchrl_multiagent import AGENT_OUTCOME_KEYS
 
 __all__ = ["SharedspaceClass", "SharedspaceTask", "run_mappo", "main"]
@@ -71,7 +72,7 @@ class SharedspaceClass(TaskClass):
             transforms = [FlatObservation(GROUP)]
             if cfg.get("base_driver", "car_aware"):
                 transforms.append(
-                    ResidualOverScript(
+                    ResidualAction(
                         cfg.get("base_driver", "car_aware"), GROUP, cfg.get("residual_scale", 2.0)
                     )
                 )

@@ -3,24 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["ALGORITHMS", "LEARNER_REWARD", "MarlConfig", "apply_overrides"]
+from sharedspace.client import Connection
+from sharedspace.scripted import SCRIPTED
+from sharedspace.train.config import ConfigError, apply_overrides
+from sharedspace.train.reward import REWARDS
+
+__all__ = ["ALGORITHMS", "MarlConfig", "apply_overrides"]
 
 #: MAPPO (shared centralised critic), IPPO (each car's own critic input), MASAC (centralised
 #: Q-critics, off-policy).
 ALGORITHMS = ("mappo", "ippo", "masac")
-
-#: The learners' reward weights over the world's defaults (SPEC 8.2 names). Under the world's
-#: (danger 20, collision -20) the car-aware script's car-episodes return +1 on success, -107 on
-#: a collision and -343 on a timeout (the danger term of a car standing by a pedestrian, every
-#: step until the horizon), so running into the pedestrian pays better than waiting: MASAC's
-#: critics found that within one batch. Here a success returns +24, a timeout -32, a collision
-#: -109 (`python bench/marl_script_returns.py`: the script on 64 training scenes of seed 5).
-LEARNER_REWARD: dict[str, float] = {"danger": 2.0, "collision": -100.0}
-
 
 @dataclass
 class MarlConfig:
@@ -35,9 +30,11 @@ class MarlConfig:
     log_dir: str = "runs/marl"  # config.json, metrics.csv, checkpoint.pt, eval.json go here
     server_endpoint: str = ""  # Zenoh endpoint of the server; "" = start a local sim-server
     server_prefix: str = "sharedspace"  # key prefix of that server
+    zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
+    reward: str = "learner"  # named reward (sharedspace.train.reward): learner | world
     reward_weights: dict[str, float] = dataclasses.field(
-        default_factory=lambda: dict(LEARNER_REWARD)
-    )  # overrides of the world's reward weights (SPEC 8.2 names; JSON on --set); {} = the world's
+        default_factory=dict
+    )  # weights over the named reward's (SPEC 8.2 names; JSON on --set); {} = none
     eval_every: int = 60_000  # frames between evaluations on the test scenes (curves only)
     # --- policy
     base_driver: str = "car_aware"  # the policy's action is a residual over this script; "" off
@@ -68,32 +65,33 @@ class MarlConfig:
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
-            raise ValueError(f"algorithm must be one of {ALGORITHMS}, got {self.algorithm!r}")
+            raise ConfigError(f"algorithm must be one of {ALGORITHMS}, got {self.algorithm!r}")
         for name in ("total_frames", "num_envs", "frames_per_batch", "minibatch_size"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+                raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.reward not in REWARDS:
+            raise ConfigError(f"reward must be one of {sorted(REWARDS)}, not {self.reward!r}")
+        if self.base_driver and self.base_driver not in SCRIPTED:
+            raise ConfigError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
+        if not self.base_driver and self.residual_scale != 2.0:
+            raise ConfigError(
+                "residual_scale scales a residual over a script: set base_driver (a residual "
+                "without a script)"
+            )
+
+    @property
+    def world_reward_weights(self) -> dict[str, float]:
+        """The weights sent with the envs: the named reward's, then ``reward_weights``."""
+        return {**REWARDS[self.reward], **self.reward_weights}
+
+    def connection(self) -> Connection:
+        """Where the envs live: the zenoh file, else the endpoint ("": a local ``sim-server``
+        the run starts; :meth:`sharedspace.client.Connection.resolve`)."""
+        return Connection.resolve(self.server_endpoint, self.server_prefix, self.zenoh_config)
+
+    @classmethod
+    def from_dict(cls, fields: dict[str, Any]) -> MarlConfig:
+        return cls(**fields)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
-
-
-def apply_overrides(cfg: MarlConfig, sets: list[str]) -> MarlConfig:
-    """``key=value`` overrides (values parsed as JSON, else taken as strings), checked by name
-    and type."""
-    fields = {f.name: f for f in dataclasses.fields(MarlConfig)}
-    values = cfg.to_dict()
-    for item in sets:
-        key, sep, raw = item.partition("=")
-        if not sep or key not in fields:
-            raise ValueError(f"--set {item!r}: expected key=value with key one of {sorted(fields)}")
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw
-        want = type(values[key])
-        if want is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, want) or (want is int and isinstance(value, bool)):
-            raise ValueError(f"--set {key}: expected {want.__name__}, got {raw!r}")
-        values[key] = value
-    return MarlConfig(**values)

@@ -52,7 +52,7 @@ def scripted_act(driver: str = "car_aware") -> Act:
 def policy_act(policy: Any, base_driver: str = "", residual_scale: float = 1.0) -> Act:
     """A trained policy (a TensorDict module writing ``("vehicle", "action")``), deterministic,
     its action times ``residual_scale`` added to ``base_driver``'s when it is a residual
-    learner (as :class:`~sharedspace.marl.task.ResidualOverScript` sends it)."""
+    learner (as :class:`~sharedspace.train.envs.ResidualAction` sends it)."""
     base = SCRIPTED[base_driver]() if base_driver else None
 
     def act(td: TensorDictBase, step: int) -> torch.Tensor:

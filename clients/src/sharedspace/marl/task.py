@@ -25,7 +25,6 @@ from torchrl.envs import Transform
 
 from sharedspace.client import Connection, SimClient
 from sharedspace.names import FEATURE_SCALE, NODE_FEATURES
-from sharedspace.scripted import SCRIPTED
 from sharedspace.torchrl_env import synthetic_names
 from sharedspace.torchrl_multiagent import RemoteMultiAgentEnv
 from sharedspace.wire.requests import EnvSpec, SyntheticScenes
@@ -35,7 +34,6 @@ __all__ = [
     "CarObservation",
     "CrossingTask",
     "FlatObservation",
-    "ResidualOverScript",
     "make_env",
 ]
 
@@ -165,30 +163,3 @@ class FlatObservation(Transform):
         shape = (*group.shape, m * (f + 1))
         group["observation"] = Unbounded(shape, dtype=torch.float32, device=group.device)
         return observation_spec
-
-
-class ResidualOverScript(Transform):
-    """The policy's action is a residual over a scripted driver's: on the way into the env,
-    ``action <- clip(script(observation) + scale * action, -1, 1)`` per car, so a learner starts
-    from the script's behaviour at action 0 (``TrainConfig.base_driver``'s idea, for the grouped
-    env); with ``scale`` 2 a residual of 1 overrides the script's full braking. Collected data
-    keep the policy's own (residual) action."""
-
-    def __init__(self, driver: str = "car_aware", group: str = "vehicle", scale: float = 1.0):
-        super().__init__(in_keys_inv=[(group, "action")], out_keys_inv=[(group, "action")])
-        self.driver_name = driver
-        self.driver = SCRIPTED[driver]()
-        self.group = group
-        self.scale = scale
-
-    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
-        features = tensordict.get((self.group, "features"))
-        mask = tensordict.get((self.group, "mask"))
-        residual = tensordict.get((self.group, "action"))
-        base = self.driver(features, mask).to(residual.dtype)
-        out = tensordict.clone(False)
-        out.set((self.group, "action"), (base + self.scale * residual).clamp(-1.0, 1.0))
-        return out
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return tensordict

@@ -35,12 +35,13 @@ from torchrl.envs import TransformedEnv
 from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, ValueEstimators
 
-from sharedspace.client import Connection
-from sharedspace.marl.config import MarlConfig, apply_overrides
+from sharedspace.marl.config import MarlConfig
+from sharedspace.train.config import apply_overrides
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
-from sharedspace.marl.task import CarObservation, CrossingTask, ResidualOverScript, make_env
+from sharedspace.marl.task import CarObservation, CrossingTask, make_env
 from sharedspace.names import NODE_FEATURES
-from sharedspace.train.train import MetricLogger
+from sharedspace.train.envs import ResidualAction
+from sharedspace.train.metrics import MetricLogger
 
 __all__ = ["make_actor", "make_critic", "make_loss", "make_optimizer", "train", "main"]
 
@@ -242,29 +243,19 @@ def train(cfg: MarlConfig, task: CrossingTask | None = None, resume: bool = Fals
         json.dumps({"config": cfg.to_dict(), "task": _task_dict(task)}, indent=1)
     )
 
-    server = None
-    if not cfg.server_endpoint:
-        from sharedspace.local_server import LocalServer
-
-        server = LocalServer(prefix=cfg.server_prefix, log=log_dir / "server.log")
-    connection = Connection(
-        endpoint=cfg.server_endpoint or server.endpoint, prefix=cfg.server_prefix
-    )
-    client = connection.open()
+    client = cfg.connection().open()
     try:
         return _train(cfg, task, client, log_dir, resume)
     finally:
         client.shutdown()
-        if server is not None:
-            server.close()
 
 
 def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
     env = make_env(
-        task, "train", cfg.num_envs, client, seed=cfg.seed, reward_weights=cfg.reward_weights
+        task, "train", cfg.num_envs, client, seed=cfg.seed, reward_weights=cfg.world_reward_weights
     )
     if cfg.base_driver:
-        env = TransformedEnv(env, ResidualOverScript(cfg.base_driver, GROUP, cfg.residual_scale))
+        env = TransformedEnv(env, ResidualAction(cfg.base_driver, GROUP, cfg.residual_scale))
     actor = make_actor(cfg, task)
     critic = make_critic(cfg, task)
     loss = make_loss(cfg, actor, critic)

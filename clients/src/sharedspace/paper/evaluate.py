@@ -41,11 +41,11 @@ from sharedspace.train.config import (
 from sharedspace.train.evaluation import (
     STATUSES,
     evaluate_split,
-    load_checkpoint_actor,
     run_episodes,
     summarize,
 )
-from sharedspace.train.sac import make_env
+from sharedspace.train.learners import load_checkpoint_actor
+from sharedspace.train.envs import make_env
 
 __all__ = [
     "COLUMNS",

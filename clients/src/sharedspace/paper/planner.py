@@ -37,7 +37,7 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
-from sharedspace.train.sac import make_env
+from sharedspace.train.envs import make_env
 
 __all__ = [
     "Cell",

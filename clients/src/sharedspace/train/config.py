@@ -13,12 +13,74 @@ from typing import Any
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
 from sharedspace.scripted import SCRIPTED
+from sharedspace.train.reward import REWARDS
 from sharedspace.wire import EnvSpec
 
-__all__ = ["VARIANTS", "TrainConfig", "load_config", "apply_overrides"]
+__all__ = [
+    "ALGORITHMS",
+    "ConfigError",
+    "VARIANTS",
+    "TrainConfig",
+    "apply_overrides",
+    "load_config",
+]
 
-#: Network variants (paper Section V.B): G-SAC-Cog, G-SAC-NoCog, S-SAC.
+#: Network variants (paper Section V.B): G-SAC-Cog, G-SAC-NoCog, S-SAC. The names are the
+#: networks' whatever the algorithm: ``algorithm=ppo variant=g_sac_cog`` is PPO over the GCN on
+#: the risk graph (``gcn_cog``, ``gcn_nocog`` and ``mlp`` are the same networks by their plain
+#: names).
 VARIANTS = ("g_sac_cog", "g_sac_nocog", "s_sac")
+#: Plain names of the networks of :data:`VARIANTS`.
+NETWORK_ALIASES = {"gcn_cog": "g_sac_cog", "gcn_nocog": "g_sac_nocog", "mlp": "s_sac"}
+#: Learning algorithms of the single-car learner, one file each (sharedspace.train.sac, .ppo).
+ALGORITHMS = ("sac", "ppo")
+#: The options of one algorithm only, with their defaults: setting one for the other algorithm
+#: is an error that names it (a PPO option given to SAC would silently do nothing).
+PPO_ONLY = (
+    "rollout_steps",
+    "ppo_epochs",
+    "minibatch_size",
+    "clip_epsilon",
+    "entropy_coeff",
+    "critic_coeff",
+    "lmbda",
+    "max_grad_norm",
+    "reward_scale",
+    "normalize_obs",
+)
+SAC_ONLY = (
+    "frames_per_batch",
+    "init_random_frames",
+    "utd_ratio",
+    "batch_size",
+    "buffer_size",
+    "tau",
+    "alpha_init",
+    "loss_function",
+    "critic_layer_norm",
+    "critic_warmup",
+    "prior_data",
+    "prior_sources",
+    "prior_successes_only",
+    "bc_weight",
+    "bc_steps",
+    "save_buffer",
+)
+#: ``num_envs`` when the config leaves it 0: SAC's few envs feed a replay buffer; PPO wants a
+#: wide batch of fresh experience per iteration (docs/ARCHITECTURE.md, "Learners").
+DEFAULT_NUM_ENVS = {"sac": 8, "ppo": 256}
+
+
+class ConfigError(ValueError):
+    """A config field with a wrong value, or an option of the other algorithm; the message
+    names the field."""
+
+
+class UnknownFieldError(ConfigError, KeyError):
+    """A config key that no field has."""
+
+    def __str__(self) -> str:  # KeyError quotes its message
+        return str(self.args[0])
 #: Fields of older configs, ignored when one is loaded (``env_backend``: the Rust server is
 #: the only backend).
 RETIRED_FIELDS = ("env_backend",)
@@ -26,18 +88,19 @@ RETIRED_FIELDS = ("env_backend",)
 
 @dataclass
 class TrainConfig:
-    """Every knob of a SAC(-GCN) run. One line of doc per field."""
+    """Every knob of a single-car run, SAC(-GCN) or PPO. One line of doc per field."""
 
     # --- run
+    algorithm: str = "sac"  # sac (the paper's SAC-GCN) | ppo (on-policy, wide batches)
     seed: int = 0  # seed of torch, numpy and the env's scenario sequence
     variant: str = (
-        "g_sac_cog"  # g_sac_cog (A = env risk graph) | g_sac_nocog (uniform) | s_sac (MLP)
-    )
+        "g_sac_cog"  # network: g_sac_cog (GCN, A = risk graph) | g_sac_nocog (GCN, uniform A) |
+    )  # s_sac (MLP); gcn_cog, gcn_nocog, mlp name the same networks
     total_frames: int = 200_000  # env transitions to collect (summed over the K sub-envs)
-    device: str = "cpu"  # torch device of the networks and the updates ("cpu", "cuda")
+    device: str = "auto"  # torch device of the networks and updates; auto = cuda if torch sees one
     num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
     # --- env
-    num_envs: int = 8  # K, sub-envs stepped together (env batch size)
+    num_envs: int = 0  # K, sub-envs stepped together; 0 = the algorithm's (sac 8, ppo 256)
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
     pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
@@ -49,9 +112,25 @@ class TrainConfig:
         default_factory=dict
     )  # scene variations of the training envs (SPEC 5.2.1; JSON on --set); {} = none
     vehicle_model: str = ""  # cars nobody controls: replay | idm (reactive); "" = the pool's
+    reward: str = ""  # named reward (sharedspace.train.reward): world | learner; "" = sac: world,
+    #                   ppo: learner
     reward_weights: dict[str, float] = field(
         default_factory=dict
-    )  # reward weights over the world's (SPEC 8.2 names; JSON on --set); {} = the world's
+    )  # weights over the named reward's (SPEC 8.2 names; JSON on --set); {} = none
+    base_driver: str = ""  # scripted driver the policy's action adds to (residual); "" = none
+    residual_scale: float = 1.0  # env action = clip(script + residual_scale * policy's); needs
+    #                              base_driver
+    # --- PPO (algorithm=ppo; docs/ARCHITECTURE.md "Learners" says why these values)
+    rollout_steps: int = 32  # T, steps of every sub-env per iteration: batch = num_envs * T
+    ppo_epochs: int = 4  # passes over each batch
+    minibatch_size: int = 2048  # frames per gradient step
+    clip_epsilon: float = 0.2  # PPO's ratio clip
+    entropy_coeff: float = 0.0  # entropy bonus weight (the TanhNormal's entropy is estimated)
+    critic_coeff: float = 0.5  # the value loss's weight in the summed loss
+    lmbda: float = 0.95  # GAE lambda
+    max_grad_norm: float = 0.5  # global gradient-norm clip
+    reward_scale: float = 0.1  # rewards are multiplied by this before GAE (value targets ~1)
+    normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm)
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
@@ -64,7 +143,6 @@ class TrainConfig:
     alpha_init: float = 1.0  # initial entropy temperature (learned, target entropy = -|A|)
     loss_function: str = "l2"  # critic loss: l2 | smooth_l1
     critic_layer_norm: bool = False  # LayerNorm after each hidden layer of the critics (RLPD)
-    base_driver: str = ""  # scripted driver the actor's action adds to (residual); "" = none
     critic_warmup: int = 0  # gradient updates of the critics alone before actor and alpha learn
     # --- prior data (RLPD, Ball et al. 2023; sharedspace.train.prior, `make demos`)
     prior_data: str = ""  # dataset directory of recorded transitions; "" = online data only
@@ -90,19 +168,73 @@ class TrainConfig:
     progress: bool = True  # show a tqdm progress bar
 
     def __post_init__(self):
+        if self.algorithm not in ALGORITHMS:
+            raise ConfigError(f"algorithm must be one of {ALGORITHMS}, not {self.algorithm!r}")
+        self.variant = NETWORK_ALIASES.get(self.variant, self.variant)
         if self.variant not in VARIANTS:
-            raise ValueError(f"variant must be one of {VARIANTS}, not {self.variant!r}")
+            raise ConfigError(
+                f"variant must be one of {VARIANTS + tuple(NETWORK_ALIASES)}, not {self.variant!r}"
+            )
+        self._check_algorithm_options()
+        # Fields left to the algorithm or the machine are filled in; `_auto` remembers which,
+        # so that an override of the algorithm fills them in again (`unresolved`).
+        self._auto = {"num_envs": 0, "reward": "", "device": "auto"}
+        self._auto = {k: v for k, v in self._auto.items() if getattr(self, k) == v}
+        self.num_envs = self.num_envs or DEFAULT_NUM_ENVS[self.algorithm]
+        if self.device == "auto":
+            import torch
+
+            self.device = "cuda" if torch.cuda.is_available() else "cpu"
+        self.reward = self.reward or ("learner" if self.algorithm == "ppo" else "world")
+        if self.reward not in REWARDS:
+            raise ConfigError(f"reward must be one of {sorted(REWARDS)}, not {self.reward!r}")
         self.env_spec("train", self.seed, self.variations)  # names a wrong env field now
         if self.readout not in ("ego", "ego_mean"):
-            raise ValueError(f"readout must be ego or ego_mean, not {self.readout!r}")
+            raise ConfigError(f"readout must be ego or ego_mean, not {self.readout!r}")
         if self.base_driver and self.base_driver not in SCRIPTED:
-            raise ValueError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
+            raise ConfigError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
+        if self.residual_scale != 1.0 and not self.base_driver:
+            raise ConfigError(
+                "residual_scale scales a residual over a script: set base_driver (a residual "
+                "without a script)"
+            )
         if not 0.0 <= self.prior_ratio < 1.0:
-            raise ValueError(f"prior_ratio must be in [0, 1), not {self.prior_ratio}")
+            raise ConfigError(f"prior_ratio must be in [0, 1), not {self.prior_ratio}")
         if self.bc_steps > 0 and not self.prior_data:
-            raise ValueError("bc_steps clone the prior data: set prior_data")
+            raise ConfigError("bc_steps clone the prior data: set prior_data")
         if self.bc_weight > 0 and not (self.prior_data or self.base_driver):
-            raise ValueError("bc_weight imitates the prior data or the base driver: set one")
+            raise ConfigError("bc_weight imitates the prior data or the base driver: set one")
+        for name in ("total_frames", "num_envs", "rollout_steps", "ppo_epochs", "minibatch_size"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be at least 1, not {getattr(self, name)}")
+
+    def _check_algorithm_options(self) -> None:
+        """An option of the other algorithm, set away from its default, is an error."""
+        other = SAC_ONLY if self.algorithm == "ppo" else PPO_ONLY
+        defaults = {f.name: f for f in dataclasses.fields(self)}
+        for name in other:
+            f = defaults[name]
+            default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            if getattr(self, name) != default:
+                raise ConfigError(
+                    f"{name} is an option of algorithm={'sac' if self.algorithm == 'ppo' else 'ppo'}"
+                    f", and this config's algorithm is {self.algorithm}"
+                )
+
+    @property
+    def world_reward_weights(self) -> dict[str, float]:
+        """The weights sent with the envs: the named reward's, then ``reward_weights``."""
+        return {**REWARDS[self.reward], **self.reward_weights}
+
+    def world(self) -> dict[str, Any]:
+        """What a checkpoint records of the world it was trained in: pool, world parameters,
+        M, crowd, cars, variations and reward."""
+        keys = ("scenario_pool", "server_params", "max_agents", "pedestrian_model")
+        out: dict[str, Any] = {k: getattr(self, k) for k in keys}
+        out |= {"vehicle_model": self.vehicle_model, "variations": dict(self.variations)}
+        out["reward"] = {"name": self.reward, "weights": self.world_reward_weights}
+        return out
+
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split``, ``seed`` and scene
@@ -115,7 +247,7 @@ class TrainConfig:
             max_agents=self.max_agents,
             variations=variations or None,
             vehicle_model=self.vehicle_model or None,
-            reward_weights=dict(self.reward_weights),
+            reward_weights=self.world_reward_weights,
         )
 
     def connection(self) -> Connection:
@@ -129,6 +261,8 @@ class TrainConfig:
             self.server_params or None,
         )
 
+    RETIRED_FIELDS = RETIRED_FIELDS
+
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> TrainConfig:
         """A config from a saved one (a checkpoint's, ``config.json``), without the fields
@@ -137,49 +271,73 @@ class TrainConfig:
 
     @property
     def batch_frames(self) -> int:
-        """Frames per collector batch."""
+        """Frames per collected batch: PPO's ``num_envs * rollout_steps``; SAC's
+        ``frames_per_batch`` (0: ``num_envs * 8``)."""
+        if self.algorithm == "ppo":
+            return self.num_envs * self.rollout_steps
         return self.frames_per_batch or self.num_envs * 8
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def unresolved(self) -> dict[str, Any]:
+        """:meth:`to_dict` with the fields this config filled in by itself (``num_envs``,
+        ``reward``, ``device``) as they were given: what overrides apply over."""
+        return self.to_dict() | getattr(self, "_auto", {})
 
-def _parse_value(text: str, like: Any) -> Any:
-    if isinstance(like, bool):
-        if text.lower() in ("1", "true", "yes", "on"):
-            return True
-        if text.lower() in ("0", "false", "no", "off"):
-            return False
-        raise ValueError(f"not a boolean: {text!r}")
-    if isinstance(like, int):
-        return int(float(text)) if "e" in text.lower() else int(text)
-    if isinstance(like, float):
-        return float(text)
-    if isinstance(like, list):
-        return [int(x) for x in text.strip("[]").split(",") if x.strip()]
-    if isinstance(like, dict):
-        value = json.loads(text) if text.strip() else {}
-        if not isinstance(value, dict):
-            raise ValueError(f"expected a JSON object, got {text!r}")
-        return value
+
+def parse_value(key: str, text: str, like: Any) -> Any:
+    """``text`` parsed as the type of ``like`` (the field's current value): booleans as
+    true/false/1/0/yes/no/on/off, integers (``1e4`` too), floats, lists as ``256,256`` or
+    ``[256, 256]``, dicts as JSON objects; anything else is the string. A value that does not
+    parse is a :class:`ConfigError` naming ``key``."""
+    try:
+        if isinstance(like, bool):
+            if text.lower() in ("1", "true", "yes", "on"):
+                return True
+            if text.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError("not a boolean")
+        if isinstance(like, int):
+            return int(float(text)) if "e" in text.lower() else int(text)
+        if isinstance(like, float):
+            return float(text)
+        if isinstance(like, list):
+            return [int(x) for x in text.strip("[]").split(",") if x.strip()]
+        if isinstance(like, dict):
+            value = json.loads(text) if text.strip() else {}
+            if not isinstance(value, dict):
+                raise ValueError("not a JSON object")
+            return value
+    except ValueError as exc:
+        raise ConfigError(
+            f"--set {key}={text}: expected {type(like).__name__} ({exc})"
+        ) from None
     return text
 
 
-def apply_overrides(cfg: TrainConfig, overrides: list[str] | dict[str, Any]) -> TrainConfig:
-    """A copy of ``cfg`` with ``key=value`` strings (or a dict) applied; values are parsed by
-    the field's type (lists as ``256,256``)."""
-    data = cfg.to_dict()
+def apply_overrides(cfg, overrides: list[str] | dict[str, Any]):
+    """A copy of the config dataclass ``cfg`` (:class:`TrainConfig`,
+    :class:`~sharedspace.marl.config.MarlConfig`) with ``key=value`` strings (or a dict)
+    applied; string values are parsed by the field's type (:func:`parse_value`). The one
+    ``--set`` grammar of every learner."""
+    data = cfg.unresolved() if hasattr(cfg, "unresolved") else cfg.to_dict()
+    retired = getattr(cfg, "RETIRED_FIELDS", ())
     items = (
         overrides.items() if isinstance(overrides, dict) else (o.split("=", 1) for o in overrides)
     )
-    for key, value in items:
-        key = key.strip()
-        if key in RETIRED_FIELDS:
+    for item in items:
+        if len(item) != 2:
+            raise ConfigError(f"--set {item[0]!r}: expected KEY=VALUE")
+        key, value = item[0].strip(), item[1]
+        if key in retired:
             continue
         if key not in data:
-            raise KeyError(f"unknown config key {key!r}")
-        data[key] = _parse_value(value, data[key]) if isinstance(value, str) else value
-    return TrainConfig.from_dict(data)
+            raise UnknownFieldError(
+                f"unknown config key {key!r} (expected key one of {sorted(data)})"
+            )
+        data[key] = parse_value(key, value, data[key]) if isinstance(value, str) else value
+    return type(cfg).from_dict(data)
 
 
 def command_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:

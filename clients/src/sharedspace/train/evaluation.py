@@ -1,6 +1,6 @@
 """The trainer's evaluation: every scenario of a split played once with the deterministic
 policy (the TanhNormal's mode), one sub-env per scenario, summarised as the paper's Table II
-columns; and the actor of a checkpoint. :mod:`sharedspace.paper.evaluate` builds the tables,
+columns. :mod:`sharedspace.paper.evaluate` builds the tables,
 the human row and the powered test on these."""
 
 from __future__ import annotations
@@ -14,14 +14,13 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sharedspace.names import Feature
 from sharedspace.pool import load_pool, split_indices
-from sharedspace.train.config import TrainConfig, apply_overrides
-from sharedspace.train.sac import make_actor, make_env
+from sharedspace.train.config import TrainConfig
+from sharedspace.train.envs import make_env
 
 __all__ = [
     "METRICS",
     "STATUSES",
     "evaluate_split",
-    "load_checkpoint_actor",
     "run_episodes",
     "summarize",
 ]
@@ -96,20 +95,6 @@ def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
     for key in METRICS:
         row[key] = float(np.mean([e[key] for e in episodes]))
     return row
-
-
-def load_checkpoint_actor(path: str, overrides: Sequence[str] = (), device: str = "cpu"):
-    """(config, actor) from a checkpoint written by the trainer."""
-    ckpt = torch.load(path, map_location=device, weights_only=False)
-    cfg = apply_overrides(TrainConfig.from_dict(ckpt["config"]), list(overrides))
-    cfg = apply_overrides(cfg, {"device": device})
-    probe = make_env(cfg, split=cfg.eval_split, num_envs=1)
-    actor = make_actor(cfg, probe.action_spec_unbatched)
-    with torch.no_grad():
-        actor(probe.reset())  # materialise lazy shapes, if any
-    actor.load_state_dict(ckpt["actor"])
-    probe.close()
-    return cfg, actor
 
 
 def evaluate_split(cfg: TrainConfig, actor, split: str = "test") -> dict[str, Any]:

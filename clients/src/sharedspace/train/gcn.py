@@ -24,6 +24,7 @@ from sharedspace.names import FEATURE_SCALE
 
 __all__ = [
     "FEATURE_SCALE",
+    "FeatureNorm",
     "GCNLayer",
     "GraphEncoder",
     "normalized_adjacency",
@@ -115,6 +116,49 @@ def mlp(
     return nn.Sequential(*layers)
 
 
+class FeatureNorm(nn.Module):
+    """Running mean and standard deviation of the scaled node features over present nodes, the
+    ego node (node 0: it alone carries the goal features) apart from the others; applied as
+    ``clamp((h - mean) / std, -clip, clip)`` on present nodes (padding stays 0).
+
+    The statistics change only through :meth:`update` (the PPO loop calls it on each
+    collected batch before its update), so a forward pass never moves them and a checkpoint's
+    networks carry them in their state dicts. One instance is shared by an actor's and a
+    critic's encoders."""
+
+    def __init__(self, num_features: int = 11, clip: float = 10.0, eps: float = 1e-4):
+        super().__init__()
+        self.clip, self.eps = clip, eps
+        self.register_buffer("mean", torch.zeros(2, num_features))
+        self.register_buffer("var", torch.ones(2, num_features))
+        self.register_buffer("count", torch.zeros(2))
+
+    @torch.no_grad()
+    def update(self, h: torch.Tensor, m: torch.Tensor) -> None:
+        """Merges the batch ``h [*, M, F]`` (scaled features) with mask ``m [*, M, 1]`` into the
+        running moments (Chan et al.'s parallel update)."""
+        h, m = h.reshape(-1, *h.shape[-2:]), m.reshape(-1, m.shape[-2], 1)
+        for role, (hs, ms) in enumerate(((h[:, :1], m[:, :1]), (h[:, 1:], m[:, 1:]))):
+            n = ms.sum()
+            if n < 1:
+                continue
+            mean = (hs * ms).sum((0, 1)) / n
+            var = ((hs - mean) ** 2 * ms).sum((0, 1)) / n
+            total = self.count[role] + n
+            delta = mean - self.mean[role]
+            self.var[role] = (
+                self.var[role] * self.count[role] + var * n + delta**2 * self.count[role] * n / total
+            ) / total
+            self.mean[role] += delta * n / total
+            self.count[role] = total
+
+    def forward(self, h: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+        k = h.shape[-2]
+        mean = torch.cat([self.mean[:1], self.mean[1:].expand(k - 1, -1)])
+        std = torch.cat([self.var[:1], self.var[1:].expand(k - 1, -1)]).add(self.eps).sqrt()
+        return ((h - mean) / std).clamp(-self.clip, self.clip) * m
+
+
 class GraphEncoder(nn.Module):
     """Embeds one observation ``(features [*, M, F], adjacency [*, M, M], mask [*, M])`` into
     ``[*, out_features]`` according to ``variant``."""
@@ -127,10 +171,12 @@ class GraphEncoder(nn.Module):
         gcn_hidden: int = 64,
         gcn_layers: int = 2,
         readout: str = "ego_mean",
+        norm: FeatureNorm | None = None,
     ):
         super().__init__()
         self.variant = variant
         self.readout = readout
+        self.norm = norm
         self.register_buffer("scale", torch.tensor(FEATURE_SCALE[:num_features]))
         if variant == "s_sac":
             self.layers = nn.ModuleList()
@@ -150,6 +196,12 @@ class GraphEncoder(nn.Module):
     def forward(self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor):
         return self.embed(*self.prepare(features, adjacency, mask))
 
+    def update_norm(self, features: torch.Tensor, mask: torch.Tensor) -> None:
+        """Folds a batch of observations into :attr:`norm`'s running moments (no-op without)."""
+        if self.norm is not None:
+            m = mask.to(features.dtype).unsqueeze(-1)
+            self.norm.update(features / self.scale * m, m)
+
     def prepare(
         self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
@@ -166,6 +218,8 @@ class GraphEncoder(nn.Module):
             features, adjacency, mask = features[..., :k, :], adjacency[..., :k, :k], mask[..., :k]
         m = mask.to(features.dtype).unsqueeze(-1)
         h = features / self.scale * m
+        if self.norm is not None:
+            h = self.norm(h, m)
         if self.variant == "s_sac":
             return h, None, m
         adj = adjacency if self.variant == "g_sac_cog" else uniform_adjacency(mask)

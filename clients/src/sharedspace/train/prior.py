@@ -160,7 +160,7 @@ class PriorData:
     def as_residual(self, base: nn.Module, chunk: int = 8192) -> PriorData:
         """The transitions with each ``action`` made a residual over the scripted driver
         ``base``: ``clamp(action - base(obs), -1, 1)``, which the residual env
-        (:class:`~sharedspace.train.sac.ResidualAction`) turns back into the recorded action
+        (:class:`~sharedspace.train.envs.ResidualAction`) turns back into the recorded action
         wherever that lies within 1 of the script's. The script is mirror-symmetric, so the
         mirror augmentation holds for the residual too."""
         actions = []

@@ -1,140 +1,67 @@
-"""Builders of the SAC(-GCN) pieces, TorchRL style: env, actor, critics, loss, buffer, collector."""
+"""SAC(-GCN), the paper's learner (Algorithm 2): the ``make_*`` builders, TorchRL style (actor,
+critics, learner, buffer, collector; the env is :func:`sharedspace.train.envs.make_env`), and
+the loop :func:`train`, top to bottom.
+
+The loop writes into ``log_dir``: ``config.json``, ``metrics.csv`` (long format: frames, wall_s,
+metric, value; metrics namespaced ``train/`` and ``eval/``), TensorBoard events, and
+``checkpoints/{step_<frames>,last}.pt`` (:mod:`sharedspace.train.checkpoint`).
+"""
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
+import time
 from typing import Any
 
+import numpy as np
 import torch
-from tensordict.nn import InteractionType, NormalParamExtractor, TensorDictModule
-from torch import nn
+import tqdm
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.envs import EnvBase, Transform, TransformedEnv
+from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor, ValueOperator
-from torchrl.modules.distributions import TanhNormal
 
-from sharedspace.scripted import SCRIPTED
+from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import TrainConfig
-from sharedspace.train.gcn import ActorNet, GraphEncoder, QNet
+from sharedspace.train.envs import make_env
+from sharedspace.train.evaluation import evaluate_split
+from sharedspace.train.metrics import (
+    EpisodeTracker,
+    MetricLogger,
+    episode_metrics,
+    progress_postfix,
+)
+from sharedspace.train.prior import clone, make_prior, mixed_batch
+from sharedspace.train.run import next_multiple, seed_everything, start_run
+from sharedspace.train.gcn import QNet
+from sharedspace.train.policy import (
+    OBS_KEYS,
+    RESIDUAL_INIT_SCALE,
+    make_encoder,
+    make_gaussian_actor,
+)
 from sharedspace.train.update import SACUpdate
 
 __all__ = [
     "OBS_KEYS",
-    "make_env",
     "make_actor",
     "make_critic",
     "make_update",
     "make_replay_buffer",
     "make_collector",
+    "train",
 ]
 
-#: Observation keys the networks read (ENV_CONTRACT.md).
-OBS_KEYS = ["features", "adjacency", "mask"]
-
-
-def make_env(
-    cfg: TrainConfig,
-    split: str = "train",
-    num_envs: int | None = None,
-    seed: int | None = None,
-    scenario_order: str = "random",
-    variations: dict[str, Any] | None = None,
-    variation_seeds: Sequence[int] | None = None,
-    scenarios: Sequence[str] | None = None,
-) -> EnvBase:
-    """The batched env (ENV_CONTRACT.md) of ``cfg.env_spec`` on the Rust server of
-    ``cfg.connection()`` (an endpoint, a zenoh file, or a ``sim-server`` this process starts).
-    ``variations`` (and fixed ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1;
-    the trainer passes ``cfg.variations`` for its training env only. ``scenarios``: sub-env
-    ``k`` plays ``scenarios[k]`` (scenes of ``split``), in sequential order."""
-    from sharedspace.torchrl_env import RemoteBatchedEnv
-
-    env = RemoteBatchedEnv(
-        cfg.env_spec(split, cfg.seed if seed is None else seed, variations),
-        num_envs or cfg.num_envs,
-        scenario_order=scenario_order,
-        scenarios=scenarios,
-        variation_seeds=variation_seeds,
-        client=cfg.connection(),
-    )
-    if not cfg.base_driver:
-        return env
-    return TransformedEnv(env, ResidualAction(SCRIPTED[cfg.base_driver]()))
-
-
-class ResidualAction(Transform):
-    """Residual policy learning (Silver et al., 2018): the policy's ``action`` is added to a
-    scripted driver's, and the env executes ``clamp(base(obs) + action, -1, 1)``. The learner
-    sees the residual (its replay buffer stores what the policy chose), so a residual of 0 is
-    the script itself; the deterministic residual of a fresh actor is about 0
-    (:func:`make_actor` starts it there with a small spread)."""
-
-    def __init__(self, base: nn.Module):
-        super().__init__(in_keys_inv=["action"], out_keys_inv=["action"])
-        self.base = base
-
-    def _inv_call(self, tensordict):
-        base = self.base(tensordict["features"], tensordict["mask"])
-        return tensordict.set("action", (tensordict["action"] + base).clamp(-1.0, 1.0))
-
-
-def _encoder(cfg: TrainConfig) -> GraphEncoder:
-    return GraphEncoder(
-        cfg.variant,
-        cfg.max_agents,
-        gcn_hidden=cfg.gcn_hidden,
-        gcn_layers=cfg.gcn_layers,
-        readout=cfg.readout,
-    )
-
-
-class _ActorParams(nn.Module):
-    def __init__(self, net: ActorNet):
-        super().__init__()
-        self.net = net
-        self.extract = NormalParamExtractor(scale_mapping="biased_softplus_1.0", scale_lb=1e-4)
-
-    def forward(self, features, adjacency, mask):
-        return self.extract(self.net(features, adjacency, mask))
-
-
 def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
-    """Graph encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``."""
-    net = _ActorParams(ActorNet(_encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1]))
-    if cfg.base_driver:
-        _start_near_zero(net.net.head[-1], action_spec.shape[-1])
-    module = TensorDictModule(net, in_keys=OBS_KEYS, out_keys=["loc", "scale"])
-    return ProbabilisticActor(
-        module,
-        in_keys=["loc", "scale"],
-        spec=action_spec,
-        distribution_class=TanhNormal,
-        distribution_kwargs={"low": -1.0, "high": 1.0, "tanh_loc": False},
-        default_interaction_type=InteractionType.RANDOM,
-        return_log_prob=False,
-    ).to(cfg.device)
-
-
-#: A residual policy's initial spread: the scale of its Gaussian before the tanh.
-RESIDUAL_INIT_SCALE = 0.1
-
-
-def _start_near_zero(last: nn.Linear, action_dim: int) -> None:
-    """A residual actor starts at the script: ``loc`` = 0 (zero output weights and bias) and
-    ``scale`` = :data:`RESIDUAL_INIT_SCALE` (its bias through ``biased_softplus_1.0``)."""
-    with torch.no_grad():
-        last.weight.zero_()
-        last.bias.zero_()
-        raw = math.log(math.expm1(RESIDUAL_INIT_SCALE)) - math.log(math.expm1(1.0))
-        last.bias[action_dim:] = raw
+    """Graph encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``; a
+    residual actor starts at its script with :data:`RESIDUAL_INIT_SCALE`."""
+    init = RESIDUAL_INIT_SCALE if cfg.base_driver else None
+    return make_gaussian_actor(cfg, action_spec, make_encoder(cfg), init_scale=init)
 
 
 def make_critic(cfg: TrainConfig, action_spec) -> ValueOperator:
     """``Q(s, a)``: its own graph encoder + MLP; SACLoss makes the two critics and targets."""
     net = QNet(
-        _encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1], layer_norm=cfg.critic_layer_norm
+        make_encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1], layer_norm=cfg.critic_layer_norm
     )
     return ValueOperator(net, in_keys=[*OBS_KEYS, "action"]).to(cfg.device)
 
@@ -185,11 +112,139 @@ def make_collector(
     )
 
 
-def seed_everything(seed: int) -> None:
-    import random
+def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
+    """Runs SAC on ``cfg`` (paper Algorithm 2); returns the final counters and the last
+    evaluation summary."""
+    log_dir = start_run(cfg)
 
-    import numpy as np
+    # ---- counters, possibly from a checkpoint
+    ckpt = load_checkpoint(resume, cfg.device) if resume else None
+    counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0, "clone_steps": 0}
+    if ckpt is not None:
+        counters.update(ckpt["counters"])
+    prior = make_prior(cfg)  # RLPD's prior data (refused here if of another world)
+    seed_everything(cfg.seed + counters["frames"])
 
-    random.seed(seed)
-    np.random.seed(seed % 2**32)  # noqa: NPY002 - seeds the global stream for third-party code
-    torch.manual_seed(seed)
+    # ---- env, networks, loss, optimisers, buffer
+    env = make_env(
+        cfg, split="train", seed=cfg.seed + counters["frames"], variations=cfg.variations
+    )
+    actor = make_actor(cfg, env.action_spec_unbatched)
+    with torch.no_grad():
+        actor(env.fake_tensordict().to(cfg.device))
+    update = make_update(cfg, actor, env.action_spec_unbatched)
+    buffer = make_replay_buffer(cfg)
+    if ckpt is not None:
+        if "learner" not in ckpt:
+            raise ValueError(
+                f"{resume} was written by the TorchRL SACLoss learner (before 2026-12-03); it "
+                "can be evaluated but not resumed"
+            )
+        update.load_state_dict(ckpt["learner"])
+        update.load_optimizer_state(ckpt["optimizers"])
+        if ckpt.get("buffer_dir") and Path(ckpt["buffer_dir"]).exists():
+            buffer.loads(ckpt["buffer_dir"])
+        if "torch_rng" in ckpt:
+            torch.set_rng_state(ckpt["torch_rng"])
+
+    # ---- the actor cloned on the prior data first, if asked
+    logger = MetricLogger(log_dir)
+    if prior is not None and counters["clone_steps"] < cfg.bc_steps:
+        losses = clone(update, prior, cfg.bc_steps - counters["clone_steps"], cfg)
+        counters["clone_steps"] = cfg.bc_steps
+        logger.log({"train/loss_clone": float(np.mean(losses[-100:]))}, counters["frames"])
+        _checkpoint(log_dir, cfg, actor, update, counters, buffer)
+
+    # ---- collector over the remaining frames
+    remaining = max(cfg.total_frames - counters["frames"], 0)
+    init_random = max(cfg.init_random_frames - counters["frames"], 0)
+    tracker = EpisodeTracker(env.batch_size[0])
+    last_eval: dict[str, float] = {}
+    if remaining == 0:
+        env.close()
+        logger.close()
+        return {"counters": counters, "eval": last_eval}
+    collector = make_collector(cfg, env, actor, remaining, init_random)
+    num_updates = max(1, int(cfg.batch_frames * cfg.utd_ratio))
+    next_eval = next_multiple(counters["frames"], cfg.eval_interval)
+    next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
+
+    pbar = tqdm.tqdm(
+        total=cfg.total_frames,
+        initial=counters["frames"],
+        disable=not cfg.progress,
+        unit="fr",
+        dynamic_ncols=True,
+    )
+    wall0 = time.perf_counter()
+    env_t0 = env.env_time_s
+    t_iter = time.perf_counter()
+    env_t_iter = env.env_time_s
+    for data in collector:
+        # ---- store
+        frames = data.numel()
+        counters["frames"] += frames
+        counters["iterations"] += 1
+        ended = tracker.update(data)
+        counters["episodes"] += len(ended)
+        buffer.extend(data.exclude("loc", "scale").reshape(-1))
+
+        # ---- learn (after the random warm-up)
+        losses: dict[str, list[float]] = {}
+        if counters["frames"] >= cfg.init_random_frames and len(buffer) >= cfg.batch_size:
+            for _ in range(num_updates):
+                batch, prior_rows = mixed_batch(buffer, prior, cfg)
+                warm = counters["updates"] >= cfg.critic_warmup
+                out = update.step(batch.to(cfg.device), prior_rows, train_actor=warm)
+                counters["updates"] += 1
+                for key, value in out.items():
+                    losses.setdefault(key, []).append(float(value.detach()))
+        collector.update_policy_weights_()
+
+        # ---- log
+        now = time.perf_counter()
+        env_now = env.env_time_s
+        metrics = {
+            "train/fps": frames / max(now - t_iter, 1e-9),
+            "train/env_time_share": (env_now - env_t_iter) / max(now - t_iter, 1e-9),
+            "train/env_time_share_cum": (env_now - env_t0) / max(now - wall0, 1e-9),
+            "train/updates": counters["updates"],
+            "train/buffer": len(buffer),
+            "train/reward_mean": float(data["next", "reward"].mean()),
+        }
+        t_iter, env_t_iter = now, env_now
+        for key, vals in losses.items():
+            metrics[f"train/{key}"] = float(np.mean(vals))
+        metrics.update(episode_metrics(ended))
+        metrics["train/episodes"] = counters["episodes"]
+        logger.log(metrics, counters["frames"])
+        pbar.update(frames)
+        pbar.set_postfix(progress_postfix(metrics, tracker.recent))
+
+        # ---- evaluate, checkpoint
+        if cfg.eval_interval and counters["frames"] >= next_eval:
+            next_eval = next_multiple(counters["frames"], cfg.eval_interval)
+            last_eval = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
+            logger.log({f"eval/{k}": v for k, v in last_eval.items()}, counters["frames"])
+        if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
+            next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
+            _checkpoint(log_dir, cfg, actor, update, counters, buffer)
+
+    pbar.close()
+    collector.shutdown()
+    _checkpoint(log_dir, cfg, actor, update, counters, buffer)
+    logger.close()
+    return {
+        "counters": counters,
+        "eval": last_eval,
+        "env_time_share": (env.env_time_s - env_t0) / max(time.perf_counter() - wall0, 1e-9),
+    }
+
+
+def _checkpoint(log_dir, cfg, actor, update, counters, buffer) -> None:
+    d = log_dir / "checkpoints"
+    save_checkpoint(d / f"step_{counters['frames']}.pt", cfg, actor, update, counters)
+    # The replay buffer goes with last.pt only: it is what a resumed run continues from.
+    save_checkpoint(
+        d / "last.pt", cfg, actor, update, counters, buffer if cfg.save_buffer else None
+    )

@@ -1,0 +1,81 @@
+"""The learner's env: the batched remote env of a config, and the one residual transform that
+every learner (single-car and multi-car) puts between its policy and a scripted driver."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from tensordict import TensorDictBase
+from torchrl.envs import EnvBase, Transform, TransformedEnv
+
+from sharedspace.scripted import SCRIPTED
+
+__all__ = ["ResidualAction", "make_env"]
+
+
+def make_env(
+    cfg,
+    split: str = "train",
+    num_envs: int | None = None,
+    seed: int | None = None,
+    scenario_order: str = "random",
+    variations: dict[str, Any] | None = None,
+    variation_seeds: Sequence[int] | None = None,
+    scenarios: Sequence[str] | None = None,
+) -> EnvBase:
+    """The batched env (ENV_CONTRACT.md) of ``cfg.env_spec`` (a
+    :class:`~sharedspace.train.config.TrainConfig`) on the Rust server of ``cfg.connection()``
+    (an endpoint, a zenoh file, or a ``sim-server`` this process starts). ``variations`` (and
+    fixed ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1; the trainer passes
+    ``cfg.variations`` for its training env only. ``scenarios``: sub-env ``k`` plays
+    ``scenarios[k]`` (scenes of ``split``), in sequential order. With ``cfg.base_driver`` the
+    policy's action is a residual over that script (:class:`ResidualAction`)."""
+    from sharedspace.torchrl_env import RemoteBatchedEnv
+
+    env = RemoteBatchedEnv(
+        cfg.env_spec(split, cfg.seed if seed is None else seed, variations),
+        num_envs or cfg.num_envs,
+        scenario_order=scenario_order,
+        scenarios=scenarios,
+        variation_seeds=variation_seeds,
+        client=cfg.connection(),
+    )
+    if not cfg.base_driver:
+        return env
+    return TransformedEnv(env, ResidualAction(cfg.base_driver, scale=cfg.residual_scale))
+
+
+class ResidualAction(Transform):
+    """Residual policy learning (Silver et al., 2018): on the way into the env,
+    ``action <- clamp(script(observation) + scale * action, -1, 1)``, so a policy whose action
+    is 0 drives exactly as the script does. The collected data keep the policy's own (residual)
+    action: a learner learns the residual.
+
+    Args:
+        driver: a scripted driver's name (:data:`sharedspace.scripted.SCRIPTED`).
+        group: the agent group of a multi-agent env (``"vehicle"``: its ``features``, ``mask``
+            and ``action`` are nested under the group); ``""`` for the single-car env.
+        scale: how much the policy's action weighs (multi-car learners use 2, so a residual of
+            1 overrides the script's full braking).
+    """
+
+    def __init__(self, driver: str = "car_aware", group: str = "", scale: float = 1.0):
+        if driver not in SCRIPTED:
+            raise ValueError(f"unknown scripted driver {driver!r}: one of {sorted(SCRIPTED)}")
+        self.keys = {k: (group, k) if group else k for k in ("features", "mask", "action")}
+        super().__init__(in_keys_inv=[self.keys["action"]], out_keys_inv=[self.keys["action"]])
+        self.driver_name = driver
+        self.driver = SCRIPTED[driver]()
+        self.group = group
+        self.scale = float(scale)
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        residual = tensordict.get(self.keys["action"])
+        base = self.driver(tensordict.get(self.keys["features"]), tensordict.get(self.keys["mask"]))
+        out = tensordict.clone(False)
+        out.set(self.keys["action"], (base.to(residual.dtype) + self.scale * residual).clamp(-1, 1))
+        return out
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return tensordict
