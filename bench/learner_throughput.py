@@ -65,15 +65,25 @@ def env_rate(cfg: TrainConfig, steps: int) -> dict:
     wall = time.perf_counter() - t0
     env_s = env.env_time_s - env0
     env.close()
-    return {"fps": steps * cfg.num_envs / wall, "env_share": env_s / wall, "frames": steps * cfg.num_envs}
+    return {
+        "fps": steps * cfg.num_envs / wall,
+        "env_share": env_s / wall,
+        "frames": steps * cfg.num_envs,
+    }
 
 
 def ppo_rate(base: TrainConfig, variant: str, frames: int, log_dir: Path) -> dict:
     """PPO end to end; the first iteration (allocation, first resets) is left out."""
     cfg = apply_overrides(
         base,
-        [f"variant={variant}", f"total_frames={frames}", f"log_dir={log_dir}", "eval_interval=0",
-         "checkpoint_interval=0", "progress=false"],
+        [
+            f"variant={variant}",
+            f"total_frames={frames}",
+            f"log_dir={log_dir}",
+            "eval_interval=0",
+            "checkpoint_interval=0",
+            "progress=false",
+        ],
     )
     out = train(cfg)
     rows = _metrics(log_dir)
@@ -99,12 +109,25 @@ def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
     warmup = 1000
     cfg = apply_overrides(
         base,
-        ["algorithm=sac", "variant=g_sac_cog", "num_envs=8", "reward=world",
-         f"total_frames={frames + warmup}", f"init_random_frames={warmup}", f"log_dir={log_dir}",
-         "eval_interval=0", "checkpoint_interval=0", "progress=false"],
+        [
+            "algorithm=sac",
+            "variant=g_sac_cog",
+            "num_envs=8",
+            "reward=world",
+            f"total_frames={frames + warmup}",
+            f"init_random_frames={warmup}",
+            f"log_dir={log_dir}",
+            "eval_interval=0",
+            "checkpoint_interval=0",
+            "progress=false",
+        ],
     )
     train(cfg)
-    rows = [r for r in _metrics(log_dir) if r["metric"] == "train/fps" and r["frames"] > warmup + 64]
+    rows = [
+        r
+        for r in _metrics(log_dir)
+        if r["metric"] == "train/fps" and r["frames"] > warmup + 64
+    ]
     wall = [r["wall_s"] for r in _metrics(log_dir) if r["frames"] > warmup + 64]
     n = rows[-1]["frames"] - rows[0]["frames"]
     return {"fps": n / (max(wall) - min(wall)), "frames": n}
@@ -113,11 +136,18 @@ def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
 def mappo_rate(endpoint: str, frames: int, log_dir: Path) -> dict:
     """MAPPO on the crossing task (its defaults), timed after its first batch."""
     cfg = MarlConfig(
-        algorithm="mappo", total_frames=frames, log_dir=str(log_dir), server_endpoint=endpoint,
+        algorithm="mappo",
+        total_frames=frames,
+        log_dir=str(log_dir),
+        server_endpoint=endpoint,
         eval_every=10**9,
     )
     train_marl(cfg)
-    walls = [(r["frames"], r["value"]) for r in _metrics(log_dir) if r["metric"] == "train/wall_s"]
+    walls = [
+        (r["frames"], r["value"])
+        for r in _metrics(log_dir)
+        if r["metric"] == "train/wall_s"
+    ]
     (f0, w0), (f1, w1) = walls[0], walls[-1]
     return {"fps": (f1 - f0) / (w1 - w0), "frames": f1 - f0}
 
@@ -125,38 +155,69 @@ def mappo_rate(endpoint: str, frames: int, log_dir: Path) -> dict:
 def _metrics(log_dir: Path) -> list[dict]:
     with open(log_dir / "metrics.csv") as f:
         return [
-            {"frames": int(r["frames"]), "wall_s": float(r["wall_s"]), "metric": r["metric"],
-             "value": float(r["value"])}
+            {
+                "frames": int(r["frames"]),
+                "wall_s": float(r["wall_s"]),
+                "metric": r["metric"],
+                "value": float(r["value"]),
+            }
             for r in csv.DictReader(f)
         ]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pool", default="out/table2g/pool-general.json", help="Table II-G's pool")
+    ap.add_argument(
+        "--pool", default="out/table2g/pool-general.json", help="Table II-G's pool"
+    )
     ap.add_argument("--envs", type=int, default=256, help="K, for the env and PPO")
     ap.add_argument("--rollout-steps", type=int, default=32, help="PPO's T")
-    ap.add_argument("--env-steps", type=int, default=200, help="steps of the raw env rate")
+    ap.add_argument(
+        "--env-steps", type=int, default=200, help="steps of the raw env rate"
+    )
     ap.add_argument("--ppo-frames", type=int, default=65536, help="frames per PPO run")
-    ap.add_argument("--sac-frames", type=int, default=2000, help="SAC frames after its warm-up")
+    ap.add_argument(
+        "--sac-frames", type=int, default=2000, help="SAC frames after its warm-up"
+    )
     ap.add_argument("--mappo-frames", type=int, default=40960, help="MAPPO frames")
-    ap.add_argument("--only", default="", help="comma-separated rows to run (default: all)")
+    ap.add_argument(
+        "--only", default="", help="comma-separated rows to run (default: all)"
+    )
     args = ap.parse_args()
     only = set(args.only.split(",")) if args.only else None
     results: dict[str, dict] = {}
-    with LocalServer(cfg=[f"pools:{json.dumps([args.pool])}", f'params:"{WORLD["server_params"]}"'],
-                     prefix="throughput") as server, tempfile.TemporaryDirectory() as tmp:
+    with (
+        LocalServer(
+            cfg=[
+                f"pools:{json.dumps([args.pool])}",
+                f'params:"{WORLD["server_params"]}"',
+            ],
+            prefix="throughput",
+        ) as server,
+        tempfile.TemporaryDirectory() as tmp,
+    ):
         base = TrainConfig(
-            algorithm="ppo", scenario_pool=args.pool, server_endpoint=server.endpoint,
-            server_prefix="throughput", num_envs=args.envs, rollout_steps=args.rollout_steps,
-            device="cpu", **WORLD,
+            algorithm="ppo",
+            scenario_pool=args.pool,
+            server_endpoint=server.endpoint,
+            server_prefix="throughput",
+            num_envs=args.envs,
+            rollout_steps=args.rollout_steps,
+            device="cpu",
+            **WORLD,
         )
         runs = {
             "env": lambda: env_rate(base, args.env_steps),
-            "ppo-mlp": lambda: ppo_rate(base, "s_sac", args.ppo_frames, Path(tmp) / "mlp"),
-            "ppo-gcn-cog": lambda: ppo_rate(base, "g_sac_cog", args.ppo_frames, Path(tmp) / "gcn"),
+            "ppo-mlp": lambda: ppo_rate(
+                base, "s_sac", args.ppo_frames, Path(tmp) / "mlp"
+            ),
+            "ppo-gcn-cog": lambda: ppo_rate(
+                base, "g_sac_cog", args.ppo_frames, Path(tmp) / "gcn"
+            ),
             "sac-gcn-cog": lambda: sac_rate(base, args.sac_frames, Path(tmp) / "sac"),
-            "mappo": lambda: mappo_rate(server.endpoint, args.mappo_frames, Path(tmp) / "mappo"),
+            "mappo": lambda: mappo_rate(
+                server.endpoint, args.mappo_frames, Path(tmp) / "mappo"
+            ),
         }
         for name, run in runs.items():
             if only is None or name in only:
@@ -165,8 +226,12 @@ def main() -> None:
                 results[name]["run_s"] = time.perf_counter() - t0
                 print(f"{name}: {results[name]['fps']:.0f} frames/s", flush=True)
     env_fps = results.get("env", {}).get("fps")
-    print(f"\nK = {args.envs}, T = {args.rollout_steps}; {platform.processor() or platform.machine()}")
-    print("| run | frames/s | share of the env rate | collection frames/s | update frames/s |")
+    print(
+        f"\nK = {args.envs}, T = {args.rollout_steps}; {platform.processor() or platform.machine()}"
+    )
+    print(
+        "| run | frames/s | share of the env rate | collection frames/s | update frames/s |"
+    )
     print("|---|---|---|---|---|")
     for name, r in results.items():
         share = f"{r['fps'] / env_fps:.2f}" if env_fps else "-"
@@ -177,7 +242,9 @@ def main() -> None:
         ratio = results["ppo-mlp"]["fps"] / results["sac-gcn-cog"]["fps"]
         results["ppo_mlp_over_sac"] = {"ratio": ratio}
         print(f"PPO-MLP / SAC-GCN: {ratio:.0f}x")
-    print(json.dumps({"envs": args.envs, "rollout_steps": args.rollout_steps, **results}))
+    print(
+        json.dumps({"envs": args.envs, "rollout_steps": args.rollout_steps, **results})
+    )
 
 
 if __name__ == "__main__":

@@ -47,7 +47,9 @@ def crowd_returns(pool: str, reward: str, seed: int) -> dict[str, list[float]]:
     """The script's return of one episode in every train scene of the crowd world."""
     cfg = TrainConfig(scenario_pool=pool, reward=reward, seed=seed, **CROWD_WORLD)
     n = len(split_indices(load_pool(pool), "train"))
-    env = make_env(cfg, "train", num_envs=n, scenario_order="sequential", variations=cfg.variations)
+    env = make_env(
+        cfg, "train", num_envs=n, scenario_order="sequential", variations=cfg.variations
+    )
     driver = SCRIPTED["car_aware"]()
     td = env.reset()
     total = torch.zeros(n)
@@ -66,10 +68,14 @@ def crowd_returns(pool: str, reward: str, seed: int) -> dict[str, list[float]]:
     return by_status
 
 
-def crossing_returns(client, reward: str, envs: int, seed: int) -> dict[str, list[float]]:
+def crossing_returns(
+    client, reward: str, envs: int, seed: int
+) -> dict[str, list[float]]:
     """Each car's return of its first episode in each of ``envs`` crossing training scenes."""
     task = CrossingTask()
-    env = make_crossing_env(task, "train", envs, client, seed=seed, reward_weights=REWARDS[reward])
+    env = make_crossing_env(
+        task, "train", envs, client, seed=seed, reward_weights=REWARDS[reward]
+    )
     act = scripted_act("car_aware")
     td = env.reset()
     total = torch.zeros(envs, task.cars)
@@ -95,7 +101,10 @@ def row(world: str, reward: str, by_status: dict[str, list[float]]) -> dict:
     collision (an outcome that never happened does not break the order)."""
     out: dict = {"world": world, "reward": reward}
     for status, values in by_status.items():
-        out[status] = {"n": len(values), "mean": float(np.mean(values)) if values else None}
+        out[status] = {
+            "n": len(values),
+            "mean": float(np.mean(values)) if values else None,
+        }
     means = [out[s]["mean"] for s in ("success", "timeout", "collision")]
     present = [m for m in means if m is not None]
     out["ordered"] = all(a > b for a, b in zip(present, present[1:], strict=False))
@@ -104,28 +113,48 @@ def row(world: str, reward: str, by_status: dict[str, list[float]]) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pool", default="out/table2g/pool-general.json", help="crowd world's pool")
+    ap.add_argument(
+        "--pool", default="out/table2g/pool-general.json", help="crowd world's pool"
+    )
     ap.add_argument("--envs", type=int, default=64, help="crossing training scenes")
-    ap.add_argument("--seed", type=int, default=5, help="seed of the draws of training scenes")
+    ap.add_argument(
+        "--seed", type=int, default=5, help="seed of the draws of training scenes"
+    )
     ap.add_argument("--json", default="", help="also write the rows here")
     args = ap.parse_args()
     rows = []
     for reward in REWARDS:
         rows.append(row("crowd", reward, crowd_returns(args.pool, reward, args.seed)))
-    crossing = TrainConfig().connection().open()  # a local server (the task sends its crowd)
+    crossing = (
+        TrainConfig().connection().open()
+    )  # a local server (the task sends its crowd)
     try:
         for reward in REWARDS:
-            rows.append(row("crossing", reward, crossing_returns(crossing, reward, args.envs, args.seed)))
+            rows.append(
+                row(
+                    "crossing",
+                    reward,
+                    crossing_returns(crossing, reward, args.envs, args.seed),
+                )
+            )
     finally:
         crossing.shutdown()
-    print("| world | reward | success: n, mean return | timeout | collision | ordered |")
+    print(
+        "| world | reward | success: n, mean return | timeout | collision | ordered |"
+    )
     print("|---|---|---|---|---|---|")
     for r in rows:
         cells = [
-            f"{r[s]['n']}, {r[s]['mean']:+.1f}" if r[s]["mean"] is not None else f"{r[s]['n']}, -"
+            f"{r[s]['n']}, {r[s]['mean']:+.1f}"
+            if r[s]["mean"] is not None
+            else f"{r[s]['n']}, -"
             for s in ("success", "timeout", "collision")
         ]
-        print(f"| {r['world']} | {r['reward']} {REWARDS[r['reward']] or ''} | " + " | ".join(cells) + f" | {r['ordered']} |")
+        print(
+            f"| {r['world']} | {r['reward']} {REWARDS[r['reward']] or ''} | "
+            + " | ".join(cells)
+            + f" | {r['ordered']} |"
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)

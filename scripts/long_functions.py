@@ -5,7 +5,7 @@ Rust by brace matching (strings, chars and comments stripped; `#[cfg(test)]` mod
     python3 scripts/long_functions.py [--limit 80] clients/src sim-server/src
 
 Prints `lines path name` per function over the limit, longest first; exits 1 if any is listed
-beyond those named with --allow (the trainer's one loop: `train.py:train`).
+beyond those named with --allow (the SAC loop: `sac.py:train`).
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def main() -> int:
     ap.add_argument("roots", nargs="+")
     ap.add_argument("--limit", type=int, default=80)
     ap.add_argument(
-        "--allow", nargs="*", default=["train.py:train"], help="FILE:FUNCTION"
+        "--allow", nargs="*", default=["sac.py:train"], help="FILE:FUNCTION"
     )
     args = ap.parse_args()
     found = []

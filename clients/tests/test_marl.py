@@ -15,16 +15,10 @@ from sharedspace.marl.bound import per_car_bound
 from sharedspace.marl.config import MarlConfig, apply_overrides
 from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
 from sharedspace.marl.task import CrossingTask, make_env
+from sharedspace.marl import masac
+from sharedspace.marl.networks import make_actor
+from sharedspace.marl.train import train
 from sharedspace.train.envs import ResidualAction
-from sharedspace.marl.train import (
-    learn,
-    make_actor,
-    make_buffer,
-    make_critic,
-    make_loss,
-    make_optimizer,
-    train,
-)
 
 #: Two cars through the crossing, two test scenes: a few seconds per run.
 TINY_TASK = CrossingTask(cars=2, pedestrians=6, density=0.03, test_scenes=2)
@@ -79,10 +73,10 @@ def test_each_algorithm_trains_against_a_live_server_and_resumes(algorithm, sim_
 def test_masac_moves_only_its_critics_until_the_actor_warmup_ends(sim_server, tmp_path):
     cfg = _tiny("masac", sim_server, tmp_path, total_frames=64)
     env = make_env(TINY_TASK, "train", 4, _connection(sim_server))
-    actor, critic = make_actor(cfg, TINY_TASK), make_critic(cfg, TINY_TASK)
-    loss = make_loss(cfg, actor, critic)
-    optim = make_optimizer(cfg, loss)
-    buffer = make_buffer(cfg, 64)
+    actor, critic = make_actor(cfg, TINY_TASK), masac.make_critic(cfg, TINY_TASK)
+    loss = masac.make_loss(cfg, actor, critic)
+    optim = masac.make_optimizer(cfg, loss)
+    buffer = masac.make_buffer(cfg, 64)
     with torch.no_grad():  # as a collector gathers its batches
         data = env.rollout(8, actor)
     env.close()
@@ -94,10 +88,10 @@ def test_masac_moves_only_its_critics_until_the_actor_warmup_ends(sim_server, tm
         return any(not torch.equal(a, b) for a, b in zip(before, module.parameters(), strict=True))
 
     actor_before, critic_before = snapshot(actor), snapshot(loss.qvalue_network_params)
-    learn(cfg, loss, optim, buffer, data, None, frames=cfg.actor_warmup_frames - 1)
+    masac.learn(cfg, loss, optim, buffer, data, None, frames=cfg.actor_warmup_frames - 1)
     assert not moved(actor_before, actor), "the actor moved during the critics' warm-up"
     assert moved(critic_before, loss.qvalue_network_params)
-    learn(cfg, loss, optim, buffer, data, None, frames=cfg.actor_warmup_frames)
+    masac.learn(cfg, loss, optim, buffer, data, None, frames=cfg.actor_warmup_frames)
     assert moved(actor_before, actor)
 
 

@@ -50,16 +50,29 @@ def test_ppo_iterations_learn_for_every_network(variant, sim_server, tmp_path):
     actor, the losses are finite, the feature normalisation has seen the batches, and the
     metrics name where the time went."""
     cfg = load_config(
-        None, [*TINY, *_remote(sim_server), f"variant={variant}", "total_frames=96",
-               f"log_dir={tmp_path}"]
+        None,
+        [
+            *TINY,
+            *_remote(sim_server),
+            f"variant={variant}",
+            "total_frames=96",
+            f"log_dir={tmp_path}",
+        ],
     )
     out = train(cfg)
     assert out["counters"]["frames"] == 96 and out["counters"]["iterations"] == 3
     assert out["counters"]["updates"] == 3 * 2 * 2  # iterations x epochs x minibatches
     rows = list(csv.DictReader((tmp_path / "metrics.csv").open()))
     names = {r["metric"] for r in rows}
-    assert {"train/fps", "train/collect_s", "train/update_s", "train/loss_objective",
-            "train/loss_critic", "train/env_time_share_cum", "train/kl_approx"} <= names
+    assert {
+        "train/fps",
+        "train/collect_s",
+        "train/update_s",
+        "train/loss_objective",
+        "train/loss_critic",
+        "train/env_time_share_cum",
+        "train/kl_approx",
+    } <= names
     for r in rows:
         assert torch.isfinite(torch.tensor(float(r["value"]))), r
     ckpt = load_checkpoint(tmp_path / "checkpoints" / "last.pt")

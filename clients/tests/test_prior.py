@@ -19,6 +19,7 @@ from sharedspace.names import Feature  # noqa: E402
 from sharedspace.paper.demos import record_demos, record_episodes  # noqa: E402
 from sharedspace.paper.drivers import make_driver  # noqa: E402
 from sharedspace.train.config import TrainConfig, apply_overrides, load_config  # noqa: E402
+from sharedspace.train.envs import make_env  # noqa: E402
 from sharedspace.train.prior import (  # noqa: E402
     KEYS,
     PriorDataError,
@@ -27,7 +28,6 @@ from sharedspace.train.prior import (  # noqa: E402
     world_of,
     write_prior,
 )
-from sharedspace.train.envs import make_env  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
 M = 5

@@ -17,13 +17,13 @@ from sharedspace.train.config import (  # noqa: E402
     apply_overrides,
     load_config,
 )
+from sharedspace.train.envs import make_env  # noqa: E402
 from sharedspace.train.gcn import (  # noqa: E402
     GCNLayer,
     GraphEncoder,
     normalized_adjacency,
     uniform_adjacency,
 )
-from sharedspace.train.envs import make_env  # noqa: E402
 from sharedspace.train.sac import make_actor, make_critic  # noqa: E402
 
 

@@ -33,10 +33,10 @@ from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Compose
 
 from sharedspace.client import Connection
-from sharedspace.train.envs import ResidualAction
-from sharedspace.train.reward import LEARNER_REWARD
 from sharedspace.marl.task import CrossingTask, FlatObservation, make_env
 from sharedspace.torchrl_multiagent import AGENT_OUTCOME_KEYS
+from sharedspace.train.envs import ResidualAction
+from sharedspace.train.reward import LEARNER_REWARD
 
 __all__ = ["SharedspaceClass", "SharedspaceTask", "run_mappo", "main"]
 

@@ -17,6 +17,7 @@ __all__ = ["ALGORITHMS", "MarlConfig", "apply_overrides"]
 #: Q-critics, off-policy).
 ALGORITHMS = ("mappo", "ippo", "masac")
 
+
 @dataclass
 class MarlConfig:
     """Every knob of a multi-car run (``python -m sharedspace.marl --set key=value``)."""

@@ -21,7 +21,7 @@ from sharedspace.client import Connection, SimClient
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.names import Feature
 from sharedspace.scripted import SCRIPTED
-from sharedspace.stats import wilson
+from sharedspace.train.evaluation import STATUSES, outcome_rates
 
 __all__ = [
     "STATUSES",
@@ -33,7 +33,6 @@ __all__ = [
     "summarize",
 ]
 
-STATUSES = ("success", "collision", "timeout")
 #: ``act(td, step) -> actions [K, A, 2]`` (the env's actions, in [-1, 1]) from the grouped
 #: observation ``td`` (keys ``("vehicle", "features")``, ``("vehicle", "mask")``) at step ``step``.
 Act = Callable[[TensorDictBase, int], torch.Tensor]
@@ -124,14 +123,7 @@ def play(
 def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Per-car rates with Wilson 95 % intervals: ``success``, ``collision`` (any), ``timeout``,
     ``car_collision`` (with another car), over all cars, and each car's success."""
-    n = len(rows)
-    out: dict[str, Any] = {"car_episodes": n}
-    for key in (*STATUSES, "car_collision"):
-        hits = sum(
-            r["car_collision"] if key == "car_collision" else r["status"] == key for r in rows
-        )
-        lo, hi = wilson(hits, n)
-        out[key] = {"rate": hits / max(n, 1), "count": hits, "ci95": [lo, hi]}
+    out: dict[str, Any] = {"car_episodes": len(rows), **outcome_rates(rows, ("car_collision",))}
     cars = sorted({r["car"] for r in rows})
     out["success_by_car"] = {
         c: float(np.mean([r["status"] == "success" for r in rows if r["car"] == c])) for c in cars

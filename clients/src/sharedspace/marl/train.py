@@ -1,4 +1,5 @@
-"""MAPPO, IPPO and MASAC on the crossing task, top to bottom.
+"""MAPPO, IPPO and MASAC on the crossing task: the loop, top to bottom (each algorithm's pieces are
+in its own file: :mod:`.mappo` for MAPPO and IPPO, :mod:`.masac`).
 
     python -m sharedspace.marl --set algorithm=mappo --set seed=0 [--resume]
 
@@ -22,138 +23,28 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
-from torch import nn
 from torchrl.collectors import Collector
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.data.replay_buffers.samplers import RandomSampler, SamplerWithoutReplacement
 from torchrl.envs import TransformedEnv
-from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal, ValueOperator
-from torchrl.objectives import ClipPPOLoss, SACLoss, SoftUpdate, ValueEstimators
 
+from sharedspace.marl import mappo, masac
 from sharedspace.marl.config import MarlConfig
-from sharedspace.train.config import apply_overrides
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
-from sharedspace.marl.task import CarObservation, CrossingTask, make_env
-from sharedspace.names import NODE_FEATURES
+from sharedspace.marl.networks import GROUP, make_actor
+from sharedspace.marl.task import CrossingTask, make_env
+from sharedspace.train.config import apply_overrides
 from sharedspace.train.envs import ResidualAction
 from sharedspace.train.metrics import MetricLogger
 
-__all__ = ["make_actor", "make_critic", "make_loss", "make_optimizer", "train", "main"]
+__all__ = ["ALGORITHM_MODULES", "batch_outcomes", "train", "main"]
 
-GROUP = "vehicle"
-OBS = (GROUP, "observation")
-ACTION = (GROUP, "action")
-
-
-def _observation() -> TensorDictModule:
-    return TensorDictModule(
-        CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
-    )
-
-
-def make_actor(cfg: MarlConfig, task: CrossingTask) -> ProbabilisticActor:
-    """Tanh-normal policy per car; at initialisation its mean is ~0 (the script's action, for a
-    residual learner) and its standard deviation ``init_scale``."""
-    obs_dim = task.max_agents * (NODE_FEATURES + 1)
-    mlp = MultiAgentMLP(
-        n_agent_inputs=obs_dim,
-        n_agent_outputs=4,
-        n_agents=task.cars,
-        centralized=False,
-        share_params=cfg.share_params,
-        depth=cfg.depth,
-        num_cells=cfg.hidden,
-        activation_class=nn.Tanh,
-    )
-    with torch.no_grad():  # the last layer: mean and raw scale start near 0
-        for p in list(mlp.parameters())[-2:]:  # the output layer's weight and bias
-            p.mul_(0.01)
-    head = TensorDictModule(
-        nn.Sequential(mlp, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}")),
-        in_keys=[OBS],
-        out_keys=[(GROUP, "loc"), (GROUP, "scale")],
-    )
-    return ProbabilisticActor(
-        module=TensorDictSequential(_observation(), head),
-        in_keys=[(GROUP, "loc"), (GROUP, "scale")],
-        out_keys=[ACTION],
-        distribution_class=TanhNormal,
-        distribution_kwargs={"low": -1.0, "high": 1.0},
-        return_log_prob=True,
-    )
-
-
-def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
-    """PPO: the state value per car (centralised for MAPPO). MASAC: ``Q(s, a)`` per car over
-    every car's observation and action."""
-    obs_dim = task.max_agents * (NODE_FEATURES + 1)
-    sac = cfg.algorithm == "masac"
-    mlp = MultiAgentMLP(
-        n_agent_inputs=obs_dim + (2 if sac else 0),
-        n_agent_outputs=1,
-        n_agents=task.cars,
-        centralized=cfg.algorithm != "ippo",
-        share_params=cfg.share_params,
-        depth=cfg.depth,
-        num_cells=cfg.hidden,
-        activation_class=nn.Tanh,
-    )
-    value = ValueOperator(
-        module=mlp,
-        in_keys=[OBS, ACTION] if sac else [OBS],
-        out_keys=[(GROUP, "state_action_value" if sac else "state_value")],
-    )
-    return TensorDictSequential(_observation(), value)
-
-
-def make_loss(cfg: MarlConfig, actor, critic) -> nn.Module:
-    """TorchRL's ``ClipPPOLoss`` with GAE, or ``SACLoss`` with TD(0), on the group's keys."""
-    keys = dict(
-        reward=(GROUP, "reward"),
-        action=ACTION,
-        done=(GROUP, "done"),
-        terminated=(GROUP, "terminated"),
-    )
-    if cfg.algorithm == "masac":
-        loss = SACLoss(
-            actor_network=actor,
-            qvalue_network=critic,
-            num_qvalue_nets=2,
-            delay_qvalue=True,
-            alpha_init=cfg.alpha_init,
-            target_entropy=-2.0,  # per car: -|A|
-        )
-        loss.set_keys(state_action_value=(GROUP, "state_action_value"), **keys)
-        loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
-        return loss
-    loss = ClipPPOLoss(
-        actor_network=actor,
-        critic_network=critic,
-        clip_epsilon=cfg.clip_epsilon,
-        entropy_coeff=cfg.entropy_coeff,
-        normalize_advantage=True,
-        normalize_advantage_exclude_dims=(-2,),  # each car's advantages normalised apart
-    )
-    loss.set_keys(value=(GROUP, "state_value"), **keys)
-    loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
-    return loss
-
-
-def make_optimizer(cfg: MarlConfig, loss: nn.Module) -> torch.optim.Optimizer:
-    """Adam over the loss's parameters. MASAC's actor gets its own, smaller rate: Adam moves
-    each weight by about the rate per step whatever the gradient's size, and 40 steps at the
-    critics' rate shift the residual's mean by about 1 (measured: the residual turned the
-    script's 0.70 success into 0.03 within one batch)."""
-    if cfg.algorithm != "masac":
-        return torch.optim.Adam(loss.parameters(), cfg.lr)
-    actor = list(loss.actor_network_params.values(True, True))
-    others = [p for p in loss.parameters() if all(p is not a for a in actor)]
-    return torch.optim.Adam([{"params": actor, "lr": cfg.actor_lr}, {"params": others}], cfg.lr)
+#: Each algorithm's module (``make_critic``, ``make_loss``, ``make_optimizer``, ``make_buffer``,
+#: ``make_target_update``, ``learn``); MAPPO and IPPO differ only in their critic's input.
+ALGORITHM_MODULES: dict[str, ModuleType] = {"mappo": mappo, "ippo": mappo, "masac": masac}
 
 
 def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
@@ -165,66 +56,6 @@ def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
         for s in (*STATUSES, "car_collision"):
             out[f"train/{s}"] = float(nxt[f"episode_{s}"].sum()) / ended
     return out
-
-
-def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
-    """SAC: a replay buffer sampled at random. PPO: the last batch, in minibatches without
-    replacement."""
-    if cfg.algorithm == "masac":
-        return TensorDictReplayBuffer(
-            storage=LazyTensorStorage(cfg.buffer_size),
-            sampler=RandomSampler(),
-            batch_size=cfg.batch_size,
-        )
-    return TensorDictReplayBuffer(
-        storage=LazyTensorStorage(frames_per_batch),
-        sampler=SamplerWithoutReplacement(),
-        batch_size=cfg.minibatch_size,
-    )
-
-
-def learn(
-    cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
-) -> dict:
-    """One collected batch's gradient steps: PPO's epochs of minibatches over the batch (its
-    advantages by GAE first), or SAC's ``utd_ratio`` updates per frame from the replay buffer.
-    SAC trains only its critics for the first ``actor_warmup_frames``: Adam moves the actor's
-    mean by about ``lr`` per weight and step whatever the gradient's size, so an untrained
-    critic would drag the residual far off the script within one batch. Returns the last
-    step's losses (``train/loss_*``)."""
-    sac = cfg.algorithm == "masac"
-    warmup = sac and frames < cfg.actor_warmup_frames
-    if sac:
-        buffer.extend(data.reshape(-1))
-        updates = max(1, round(cfg.utd_ratio * data.numel()))
-    else:
-        with torch.no_grad():
-            loss.value_estimator(
-                data,
-                params=loss.critic_network_params,
-                target_params=loss.target_critic_network_params,
-            )
-        buffer.extend(data.reshape(-1))
-        updates = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
-    for _ in range(updates):
-        sample = buffer.sample()
-        out = loss(sample)
-        if sac and cfg.residual_penalty and not warmup:
-            # keeps the residual near 0 (the script) unless the critics disagree by more
-            loc = loss.actor_network(sample.clone())[GROUP, "loc"]
-            out["loss_residual"] = cfg.residual_penalty * loc.pow(2).mean()
-        total = (
-            out["loss_qvalue"]
-            if warmup
-            else sum(v for k, v in out.items() if k.startswith("loss_"))
-        )
-        optim.zero_grad()
-        total.backward()
-        nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
-        optim.step()
-        if target_update is not None:
-            target_update.step()
-    return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
 
 
 def _evaluate(task, actor, cfg, client) -> tuple[list[dict[str, Any]], dict[str, Any]]:
@@ -256,12 +87,12 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
     )
     if cfg.base_driver:
         env = TransformedEnv(env, ResidualAction(cfg.base_driver, GROUP, cfg.residual_scale))
+    algo = ALGORITHM_MODULES[cfg.algorithm]
     actor = make_actor(cfg, task)
-    critic = make_critic(cfg, task)
-    loss = make_loss(cfg, actor, critic)
-    optim = make_optimizer(cfg, loss)
-    sac = cfg.algorithm == "masac"
-    target_update = SoftUpdate(loss, eps=1.0 - cfg.tau) if sac else None
+    critic = algo.make_critic(cfg, task)
+    loss = algo.make_loss(cfg, actor, critic)
+    optim = algo.make_optimizer(cfg, loss)
+    target_update = algo.make_target_update(cfg, loss)
 
     frames, iteration, wall = 0, 0, 0.0
     ckpt_path = log_dir / "checkpoint.pt"
@@ -281,7 +112,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         frames_per_batch=max(frames_per_batch, cfg.num_envs),
         total_frames=cfg.total_frames - frames,
     )
-    buffer = make_buffer(cfg, frames_per_batch)
+    buffer = algo.make_buffer(cfg, frames_per_batch)
     logger = MetricLogger(log_dir, tensorboard=False)
     next_eval = (frames // cfg.eval_every + 1) * cfg.eval_every
     t0 = time.perf_counter() - wall
@@ -289,7 +120,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         frames += data.numel()
         iteration += 1
         metrics = batch_outcomes(data)
-        metrics.update(learn(cfg, loss, optim, buffer, data, target_update, frames))
+        metrics.update(algo.learn(cfg, loss, optim, buffer, data, target_update, frames))
         collector.update_policy_weights_()
         wall = time.perf_counter() - t0
         metrics["train/wall_s"] = wall

@@ -46,9 +46,9 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
+from sharedspace.train.envs import make_env
 from sharedspace.train.evaluation import STATUSES
 from sharedspace.train.prior import KEYS, read_header, world_of, write_prior
-from sharedspace.train.envs import make_env
 
 __all__ = ["RECIPE", "TRAINING_VARIATIONS", "record_episodes", "record_demos", "main"]
 

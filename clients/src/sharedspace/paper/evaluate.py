@@ -38,6 +38,7 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
+from sharedspace.train.envs import make_env
 from sharedspace.train.evaluation import (
     STATUSES,
     evaluate_split,
@@ -45,7 +46,6 @@ from sharedspace.train.evaluation import (
     summarize,
 )
 from sharedspace.train.learners import load_checkpoint_actor
-from sharedspace.train.envs import make_env
 
 __all__ = [
     "COLUMNS",

@@ -47,6 +47,7 @@ PPO_ONLY = (
     "max_grad_norm",
     "reward_scale",
     "normalize_obs",
+    "update_threads",
 )
 SAC_ONLY = (
     "frames_per_batch",
@@ -81,6 +82,8 @@ class UnknownFieldError(ConfigError, KeyError):
 
     def __str__(self) -> str:  # KeyError quotes its message
         return str(self.args[0])
+
+
 #: Fields of older configs, ignored when one is loaded (``env_backend``: the Rust server is
 #: the only backend).
 RETIRED_FIELDS = ("env_backend",)
@@ -93,9 +96,8 @@ class TrainConfig:
     # --- run
     algorithm: str = "sac"  # sac (the paper's SAC-GCN) | ppo (on-policy, wide batches)
     seed: int = 0  # seed of torch, numpy and the env's scenario sequence
-    variant: str = (
-        "g_sac_cog"  # network: g_sac_cog (GCN, A = risk graph) | g_sac_nocog (GCN, uniform A) |
-    )  # s_sac (MLP); gcn_cog, gcn_nocog, mlp name the same networks
+    variant: str = "g_sac_cog"  # network: g_sac_cog (GCN on the risk graph) | g_sac_nocog (GCN,
+    #                             uniform graph) | s_sac (MLP); or gcn_cog, gcn_nocog, mlp
     total_frames: int = 200_000  # env transitions to collect (summed over the K sub-envs)
     device: str = "auto"  # torch device of the networks and updates; auto = cuda if torch sees one
     num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
@@ -131,6 +133,7 @@ class TrainConfig:
     max_grad_norm: float = 0.5  # global gradient-norm clip
     reward_scale: float = 0.1  # rewards are multiplied by this before GAE (value targets ~1)
     normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm)
+    update_threads: int = 0  # torch CPU threads while updating (0 = every core: the server idles)
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
@@ -214,11 +217,14 @@ class TrainConfig:
         defaults = {f.name: f for f in dataclasses.fields(self)}
         for name in other:
             f = defaults[name]
-            default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            default = (
+                f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            )
             if getattr(self, name) != default:
+                owner = "sac" if self.algorithm == "ppo" else "ppo"
                 raise ConfigError(
-                    f"{name} is an option of algorithm={'sac' if self.algorithm == 'ppo' else 'ppo'}"
-                    f", and this config's algorithm is {self.algorithm}"
+                    f"{name} is an option of algorithm={owner}, and this config's algorithm "
+                    f"is {self.algorithm}"
                 )
 
     @property
@@ -234,7 +240,6 @@ class TrainConfig:
         out |= {"vehicle_model": self.vehicle_model, "variations": dict(self.variations)}
         out["reward"] = {"name": self.reward, "weights": self.world_reward_weights}
         return out
-
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split``, ``seed`` and scene
@@ -310,9 +315,7 @@ def parse_value(key: str, text: str, like: Any) -> Any:
                 raise ValueError("not a JSON object")
             return value
     except ValueError as exc:
-        raise ConfigError(
-            f"--set {key}={text}: expected {type(like).__name__} ({exc})"
-        ) from None
+        raise ConfigError(f"--set {key}={text}: expected {type(like).__name__} ({exc})") from None
     return text
 
 

@@ -14,6 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sharedspace.names import Feature
 from sharedspace.pool import load_pool, split_indices
+from sharedspace.stats import wilson
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import make_env
 
@@ -21,6 +22,7 @@ __all__ = [
     "METRICS",
     "STATUSES",
     "evaluate_split",
+    "outcome_rates",
     "run_episodes",
     "summarize",
 ]
@@ -84,14 +86,30 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
     return [r for r in records if r is not None]
 
 
+def outcome_rates(
+    rows: Sequence[dict[str, Any]], flags: Sequence[str] = ()
+) -> dict[str, dict[str, Any]]:
+    """How episodes ended: for each of :data:`STATUSES` (a row's ``status``) and each boolean
+    field of ``flags``, its ``rate``, ``count`` and Wilson 95 % interval ``ci95``. The one
+    outcome summary of every learner (single-car rows here, per-car rows in ``marl``)."""
+    n = len(rows)
+    out: dict[str, dict[str, Any]] = {}
+    for key in (*STATUSES, *flags):
+        hits = sum(bool(r[key]) if key in flags else r["status"] == key for r in rows)
+        lo, hi = wilson(hits, n)
+        out[key] = {"rate": hits / max(n, 1), "count": hits, "ci95": [lo, hi]}
+    return out
+
+
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
-    """Means over episodes (``MetricsSummary::of``): status shares and metric means."""
+    """Means over episodes (``MetricsSummary::of``): status shares (:func:`outcome_rates`)
+    and metric means."""
     n = len(episodes)
     if n == 0:
         return {"episodes": 0, **dict.fromkeys(STATUSES + METRICS, 0.0)}
     row: dict[str, float] = {"episodes": n}
-    for s in STATUSES:
-        row[s] = sum(e["status"] == s for e in episodes) / n
+    for s, rate in outcome_rates(episodes).items():
+        row[s] = rate["rate"]
     for key in METRICS:
         row[key] = float(np.mean([e[key] for e in episodes]))
     return row

@@ -145,10 +145,8 @@ class FeatureNorm(nn.Module):
             mean = (hs * ms).sum((0, 1)) / n
             var = ((hs - mean) ** 2 * ms).sum((0, 1)) / n
             total = self.count[role] + n
-            delta = mean - self.mean[role]
-            self.var[role] = (
-                self.var[role] * self.count[role] + var * n + delta**2 * self.count[role] * n / total
-            ) / total
+            delta, seen = mean - self.mean[role], self.count[role]
+            self.var[role] = (self.var[role] * seen + var * n + delta**2 * seen * n / total) / total
             self.mean[role] += delta * n / total
             self.count[role] = total
 

@@ -24,6 +24,8 @@ events and ``checkpoints/{step_<frames>,last}.pt``.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
 from typing import Any
 
@@ -165,7 +167,13 @@ class PPOUpdate(nn.Module):
                 grad_norm = nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
                 self.optimizer.step()
                 steps += 1
-                for key in ("loss_objective", "loss_critic", "loss_entropy", "clip_fraction", "kl_approx"):
+                for key in (
+                    "loss_objective",
+                    "loss_critic",
+                    "loss_entropy",
+                    "clip_fraction",
+                    "kl_approx",
+                ):
                     if key in out.keys():
                         sums[key] = sums.get(key, 0.0) + float(out[key].detach())
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
@@ -173,7 +181,9 @@ class PPOUpdate(nn.Module):
             self.norm.update(*_scaled(self.actor, flat))
         stats = {k: v / max(steps, 1) for k, v in sums.items()}
         value, target = flat["state_value"], flat["value_target"]
-        stats["explained_variance"] = float(1 - (target - value).var() / target.var().clamp_min(1e-8))
+        stats["explained_variance"] = float(
+            1 - (target - value).var() / target.var().clamp_min(1e-8)
+        )
         stats["gradient_steps"] = steps
         return stats
 
@@ -212,35 +222,30 @@ def make_collector(cfg: TrainConfig, env: EnvBase, actor, total_frames: int) -> 
 
 def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     """Runs PPO on ``cfg``; returns the final counters, the last evaluation's summary and
-    where the time went."""
+    where the time went (``timing``: collection, of it the env's round trips, updates,
+    evaluations; seconds)."""
     log_dir = start_run(cfg)
 
-    # ---- counters, possibly from a checkpoint
+    # ---- counters, env, networks and learner, possibly from a checkpoint
     ckpt = load_checkpoint(resume, cfg.device) if resume else None
     counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0}
-    if ckpt is not None:
-        counters.update(ckpt["counters"])
+    counters.update(ckpt["counters"] if ckpt is not None else {})
     seed_everything(cfg.seed + counters["frames"])
-
-    # ---- env, networks, learner
     env = make_env(
         cfg, split="train", seed=cfg.seed + counters["frames"], variations=cfg.variations
     )
     actor = make_actor(cfg, env.action_spec_unbatched)
     update = make_update(cfg, actor)
     if ckpt is not None:
-        actor.load_state_dict(ckpt["actor"])
-        update.load_state_dict(ckpt["learner"])
-        update.load_optimizer_state(ckpt["optimizers"])
-        torch.set_rng_state(ckpt["torch_rng"])
+        _restore(ckpt, actor, update)
     remaining = max(cfg.total_frames - counters["frames"], 0)
     logger = MetricLogger(log_dir)
+    clock = Clock(env)
     last_eval: dict[str, float] = {}
-    timing = {"collect_s": 0.0, "update_s": 0.0, "env_s": 0.0, "eval_s": 0.0}
     if remaining == 0:
         env.close()
         logger.close()
-        return {"counters": counters, "eval": last_eval, "timing": timing}
+        return {"counters": counters, "eval": last_eval, "timing": clock.timing}
     collector = make_collector(cfg, env, actor, remaining)
     tracker = EpisodeTracker(cfg.num_envs)
     next_eval = next_multiple(counters["frames"], cfg.eval_interval)
@@ -252,67 +257,101 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         unit="fr",
         dynamic_ncols=True,
     )
-    wall0 = t_collect = time.perf_counter()
-    env_t0 = env.env_time_s
     for data in collector:
-        # ---- collected: outcomes of the episodes that ended
-        t_update = time.perf_counter()
-        timing["collect_s"] += t_update - t_collect
-        frames = data.numel()
-        counters["frames"] += frames
+        # ---- collected: the outcomes of the episodes that ended
+        clock.collected()
+        counters["frames"] += data.numel()
         counters["iterations"] += 1
         ended = tracker.update(data)
         counters["episodes"] += len(ended)
         reward_mean = float(data["next", "reward"].mean())
+        action_scale = float(data["scale"].mean())  # the policy's spread (before the tanh)
 
-        # ---- learn
+        # ---- learn (the server waits meanwhile: every core may serve the update)
+        torch.set_num_threads(cfg.update_threads or os.cpu_count() or 1)
         stats = update.step(data)
+        torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
         counters["updates"] += int(stats.pop("gradient_steps"))
         collector.update_policy_weights_()
-        now = time.perf_counter()
-        timing["update_s"] += now - t_update
-        timing["env_s"] = env.env_time_s - env_t0
+        clock.updated()
 
         # ---- log
-        iteration_s = now - t_collect
-        train_s = timing["collect_s"] + timing["update_s"]
-        metrics = {
-            "train/fps": frames / max(iteration_s, 1e-9),
-            "train/fps_cum": (counters["frames"] - (cfg.total_frames - remaining)) / train_s,
-            "train/collect_s": t_update - t_collect,
-            "train/update_s": now - t_update,
-            "train/env_time_share_cum": timing["env_s"] / max(train_s, 1e-9),
-            "train/wall_s": train_s,
-            "train/reward_mean": reward_mean,
-            "train/episodes": counters["episodes"],
-            **{f"train/{k}": v for k, v in stats.items()},
-            **episode_metrics(ended),
-        }
+        metrics = clock.metrics(data.numel()) | {f"train/{k}": v for k, v in stats.items()}
+        metrics |= {"train/reward_mean": reward_mean, "train/action_scale": action_scale}
+        metrics["train/episodes"] = counters["episodes"]
+        metrics |= episode_metrics(ended)
         logger.log(metrics, counters["frames"])
-        pbar.update(frames)
+        pbar.update(data.numel())
         pbar.set_postfix(progress_postfix(metrics, tracker.recent))
 
         # ---- evaluate (curves only: nothing is chosen on them), checkpoint
         if cfg.eval_interval and counters["frames"] >= next_eval:
             next_eval = next_multiple(counters["frames"], cfg.eval_interval)
-            t_eval = time.perf_counter()
-            last_eval = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
-            timing["eval_s"] += time.perf_counter() - t_eval
-            logger.log(
-                {f"eval/{k}": v for k, v in last_eval.items()} | {"eval/train_wall_s": train_s},
-                counters["frames"],
-            )
+            with clock.evaluating():
+                last_eval = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
+            eval_row = {f"eval/{k}": v for k, v in last_eval.items()}
+            logger.log(eval_row | {"eval/train_wall_s": clock.train_s}, counters["frames"])
         if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
             next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
             _checkpoint(log_dir, cfg, actor, update, counters)
-        t_collect = time.perf_counter()
+        clock.collecting()
 
     pbar.close()
     collector.shutdown()
     _checkpoint(log_dir, cfg, actor, update, counters)
     logger.close()
-    timing["wall_s"] = time.perf_counter() - wall0
-    return {"counters": counters, "eval": last_eval, "timing": timing}
+    return {"counters": counters, "eval": last_eval, "timing": clock.timing}
+
+
+def _restore(ckpt: dict[str, Any], actor, update: PPOUpdate) -> None:
+    actor.load_state_dict(ckpt["actor"])
+    update.load_state_dict(ckpt["learner"])
+    update.load_optimizer_state(ckpt["optimizers"])
+    torch.set_rng_state(ckpt["torch_rng"])
+
+
+class Clock:
+    """Where a run's wall time goes: collection (of it, the env's round trips), updates and
+    evaluations, in seconds (``timing``), and each iteration's ``train/*`` rates."""
+
+    def __init__(self, env):
+        self.env = env
+        self.env0 = env.env_time_s
+        self.timing = {"collect_s": 0.0, "env_s": 0.0, "update_s": 0.0, "eval_s": 0.0}
+        self.t_collect = self.t_update = time.perf_counter()
+
+    @property
+    def train_s(self) -> float:
+        """Collection plus updates: the run's wall time without its evaluations."""
+        return self.timing["collect_s"] + self.timing["update_s"]
+
+    def collecting(self) -> None:
+        self.t_collect = time.perf_counter()
+
+    def collected(self) -> None:
+        self.t_update = time.perf_counter()
+        self.timing["collect_s"] += self.t_update - self.t_collect
+        self.timing["env_s"] = self.env.env_time_s - self.env0
+
+    def updated(self) -> None:
+        self.t_done = time.perf_counter()
+        self.timing["update_s"] += self.t_done - self.t_update
+
+    def metrics(self, frames: int) -> dict[str, float]:
+        collect_s, update_s = self.t_update - self.t_collect, self.t_done - self.t_update
+        return {
+            "train/fps": frames / max(collect_s + update_s, 1e-9),
+            "train/collect_s": collect_s,
+            "train/update_s": update_s,
+            "train/env_time_share_cum": self.timing["env_s"] / max(self.train_s, 1e-9),
+            "train/wall_s": self.train_s,
+        }
+
+    @contextlib.contextmanager
+    def evaluating(self):
+        t0 = time.perf_counter()
+        yield
+        self.timing["eval_s"] += time.perf_counter() - t0
 
 
 def _checkpoint(log_dir, cfg, actor, update, counters) -> None:

@@ -10,6 +10,7 @@ metric, value; metrics namespaced ``train/`` and ``eval/``), TensorBoard events,
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,21 +25,21 @@ from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import make_env
 from sharedspace.train.evaluation import evaluate_split
+from sharedspace.train.gcn import QNet
 from sharedspace.train.metrics import (
     EpisodeTracker,
     MetricLogger,
     episode_metrics,
     progress_postfix,
 )
-from sharedspace.train.prior import clone, make_prior, mixed_batch
-from sharedspace.train.run import next_multiple, seed_everything, start_run
-from sharedspace.train.gcn import QNet
 from sharedspace.train.policy import (
     OBS_KEYS,
     RESIDUAL_INIT_SCALE,
     make_encoder,
     make_gaussian_actor,
 )
+from sharedspace.train.prior import clone, make_prior, mixed_batch
+from sharedspace.train.run import next_multiple, seed_everything, start_run
 from sharedspace.train.update import SACUpdate
 
 __all__ = [
@@ -50,6 +51,7 @@ __all__ = [
     "make_collector",
     "train",
 ]
+
 
 def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
     """Graph encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``; a

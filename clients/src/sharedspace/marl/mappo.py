@@ -1,0 +1,100 @@
+"""MAPPO and IPPO (TorchRL's ``sota-implementations/multiagent/mappo_ippo.py``): a state-value
+critic per car, over every car's observation (MAPPO, centralised) or its own (IPPO); TorchRL's
+``ClipPPOLoss`` with GAE; ``ppo_epochs`` passes of minibatches over each collected batch.
+
+Every multi-car algorithm's module has the same functions: ``make_critic``, ``make_loss``,
+``make_optimizer``, ``make_buffer``, ``make_target_update`` and ``learn``
+(:mod:`sharedspace.marl.train` is the loop over them)."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictSequential
+from torch import nn
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+from torchrl.modules import ValueOperator
+from torchrl.objectives import ClipPPOLoss, ValueEstimators
+
+from sharedspace.marl.config import MarlConfig
+from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
+from sharedspace.marl.task import CrossingTask
+
+__all__ = [
+    "learn",
+    "make_buffer",
+    "make_critic",
+    "make_loss",
+    "make_optimizer",
+    "make_target_update",
+]
+
+
+def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
+    """The state value per car (centralised for MAPPO)."""
+    mlp = agents_mlp(cfg, task, extra_inputs=0, outputs=1, centralized=cfg.algorithm == "mappo")
+    value = ValueOperator(module=mlp, in_keys=[OBS], out_keys=[(GROUP, "state_value")])
+    return TensorDictSequential(observation(), value)
+
+
+def make_loss(cfg: MarlConfig, actor, critic) -> ClipPPOLoss:
+    """TorchRL's ``ClipPPOLoss`` with GAE on the group's keys; each car's advantages are
+    normalised apart."""
+    loss = ClipPPOLoss(
+        actor_network=actor,
+        critic_network=critic,
+        clip_epsilon=cfg.clip_epsilon,
+        entropy_coeff=cfg.entropy_coeff,
+        normalize_advantage=True,
+        normalize_advantage_exclude_dims=(-2,),  # each car's advantages normalised apart
+    )
+    loss.set_keys(
+        reward=(GROUP, "reward"),
+        action=ACTION,
+        done=(GROUP, "done"),
+        terminated=(GROUP, "terminated"),
+        value=(GROUP, "state_value"),
+    )
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
+    return loss
+
+
+def make_optimizer(cfg: MarlConfig, loss: nn.Module) -> torch.optim.Optimizer:
+    return torch.optim.Adam(loss.parameters(), cfg.lr)
+
+
+def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
+    """The last batch, in minibatches without replacement."""
+    return TensorDictReplayBuffer(
+        storage=LazyTensorStorage(frames_per_batch),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=cfg.minibatch_size,
+    )
+
+
+def make_target_update(cfg: MarlConfig, loss: nn.Module) -> None:
+    """PPO has no target networks."""
+    return None
+
+
+def learn(
+    cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
+) -> dict[str, float]:
+    """One collected batch: advantages by GAE, then ``ppo_epochs`` passes of minibatches.
+    Returns the last step's losses (``train/loss_*``)."""
+    with torch.no_grad():
+        loss.value_estimator(
+            data,
+            params=loss.critic_network_params,
+            target_params=loss.target_critic_network_params,
+        )
+    buffer.extend(data.reshape(-1))
+    for _ in range(cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)):
+        out = loss(buffer.sample())
+        total = sum(v for k, v in out.items() if k.startswith("loss_"))
+        optim.zero_grad()
+        total.backward()
+        nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+        optim.step()
+    return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
