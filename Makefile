@@ -13,7 +13,7 @@ UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build wheel marl benchmarl serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
+.PHONY: help run build wheel ppo marl benchmarl serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -205,6 +205,21 @@ marl: $(SERVER) $(VENV)/.installed ## several learning cars: MAPPO, IPPO, MASAC 
 benchmarl: $(SERVER) $(BENCHMARL_VENV)/.installed ## one BenchMARL MAPPO experiment on the crossing task (its own venv; results/marl/benchmarl/)
 	SHAREDSPACE_SIM_SERVER=$(SERVER) $(BENCHMARL_VENV)/bin/python -m sharedspace.marl.benchmarl_task --out results/marl/benchmarl
 
+# PPO from scratch on Table II-G's world (docs/RESULTS.md, "PPO from scratch"): PPO_VARIANT
+# (g_sac_cog, g_sac_nocog, s_sac), PPO_SEEDS, PPO_FRAMES; curves on the test scenes (never used to
+# choose anything), the last checkpoint is the run's policy.
+PPO_VARIANT ?= g_sac_cog
+PPO_SEEDS ?= 0 1 2
+PPO_FRAMES ?= 6000000
+ppo: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## PPO from scratch on Table II-G's world, 3 seeds (results/ppo/runs/)
+	for seed in $(PPO_SEEDS); do \
+		$(PY) -m sharedspace.train --set algorithm=ppo variant=$(PPO_VARIANT) seed=$$seed \
+			total_frames=$(PPO_FRAMES) scenario_pool=$(GENERAL_POOL) max_agents=10 \
+			server_params=params/table2g.json5 '$(TABLE2G_VARIATIONS)' \
+			eval_interval=524288 checkpoint_interval=2097152 \
+			log_dir=results/ppo/runs/crowd-scratch-$(PPO_VARIANT)-s$$seed || exit 1; \
+	done
+
 demos: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## prior data: demonstrations on the train scenes of Table II-G's and Table II's worlds (out/demos/)
 	$(PY) -m sharedspace.paper.demos --pool $(GENERAL_POOL) --params params/table2g.json5 \
 		--set max_agents=10 --out $(DEMOS_G)
@@ -214,8 +229,8 @@ demos: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## prior data: demonstration
 # car-aware script, LayerNorm critics, UTD 1, critic warm-up, a BC term toward the script.
 RECIPE := base_driver=car_aware critic_layer_norm=true utd_ratio=1 init_random_frames=0 \
 	alpha_init=0.01 critic_warmup=2000 bc_weight=0.2
-TABLE2G_WORLD := max_agents=10 server_params=params/table2g.json5 \
-	variations={"position_sigma":0.5,"start_offset_steps":2,"desired_speed_scale":0.2,"mirror":true}
+TABLE2G_VARIATIONS := variations={"position_sigma":0.5,"start_offset_steps":2,"desired_speed_scale":0.2,"mirror":true}
+TABLE2G_WORLD := max_agents=10 server_params=params/table2g.json5 $(TABLE2G_VARIATIONS)
 table2g: $(SERVER) $(VENV)/.installed ## Table II-G, the crowded benchmark: hbs-general with reactive traffic, 3 variants x 3 seeds (docs/RESULTS.md)
 	TABLE2_POOL=general TABLE2_OUT=$${TABLE2_OUT:-out/table2g_residual} TABLE2_PARAMS=params/table2g.json5 \
 		TABLE2_FRAMES=$${TABLE2_FRAMES:-15000} TABLE2_CKPT=5000 TABLE2_EVAL=0 TABLE2_DOC= \

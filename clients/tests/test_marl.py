@@ -11,12 +11,12 @@ import pytest
 import torch
 
 from sharedspace.client import Connection
+from sharedspace.marl import masac
 from sharedspace.marl.bound import per_car_bound
 from sharedspace.marl.config import MarlConfig, apply_overrides
 from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
-from sharedspace.marl.task import CrossingTask, make_env
-from sharedspace.marl import masac
 from sharedspace.marl.networks import make_actor
+from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.marl.train import train
 from sharedspace.train.envs import ResidualAction
 

@@ -36,6 +36,7 @@ from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
 from sharedspace.marl.networks import GROUP, make_actor
 from sharedspace.marl.task import CrossingTask, make_env
+from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import apply_overrides
 from sharedspace.train.envs import ResidualAction
 from sharedspace.train.metrics import MetricLogger
@@ -96,11 +97,12 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
 
     frames, iteration, wall = 0, 0, 0.0
     ckpt_path = log_dir / "checkpoint.pt"
+    learner = LossAndOptimizer(loss, optim)
     if resume and ckpt_path.exists():
-        ckpt = torch.load(ckpt_path, weights_only=False)
-        loss.load_state_dict(ckpt["loss"])
-        optim.load_state_dict(ckpt["optim"])
-        frames, iteration, wall = ckpt["frames"], ckpt["iteration"], ckpt["wall_s"]
+        ckpt = load_checkpoint(ckpt_path)
+        learner.load(ckpt)
+        counters = ckpt["counters"]
+        frames, iteration, wall = counters["frames"], counters["iterations"], counters["wall_s"]
     if frames >= cfg.total_frames:
         env.close()
         return json.loads((log_dir / "eval.json").read_text())["summary"]
@@ -129,15 +131,15 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
             for key in (*STATUSES, "car_collision"):
                 metrics[f"eval/{key}"] = summary[key]["rate"]
             next_eval += cfg.eval_every
-            torch.save(
-                {
-                    "loss": loss.state_dict(),
-                    "optim": optim.state_dict(),
-                    "frames": frames,
-                    "iteration": iteration,
-                    "wall_s": wall,
-                },
+            counters = {"frames": frames, "iterations": iteration, "wall_s": wall}
+            save_checkpoint(
                 ckpt_path,
+                cfg,
+                actor,
+                learner,
+                counters,
+                network=network(cfg),
+                world=world(cfg, task),
             )
         logger.log(metrics, frames)
     collector.shutdown()
@@ -156,6 +158,35 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
 
 def _task_dict(task: CrossingTask) -> dict[str, Any]:
     return {k: v for k, v in vars(task).items()}
+
+
+def network(cfg: MarlConfig) -> str:
+    """What a checkpoint names the multi-car learners' network."""
+    return f"MultiAgentMLP {cfg.depth}x{cfg.hidden} (shared: {cfg.share_params})"
+
+
+def world(cfg: MarlConfig, task: CrossingTask) -> dict[str, Any]:
+    """What a checkpoint records of the world: the task and the reward."""
+    reward = {"name": cfg.reward, "weights": cfg.world_reward_weights}
+    return {"task": _task_dict(task), "reward": reward}
+
+
+class LossAndOptimizer:
+    """A TorchRL loss and its optimiser as :func:`~sharedspace.train.checkpoint.save_checkpoint`
+    keeps a learner."""
+
+    def __init__(self, loss: torch.nn.Module, optim: torch.optim.Optimizer):
+        self.loss, self.optim = loss, optim
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.loss.state_dict()
+
+    def optimizer_state(self) -> dict[str, Any]:
+        return {"adam": self.optim.state_dict()}
+
+    def load(self, ckpt: dict[str, Any]) -> None:
+        self.loss.load_state_dict(ckpt["learner"])
+        self.optim.load_state_dict(ckpt["optimizers"]["adam"])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -43,7 +43,7 @@ from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import make_env
 from sharedspace.train.evaluation import evaluate_split
-from sharedspace.train.gcn import FeatureNorm, mlp
+from sharedspace.train.gcn import FeatureNorm, GraphEncoder, mlp
 from sharedspace.train.metrics import (
     EpisodeTracker,
     MetricLogger,
@@ -87,9 +87,14 @@ def make_actor(
     )
 
 
+def encoder_of(actor: ProbabilisticActor) -> GraphEncoder:
+    """The graph encoder inside an actor of :func:`make_actor`."""
+    return actor.module[0].module.net.encoder
+
+
 def feature_norm_of(actor: ProbabilisticActor) -> FeatureNorm | None:
     """The feature normalisation inside a PPO actor (None without)."""
-    return actor.module[0].module.net.encoder.norm
+    return encoder_of(actor).norm
 
 
 class ValueNet(nn.Module):
@@ -137,7 +142,6 @@ class PPOUpdate(nn.Module):
             deactivate_vmap=True,  # the encoders trim padding nodes: a data-dependent shape
         )
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
-        self.norm = feature_norm_of(actor)
         self.log_prob_key = self.loss.tensor_keys.sample_log_prob
 
     def step(self, data: TensorDictBase) -> dict[str, float]:
@@ -177,8 +181,7 @@ class PPOUpdate(nn.Module):
                     if key in out.keys():
                         sums[key] = sums.get(key, 0.0) + float(out[key].detach())
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
-        if self.norm is not None:
-            self.norm.update(*_scaled(self.actor, flat))
+        encoder_of(self.actor).update_norm(flat["features"], flat["mask"])
         stats = {k: v / max(steps, 1) for k, v in sums.items()}
         value, target = flat["state_value"], flat["value_target"]
         stats["explained_variance"] = float(
@@ -192,13 +195,6 @@ class PPOUpdate(nn.Module):
 
     def load_optimizer_state(self, state: dict[str, Any]) -> None:
         self.optimizer.load_state_dict(state["adam"])
-
-
-def _scaled(actor, flat: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-    """The batch's features as the encoder sees them before normalisation, and the mask."""
-    encoder = actor.module[0].module.net.encoder
-    m = flat["mask"].to(flat["features"].dtype).unsqueeze(-1)
-    return flat["features"] / encoder.scale * m, m
 
 
 def make_update(cfg: TrainConfig, actor: ProbabilisticActor) -> PPOUpdate:
@@ -229,7 +225,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     # ---- counters, env, networks and learner, possibly from a checkpoint
     ckpt = load_checkpoint(resume, cfg.device) if resume else None
     counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0}
-    counters.update(ckpt["counters"] if ckpt is not None else {})
+    counters |= ckpt["counters"] if ckpt is not None else {}
     seed_everything(cfg.seed + counters["frames"])
     env = make_env(
         cfg, split="train", seed=cfg.seed + counters["frames"], variations=cfg.variations
@@ -258,8 +254,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         dynamic_ncols=True,
     )
     for data in collector:
-        # ---- collected: the outcomes of the episodes that ended
-        clock.collected()
+        clock.collected()  # ---- collected: the outcomes of the episodes that ended
         counters["frames"] += data.numel()
         counters["iterations"] += 1
         ended = tracker.update(data)

@@ -112,7 +112,7 @@ def world_of(cfg: TrainConfig) -> dict[str, Any]:
         "pedestrian_model": cfg.pedestrian_model,
         "vehicle_model": cfg.vehicle_model,
         "reward_terms": list(REWARD_TERMS),
-        "reward_weights": dict(sorted(cfg.reward_weights.items())),
+        "reward_weights": dict(sorted(cfg.world_reward_weights.items())),
         "protocol_version": PROTOCOL_VERSION,
     }
 
