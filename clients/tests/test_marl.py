@@ -18,6 +18,7 @@ from sharedspace.marl.evaluate import paired_difference, play, scripted_act, sum
 from sharedspace.marl.networks import make_actor
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.marl.train import train
+from sharedspace.train.checkpoint import FORMAT, load_checkpoint
 from sharedspace.train.envs import ResidualAction
 
 #: Two cars through the crossing, two test scenes: a few seconds per run.
@@ -29,20 +30,22 @@ def _connection(sim_server) -> Connection:
 
 
 def _tiny(algorithm: str, sim_server, log_dir, total_frames: int) -> MarlConfig:
+    own = (
+        {"batch_size": 32, "utd_ratio": 0.25, "actor_warmup_frames": 128}
+        if algorithm == "masac"
+        else {"minibatch_size": 32}
+    )
     return MarlConfig(
         algorithm=algorithm,
         total_frames=total_frames,
         num_envs=4,
         frames_per_batch=64,
-        minibatch_size=32,
-        batch_size=32,
-        utd_ratio=0.25,
-        actor_warmup_frames=128,
         hidden=16,
         eval_every=128,
         log_dir=str(log_dir),
         server_endpoint=sim_server.endpoint,
         server_prefix=sim_server.prefix,
+        **own,
     )
 
 
@@ -64,6 +67,9 @@ def test_each_algorithm_trains_against_a_live_server_and_resumes(algorithm, sim_
     losses = {"mappo": "loss_objective", "ippo": "loss_critic", "masac": "loss_qvalue"}
     assert f"train/{losses[algorithm]}" in metrics and "eval/success" in metrics
     assert _frames_logged(tmp_path)[-1] == 192
+    ckpt = load_checkpoint(tmp_path / "checkpoint.pt")  # the learners' one checkpoint format
+    assert (ckpt["format"], ckpt["algorithm"]) == (FORMAT, algorithm)
+    assert ckpt["world"]["reward"]["name"] == "learner" and "task" in ckpt["world"]
     # Resumed with a larger budget, the run goes on from its checkpoint's frames.
     train(apply_overrides(cfg, ["total_frames=320"]), TINY_TASK, resume=True)
     frames = _frames_logged(tmp_path)
@@ -167,3 +173,11 @@ def test_bad_configs_name_what_was_wrong():
         "danger": 2
     }
     assert np.isclose(apply_overrides(MarlConfig(), ["lr=1"]).lr, 1.0)
+    with pytest.raises(ValueError, match="utd_ratio is an option of algorithm=masac"):
+        apply_overrides(MarlConfig(), ["utd_ratio=1"])
+    with pytest.raises(ValueError, match="ppo_epochs is an option of algorithm=mappo"):
+        MarlConfig(algorithm="masac", ppo_epochs=2)
+    with pytest.raises(ValueError, match="a residual without a script"):
+        apply_overrides(MarlConfig(), ["base_driver=", "residual_scale=1"])
+    with pytest.raises(ValueError, match="reward"):
+        apply_overrides(MarlConfig(), ["reward=sparse"])

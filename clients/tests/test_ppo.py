@@ -23,6 +23,7 @@ from sharedspace.train.config import (  # noqa: E402
 from sharedspace.train.envs import make_env  # noqa: E402
 from sharedspace.train.gcn import FeatureNorm  # noqa: E402
 from sharedspace.train.learners import load_checkpoint_actor  # noqa: E402
+from sharedspace.train.reward import LEARNER_REWARD  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
 TINY = [
@@ -170,7 +171,7 @@ def test_the_algorithm_fills_in_what_was_left_to_it():
     changes the algorithm of a config already made; set, they stay."""
     ppo_cfg = apply_overrides(TrainConfig(), ["algorithm=ppo"])
     assert (ppo_cfg.num_envs, ppo_cfg.reward) == (256, "learner")
-    assert ppo_cfg.world_reward_weights == {"danger": 2.0, "collision": -100.0}
+    assert ppo_cfg.world_reward_weights == LEARNER_REWARD
     sac_cfg = apply_overrides(ppo_cfg, ["algorithm=sac"])
     assert (sac_cfg.num_envs, sac_cfg.reward, sac_cfg.world_reward_weights) == (8, "world", {})
     kept = apply_overrides(TrainConfig(), ["num_envs=32", "reward=learner", "algorithm=sac"])

@@ -8,7 +8,7 @@ from typing import Any
 
 from sharedspace.client import Connection
 from sharedspace.scripted import SCRIPTED
-from sharedspace.train.config import ConfigError, apply_overrides
+from sharedspace.train.config import ConfigError, apply_overrides, check_algorithm_options
 from sharedspace.train.reward import REWARDS
 
 __all__ = ["ALGORITHMS", "MarlConfig", "apply_overrides"]
@@ -16,6 +16,20 @@ __all__ = ["ALGORITHMS", "MarlConfig", "apply_overrides"]
 #: MAPPO (shared centralised critic), IPPO (each car's own critic input), MASAC (centralised
 #: Q-critics, off-policy).
 ALGORITHMS = ("mappo", "ippo", "masac")
+#: The options only some algorithms read: giving one to another is an error naming it.
+OPTIONS_OF = {
+    ("mappo", "ippo"): ("ppo_epochs", "minibatch_size", "clip_epsilon", "entropy_coeff", "lmbda"),
+    ("masac",): (
+        "utd_ratio",
+        "batch_size",
+        "buffer_size",
+        "tau",
+        "alpha_init",
+        "actor_warmup_frames",
+        "actor_lr",
+        "residual_penalty",
+    ),
+}
 
 
 @dataclass
@@ -67,6 +81,7 @@ class MarlConfig:
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm must be one of {ALGORITHMS}, got {self.algorithm!r}")
+        check_algorithm_options(self, OPTIONS_OF)
         for name in ("total_frames", "num_envs", "frames_per_batch", "minibatch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")

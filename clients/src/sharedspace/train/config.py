@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import json
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from sharedspace.wire import EnvSpec
 __all__ = [
     "ALGORITHMS",
     "ConfigError",
+    "check_algorithm_options",
     "VARIANTS",
     "TrainConfig",
     "apply_overrides",
@@ -48,6 +50,7 @@ PPO_ONLY = (
     "reward_scale",
     "normalize_obs",
     "update_threads",
+    "anneal_lr",
 )
 SAC_ONLY = (
     "frames_per_batch",
@@ -134,6 +137,7 @@ class TrainConfig:
     reward_scale: float = 0.1  # rewards are multiplied by this before GAE (value targets ~1)
     normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm)
     update_threads: int = 0  # torch CPU threads while updating (0 = every core: the server idles)
+    anneal_lr: bool = True  # lr falls linearly to 0 at total_frames (CleanRL, TorchRL's sota PPO)
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
@@ -178,7 +182,7 @@ class TrainConfig:
             raise ConfigError(
                 f"variant must be one of {VARIANTS + tuple(NETWORK_ALIASES)}, not {self.variant!r}"
             )
-        self._check_algorithm_options()
+        check_algorithm_options(self, {("sac",): SAC_ONLY, ("ppo",): PPO_ONLY})
         # Fields left to the algorithm or the machine are filled in; `_auto` remembers which,
         # so that an override of the algorithm fills them in again (`unresolved`).
         self._auto = {"num_envs": 0, "reward": "", "device": "auto"}
@@ -210,22 +214,6 @@ class TrainConfig:
         for name in ("total_frames", "num_envs", "rollout_steps", "ppo_epochs", "minibatch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, not {getattr(self, name)}")
-
-    def _check_algorithm_options(self) -> None:
-        """An option of the other algorithm, set away from its default, is an error."""
-        other = SAC_ONLY if self.algorithm == "ppo" else PPO_ONLY
-        defaults = {f.name: f for f in dataclasses.fields(self)}
-        for name in other:
-            f = defaults[name]
-            default = (
-                f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-            )
-            if getattr(self, name) != default:
-                owner = "sac" if self.algorithm == "ppo" else "ppo"
-                raise ConfigError(
-                    f"{name} is an option of algorithm={owner}, and this config's algorithm "
-                    f"is {self.algorithm}"
-                )
 
     @property
     def world_reward_weights(self) -> dict[str, float]:
@@ -289,6 +277,26 @@ class TrainConfig:
         """:meth:`to_dict` with the fields this config filled in by itself (``num_envs``,
         ``reward``, ``device``) as they were given: what overrides apply over."""
         return self.to_dict() | getattr(self, "_auto", {})
+
+
+def check_algorithm_options(cfg, options_of: dict[tuple[str, ...], Sequence[str]]) -> None:
+    """An option that only other algorithms than ``cfg.algorithm`` read, set away from its
+    default, is a :class:`ConfigError` naming it (``options_of``: algorithms -> the options only
+    they read): it would silently do nothing."""
+    defaults = {f.name: f for f in dataclasses.fields(cfg)}
+    for owners, names in options_of.items():
+        if cfg.algorithm in owners:
+            continue
+        for name in names:
+            f = defaults[name]
+            unset = (
+                f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            )
+            if getattr(cfg, name) != unset:
+                raise ConfigError(
+                    f"{name} is an option of algorithm={'|'.join(owners)}, and this config's "
+                    f"algorithm is {cfg.algorithm}"
+                )
 
 
 def parse_value(key: str, text: str, like: Any) -> Any:

@@ -144,10 +144,14 @@ class PPOUpdate(nn.Module):
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
         self.log_prob_key = self.loss.tensor_keys.sample_log_prob
 
-    def step(self, data: TensorDictBase) -> dict[str, float]:
-        """Learns from ``data`` (rewards already as the env gave them); returns the means of
-        the losses and of the clip fraction, KL estimate and explained variance."""
+    def step(self, data: TensorDictBase, frames: int = 0) -> dict[str, float]:
+        """Learns from ``data`` (rewards as the env gave them), ``frames`` into the run (with
+        ``anneal_lr`` the learning rate is ``lr * (1 - frames / total_frames)``); returns the
+        means of the losses and of the clip fraction, KL estimate and explained variance."""
         cfg = self.cfg
+        if cfg.anneal_lr:
+            for group in self.optimizer.param_groups:
+                group["lr"] = cfg.lr * max(1.0 - frames / cfg.total_frames, 0.0)
         data = data.to(cfg.device)
         data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
         with torch.no_grad():
@@ -188,6 +192,7 @@ class PPOUpdate(nn.Module):
             1 - (target - value).var() / target.var().clamp_min(1e-8)
         )
         stats["gradient_steps"] = steps
+        stats["lr"] = self.optimizer.param_groups[0]["lr"]
         return stats
 
     def optimizer_state(self) -> dict[str, Any]:
@@ -264,7 +269,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
 
         # ---- learn (the server waits meanwhile: every core may serve the update)
         torch.set_num_threads(cfg.update_threads or os.cpu_count() or 1)
-        stats = update.step(data)
+        stats = update.step(data, counters["frames"] - data.numel())
         torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
         counters["updates"] += int(stats.pop("gradient_steps"))
         collector.update_policy_weights_()
@@ -282,10 +287,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         # ---- evaluate (curves only: nothing is chosen on them), checkpoint
         if cfg.eval_interval and counters["frames"] >= next_eval:
             next_eval = next_multiple(counters["frames"], cfg.eval_interval)
-            with clock.evaluating():
-                last_eval = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
-            eval_row = {f"eval/{k}": v for k, v in last_eval.items()}
-            logger.log(eval_row | {"eval/train_wall_s": clock.train_s}, counters["frames"])
+            last_eval = _evaluate(cfg, actor, clock, logger, counters["frames"])
         if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
             next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
             _checkpoint(log_dir, cfg, actor, update, counters)
@@ -294,8 +296,20 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     pbar.close()
     collector.shutdown()
     _checkpoint(log_dir, cfg, actor, update, counters)
+    if cfg.eval_interval and last_eval.get("frames") != counters["frames"]:  # the run's policy
+        last_eval = _evaluate(cfg, actor, clock, logger, counters["frames"])
     logger.close()
     return {"counters": counters, "eval": last_eval, "timing": clock.timing}
+
+
+def _evaluate(cfg, actor, clock: Clock, logger: MetricLogger, frames: int) -> dict[str, float]:
+    """Every scene of ``eval_split`` once, deterministic; logged as ``eval/*`` with the
+    training wall time so far. A curve: nothing is chosen on it."""
+    with clock.evaluating():
+        summary = evaluate_split(cfg, actor, cfg.eval_split)["summary"] | {"frames": frames}
+    row = {f"eval/{k}": v for k, v in summary.items() if k != "frames"}
+    logger.log(row | {"eval/train_wall_s": clock.train_s}, frames)
+    return summary
 
 
 def _restore(ckpt: dict[str, Any], actor, update: PPOUpdate) -> None:
