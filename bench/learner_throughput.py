@@ -107,8 +107,9 @@ def ppo_rate(base: TrainConfig, variant: str, frames: int, log_dir: Path) -> dic
 def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
     """SAC-GCN with its defaults, timed over the batches after its random warm-up."""
     warmup = 1000
+    world = {k: getattr(base, k) for k in ("scenario_pool", "server_endpoint", "server_prefix")}
     cfg = apply_overrides(
-        base,
+        TrainConfig(device="cpu", **world, **WORLD),
         [
             "algorithm=sac",
             "variant=g_sac_cog",
@@ -133,13 +134,14 @@ def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
     return {"fps": n / (max(wall) - min(wall)), "frames": n}
 
 
-def mappo_rate(endpoint: str, frames: int, log_dir: Path) -> dict:
+def mappo_rate(endpoint: str, prefix: str, frames: int, log_dir: Path) -> dict:
     """MAPPO on the crossing task (its defaults), timed after its first batch."""
     cfg = MarlConfig(
         algorithm="mappo",
         total_frames=frames,
         log_dir=str(log_dir),
         server_endpoint=endpoint,
+        server_prefix=prefix,
         eval_every=10**9,
     )
     train_marl(cfg)

@@ -137,7 +137,7 @@ class TrainConfig:
     reward_scale: float = 0.1  # rewards are multiplied by this before GAE (value targets ~1)
     normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm)
     update_threads: int = 0  # torch CPU threads while updating (0 = every core: the server idles)
-    anneal_lr: bool = True  # lr falls linearly to 0 at total_frames (CleanRL, TorchRL's sota PPO)
+    anneal_lr: bool = False  # lr falls linearly to 0 at total_frames (CleanRL, TorchRL sota PPO)
     # --- SAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
     init_random_frames: int = 5_000  # frames collected by a uniform random policy first
