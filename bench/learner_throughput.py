@@ -218,7 +218,7 @@ def main() -> None:
             ),
             "sac-gcn-cog": lambda: sac_rate(base, args.sac_frames, Path(tmp) / "sac"),
             "mappo": lambda: mappo_rate(
-                server.endpoint, args.mappo_frames, Path(tmp) / "mappo"
+                server.endpoint, "throughput", args.mappo_frames, Path(tmp) / "mappo"
             ),
         }
         for name, run in runs.items():
