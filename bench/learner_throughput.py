@@ -38,17 +38,7 @@ from sharedspace.train.config import TrainConfig, apply_overrides
 from sharedspace.train.envs import make_env
 from sharedspace.train.train import train
 
-#: Table II-G's world as the learners train in it (the Makefile's TABLE2G_WORLD).
-WORLD = {
-    "max_agents": 10,
-    "server_params": "params/table2g.json5",
-    "variations": {
-        "position_sigma": 0.5,
-        "start_offset_steps": 2,
-        "desired_speed_scale": 0.2,
-        "mirror": True,
-    },
-}
+from script_returns import CROWD_WORLD as WORLD  # this folder: Table II-G's world
 
 
 def env_rate(cfg: TrainConfig, steps: int) -> dict:
