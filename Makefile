@@ -70,17 +70,10 @@ wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel and the Python packag
 	$(UV) build --quiet --wheel --out-dir $(DIST) clients; status=$$?; rm -rf $(PAGE_IN_PACKAGE); exit $$status
 	@ls -l $(DIST)/*.whl
 
-# cargo-modules reads a crate's items and uses (rust-analyzer); scripts/module_cycles.py collapses
-# them to modules. Built once into .tools/ at opt-level 1: about 60 % of a release build's time,
-# and it reads the four crates about as fast.
-CARGO_MODULES := .tools/bin/cargo-modules
-$(CARGO_MODULES):
-	CARGO_PROFILE_RELEASE_OPT_LEVEL=1 CARGO_PROFILE_RELEASE_CODEGEN_UNITS=256 \
-		CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_DEBUG=false \
-		$(CARGO) install cargo-modules --version 0.27.0 --locked --root .tools
-
-cycles: $(CARGO_MODULES) $(VENV)/.installed ## no import cycle between the modules of any crate or of the Python package, and its layers
-	PATH="$(CURDIR)/.tools/bin:$$PATH" $(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
+# scripts/module_cycles.py reads the crates' `use` paths from their source (scripts/rust_uses.py):
+# no tool to build.
+cycles: $(VENV)/.installed ## no import cycle between the modules of any crate or of the Python package, and its layers
+	$(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 browser: ## Debian's chromium + chromium-driver (the viewer's browser test)
@@ -99,10 +92,10 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
 	$(SERVER) router --config deploy/router.json5 $(ARGS)
 
-test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(CARGO_MODULES) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
+test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
-	PATH="$(CURDIR)/.tools/bin:$$PATH" $(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
+	$(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
 	$(PYTHON) scripts/long_functions.py --limit 80 sim-server/src clients/src
 	$(CARGO) test --workspace
 	$(CARGO) build -p sim-server

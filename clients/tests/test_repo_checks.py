@@ -10,6 +10,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 
 import long_functions  # noqa: E402
 import module_cycles  # noqa: E402
+import rust_uses  # noqa: E402
 
 MODULES = {"c", "c::a", "c::b", "c::d", "c::d::x", "c::d::y"}
 
@@ -26,6 +27,49 @@ def test_uses_within_a_module_and_of_ancestors_are_no_sibling_edges():
     assert not module_cycles.sibling_edges(MODULES, uses)
     deeper = module_cycles.sibling_edges(MODULES, [("c::d::x::f", "c::d::y::g")])
     assert module_cycles.cycles(deeper["c::d"]) == []
+
+
+def _crate(tmp_path, files: dict[str, str]):
+    (tmp_path / "Cargo.toml").write_text('[package]\nname = "tiny-crate"\n')
+    for name, text in files.items():
+        path = tmp_path / "src" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return tmp_path
+
+
+def test_a_planted_cycle_in_rust_source_fails_the_check(tmp_path, capsys):
+    crate = _crate(
+        tmp_path,
+        {
+            "lib.rs": "pub mod a;\npub mod b;\npub use a::Thing;\n",
+            "a.rs": "pub struct Thing;\npub fn f() { crate::b::g() }\n",
+            # through the crate root's re-export: b -> a, closing a -> b -> a
+            "b.rs": "use crate::Thing;\npub fn g() { let _t = Thing; }\n",
+        },
+    )
+    assert module_cycles.main([str(crate)]) == 1
+    out = capsys.readouterr().out
+    assert "cycle among the modules of tiny_crate: tiny_crate::a, tiny_crate::b" in out
+
+
+def test_tests_comments_and_strings_make_no_rust_uses(tmp_path):
+    crate = _crate(
+        tmp_path,
+        {
+            "lib.rs": "mod a;\nmod b;\n",
+            "a/mod.rs": "mod inner { pub fn h() { super::super::b::g(); } }\npub fn f() {}\n",
+            "b.rs": (
+                "// crate::a::f()\n/* use crate::a; /* nested */ */\n"
+                'pub fn g() { let _s = "crate::a::f()"; }\n'
+                "#[cfg(test)]\nmod tests {\n    use crate::a::f;\n}\n"
+            ),
+        },
+    )
+    modules, uses = rust_uses.module_uses(crate)
+    assert modules == {"tiny_crate", "tiny_crate::a", "tiny_crate::a::inner", "tiny_crate::b"}
+    assert uses == [("tiny_crate::a::inner", "tiny_crate::b")]
+    assert module_cycles.main([str(crate)]) == 0
 
 
 def test_long_functions_are_measured_in_both_languages(tmp_path):

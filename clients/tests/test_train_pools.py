@@ -73,6 +73,12 @@ def test_the_validation_pool_holds_out_train_scenes_and_never_the_test_split(tmp
     assert json.loads(out.read_text()) == pool
     with pytest.raises(ValueError, match="between 1 and"):
         validation_pool(paper, len(train))
+    assert pool["name"] == f"{paper['name']}-validation"
+
+
+def test_the_validation_pool_keeps_the_worlds_vehicle_model():
+    paper = {**_paper(), "vehicle_model": "idm"}
+    assert validation_pool(paper, 12)["vehicle_model"] == "idm", "its cars react as the test's do"
 
 
 def test_one_pool_reader_lists_a_file_a_document_a_list_and_leaves_a_name_to_the_server():
