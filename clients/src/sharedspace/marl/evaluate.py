@@ -21,7 +21,7 @@ from sharedspace.client import Connection, SimClient
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.names import Feature
 from sharedspace.scripted import SCRIPTED
-from sharedspace.train.evaluation import STATUSES, outcome_rates
+from sharedspace.episodes import STATUSES, outcome_rates
 
 __all__ = [
     "STATUSES",

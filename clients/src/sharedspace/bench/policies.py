@@ -1,0 +1,267 @@
+"""Any policy, as the benchmark plays it: one ``act(td) -> actions`` over a batch of
+observations (``[K, 2]`` for one car per env, ``[K, A, 2]`` for the crossing task's cars).
+
+A policy spec is one of:
+
+- a scripted driver's name (:data:`sharedspace.scripted.SCRIPTED`: ``car_aware``,
+  ``pursuit_3``, ...), the one registry of drivers;
+- a checkpoint file (``.pt``) written by ``python -m sharedspace.train`` (SAC, PPO) or
+  ``python -m sharedspace.marl`` (MAPPO, IPPO, MASAC), residual learners with their script;
+  its recorded world must be the task's;
+- ``module:function``, an importable callable;
+- a callable ``(obs) -> action`` over one agent's PettingZoo observation (a dict of numpy
+  arrays ``features [M, 11]``, ``adjacency [M, M]``, ``mask [M]``) returning ``[2]`` in
+  ``[-1, 1]``;
+- a TorchRL module (a ``TensorDictModuleBase``) that reads the env's tensordict and writes
+  ``action`` (``("vehicle", "action")`` on the crossing task); played deterministically.
+
+Only a checkpoint imports the trainers (:mod:`sharedspace.train`, :mod:`sharedspace.marl`):
+a function or a driver is scored with none of them loaded.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from sharedspace.bench.tasks import REPO, BenchError, Task
+from sharedspace.scripted import SCRIPTED
+
+__all__ = ["Policy", "make_policy"]
+
+#: The crossing task's agent group (TorchRL's multi-agent layout).
+GROUP = "vehicle"
+
+
+@dataclass
+class Policy:
+    """A policy the benchmark can play: ``act(td)`` gives the actions of a batch; ``name`` and
+    ``source`` say what it is in a result."""
+
+    name: str
+    source: dict[str, Any]
+    act: Callable[[TensorDictBase], torch.Tensor]
+
+
+def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
+    """The :class:`Policy` of ``spec`` (see the module's doc) for ``task``; a
+    :class:`~sharedspace.bench.tasks.BenchError` for a spec it cannot play."""
+    if isinstance(spec, str | Path):
+        text = str(spec)
+        if text in SCRIPTED:
+            return _scripted(text, task, name)
+        if text.endswith(".pt") or Path(text).is_file():
+            return _checkpoint(Path(text), task, name)
+        if ":" in text:
+            return _imported(text, task, name)
+        raise BenchError(
+            f"policy {text!r}: not a scripted driver ({', '.join(sorted(SCRIPTED))}), "
+            "a checkpoint file (.pt) or module:function"
+        )
+    if isinstance(spec, TensorDictModuleBase):
+        act = _module_act(spec, _action_key(task))
+        return Policy(name or type(spec).__name__, {"kind": "module"}, act)
+    if callable(spec):
+        label = getattr(spec, "__qualname__", type(spec).__name__)
+        return Policy(name or label, {"kind": "function", "function": label}, _function_act(spec))
+    raise BenchError(f"policy {spec!r}: give a driver name, a checkpoint, a callable or a module")
+
+
+def _obs(td: TensorDictBase, task: Task) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    root = td.get(GROUP) if task.crossing is not None else td
+    return root.get("features"), root.get("adjacency"), root.get("mask")
+
+
+def _scripted(driver: str, task: Task, name: str) -> Policy:
+    module = SCRIPTED[driver]()
+
+    def act(td: TensorDictBase) -> torch.Tensor:
+        features, _, mask = _obs(td, task)
+        return module(features, mask)
+
+    return Policy(name or driver, {"kind": "driver", "driver": driver}, act)
+
+
+def _function_act(fn: Callable[[dict[str, np.ndarray]], Any]) -> Callable:
+    """Calls ``fn`` on each agent's observation, as a PettingZoo env hands it over."""
+
+    def act(td: TensorDictBase) -> torch.Tensor:
+        features, adjacency, mask = _obs_any(td)
+        lead = features.shape[:-2]
+        f = features.reshape(-1, *features.shape[-2:]).numpy()
+        a = adjacency.reshape(-1, *adjacency.shape[-2:]).numpy()
+        m = mask.reshape(-1, mask.shape[-1]).numpy().astype(np.int8)
+        out = np.empty((len(f), 2), dtype=np.float32)
+        for i in range(len(f)):
+            action = np.asarray(fn({"features": f[i], "adjacency": a[i], "mask": m[i]}))
+            if action.shape != (2,):
+                raise BenchError(
+                    f"the policy returned an action of shape {action.shape}: "
+                    "one action is [acceleration, yaw rate], shape (2,), in [-1, 1]"
+                )
+            out[i] = action
+        return torch.from_numpy(out).reshape(*lead, 2)
+
+    return act
+
+
+def _obs_any(td: TensorDictBase):
+    root = td.get(GROUP) if GROUP in td.keys() else td
+    return root.get("features"), root.get("adjacency"), root.get("mask")
+
+
+def _action_key(task: Task) -> str | tuple[str, str]:
+    return (GROUP, "action") if task.crossing is not None else "action"
+
+
+def _module_act(module: TensorDictModuleBase, key: str | tuple[str, str]) -> Callable:
+    """A TorchRL module's deterministic action (what it writes at ``key``)."""
+
+    def act(td: TensorDictBase) -> torch.Tensor:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            out = module(td.clone(False))
+        if key not in out.keys(include_nested=True):
+            raise BenchError(f"the module wrote no {key!r} into the tensordict")
+        return out.get(key)
+
+    return act
+
+
+def _imported(target: str, task: Task, name: str) -> Policy:
+    module_name, _, attr = target.partition(":")
+    try:
+        obj = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as err:
+        raise BenchError(f"policy {target!r}: cannot import it ({err})") from err
+    policy = make_policy(obj, task, name or target)
+    policy.source = {**policy.source, "import": target}
+    return policy
+
+
+def _checkpoint(path: Path, task: Task, name: str) -> Policy:
+    if not path.is_file():
+        raise BenchError(f"policy {path}: no such checkpoint")
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(ckpt, dict) or "actor" not in ckpt or "config" not in ckpt:
+        raise BenchError(f"policy {path}: not a checkpoint of sharedspace.train or .marl")
+    algorithm = ckpt.get("algorithm") or ckpt["config"].get("algorithm", "sac")
+    source = {"kind": "checkpoint", "path": str(path), "algorithm": algorithm}
+    source["network"] = ckpt.get("network", "")
+    if algorithm in ("mappo", "ippo", "masac"):
+        if task.crossing is None:
+            raise BenchError(
+                f"policy {path}: a multi-car checkpoint ({algorithm}), task {task.tag} has one car"
+            )
+        return Policy(name or _run_name(path), source, _marl_act(ckpt, task, path))
+    if task.crossing is not None:
+        raise BenchError(
+            f"policy {path}: a single-car checkpoint ({algorithm}); task {task.tag} has "
+            f"{task.cars} cars"
+        )
+    mismatches = world_mismatches(ckpt.get("world") or {}, ckpt["config"], task)
+    if mismatches:
+        raise BenchError(
+            f"policy {path}: trained in another world than task {task.tag}: "
+            + "; ".join(mismatches)
+        )
+    return Policy(name or _run_name(path), source, _single_car_act(path))
+
+
+def _run_name(path: Path) -> str:
+    """``runs/NAME/checkpoints/last.pt`` -> NAME; else the file's stem."""
+    return path.parent.parent.name if path.parent.name == "checkpoints" else path.stem
+
+
+def world_mismatches(world: dict[str, Any], config: dict[str, Any], task: Task) -> list[str]:
+    """How a single-car checkpoint's recorded world differs from ``task``'s: ``max_agents``,
+    the pedestrian model, the world parameters (by content where the file is at hand) and the
+    pool (its test scenes, where the file is at hand)."""
+    get = lambda key: world.get(key, config.get(key))  # noqa: E731 - older checkpoints: config
+    out = []
+    if int(get("max_agents") or 0) != task.max_agents:
+        out.append(f"max_agents {get('max_agents')}, the task's {task.max_agents}")
+    if (get("pedestrian_model") or "cr_sfm") != task.pedestrian_model:
+        out.append(
+            f"pedestrian model {get('pedestrian_model')}, the task's {task.pedestrian_model}"
+        )
+    params = str(get("server_params") or "")
+    if params:
+        found = _read_params(params)
+        if found is not None and found != task.world_params:
+            out.append(f"world parameters of {params} differ from the task's")
+    elif task.world_params:
+        out.append("the server's default world parameters, not the task's")
+    pool = str(get("scenario_pool") or "")
+    pool_file = (
+        (REPO / pool)
+        if pool and not Path(pool).is_absolute()
+        else Path(pool)
+        if pool
+        else REPO / task.pool
+    )
+    if pool_file.is_file():
+        from sharedspace.bench.tasks import scenes_fingerprint
+
+        scenes = [
+            s for s in json.loads(pool_file.read_text())["scenarios"] if s.get("split") == "test"
+        ]
+        if scenes_fingerprint(scenes) != task.scenes_sha256:
+            out.append(f"pool {pool or 'default'}, whose test scenes are not the task's")
+    return out
+
+
+def _read_params(path: str) -> dict[str, Any] | None:
+    file = Path(path) if Path(path).is_absolute() else REPO / path
+    if not file.is_file():
+        return None
+    import re
+
+    text = re.sub(r"//[^\n]*", "", file.read_text())
+    text = re.sub(r"([{,]\s*)([A-Za-z_]\w*)\s*:", r'\1"\2":', text)  # JSON5 keys
+    text = re.sub(r",(\s*[}\]])", r"\1", text)  # trailing commas
+    return json.loads(text)
+
+
+def _single_car_act(path: Path) -> Callable:
+    """A single-car checkpoint's deterministic action; a residual learner's goes through the
+    one residual transform (:class:`~sharedspace.train.envs.ResidualAction`) as in training."""
+    from sharedspace.train.envs import ResidualAction
+    from sharedspace.train.learners import load_checkpoint_actor
+
+    cfg, actor = load_checkpoint_actor(str(path))
+    act = _module_act(actor, "action")
+    if not cfg.base_driver:
+        return act
+    residual = ResidualAction(cfg.base_driver, scale=cfg.residual_scale)
+    return lambda td: residual._inv_call(td.clone(False).set("action", act(td))).get("action")
+
+
+def _marl_act(ckpt: dict[str, Any], task: Task, path: Path) -> Callable:
+    """A multi-car checkpoint's cars, as the multi-car trainer evaluates them
+    (:func:`sharedspace.marl.evaluate.policy_act`)."""
+    from sharedspace.marl.config import MarlConfig
+    from sharedspace.marl.evaluate import policy_act
+    from sharedspace.marl.networks import make_actor
+
+    recorded = (ckpt.get("world") or {}).get("task")
+    mine = dict(vars(task.crossing))
+    if recorded is not None and recorded != mine:
+        differing = sorted(k for k in mine if recorded.get(k) != mine[k])
+        raise BenchError(
+            f"policy {path}: trained on another crossing task (differs in {', '.join(differing)})"
+        )
+    cfg = MarlConfig.from_dict(ckpt["config"])
+    actor = make_actor(cfg, task.crossing)
+    actor.load_state_dict(ckpt["actor"])
+    act = policy_act(actor, cfg.base_driver, cfg.residual_scale)
+    return lambda td: act(td, 0)

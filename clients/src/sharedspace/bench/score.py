@@ -1,0 +1,292 @@
+"""Scoring a policy on a task: its episodes played batched, their outcomes with Wilson
+intervals, and the paired difference against a reference result of the same task version.
+
+Every policy plays the same episodes of a task: variation ``j`` (seed ``j``) of every test
+scene for the single-car tasks, every car of every test scene for ``crossing``, so that two
+results pair up episode by episode. Several policies given together (a learner's seeds) make one
+pooled row: their episodes all count, and in a paired difference each episode's outcome is the
+mean over them.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+from sharedspace.bench.policies import Policy, make_policy
+from sharedspace.bench.tasks import BenchError, Task, get_task
+from sharedspace.client import Connection
+from sharedspace.episodes import STATUSES, outcome_rates, run_episodes
+from sharedspace.stats import paired_clustered
+
+__all__ = ["Result", "compare", "load_result", "score"]
+
+#: Most sub-envs of one env (the server's default ``max_batch`` is 1024).
+MAX_ENVS = 512
+
+
+@dataclass
+class Result:
+    """One row of a task's leaderboard: what played, every episode, and the summary."""
+
+    task: dict[str, Any]  # name, version, fingerprint, description
+    policy: str  # the row's name
+    sources: list[dict[str, Any]]  # what each pooled policy is (driver, checkpoint, function)
+    episodes: list[dict[str, Any]]  # scene, unit (variation or car), status, policy index, ...
+    summary: dict[str, Any]  # per status: rate, count, ci95; episodes
+    wall_s: float  # seconds the plays took
+    comparison: dict[str, Any] | None = None  # the paired difference against a reference
+    when: str = field(default_factory=lambda: time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def markdown(self) -> str:
+        """The row as a markdown table (success, collision, timeout with Wilson 95 %), and the
+        paired difference where there is a reference."""
+        s = self.summary
+        cells = [
+            f"{s[k]['rate']:.3f} [{s[k]['ci95'][0]:.3f}, {s[k]['ci95'][1]:.3f}]" for k in STATUSES
+        ]
+        lines = [
+            f"Task `{self.task['name']}@{self.task['version']}` ({self.task['description']}; "
+            f"fingerprint {self.task['fingerprint']}):",
+            "",
+            "| policy | episodes | success [95 %] | collision [95 %] | timeout [95 %] | wall s |",
+            "|---|---:|---|---|---|---:|",
+            f"| {self.policy} | {s['episodes']} | " + " | ".join(cells) + f" | {self.wall_s:.0f} |",
+        ]
+        if self.comparison:
+            c = self.comparison
+            line = (
+                f"Paired success difference, {self.policy} − {c['reference']}: "
+                f"{c['diff']:+.3f} [{c['lo']:+.3f}, {c['hi']:+.3f}] (95 %, scenes resampled; "
+                f"{c['pairs']} episode pairs over {c['scenes']} scenes)"
+            )
+            if "lo_fixed" in c:
+                line += f"; scenes fixed [{c['lo_fixed']:+.3f}, {c['hi_fixed']:+.3f}]"
+            lines += ["", line + "."]
+        return "\n".join(lines) + "\n"
+
+    def success_by_episode(self) -> dict[tuple[str, int], float]:
+        """Each episode's success, averaged over the pooled policies."""
+        sums: dict[tuple[str, int], list[float]] = {}
+        for e in self.episodes:
+            sums.setdefault((e["scene"], int(e["unit"])), []).append(e["status"] == "success")
+        return {k: sum(v) / len(v) for k, v in sums.items()}
+
+
+def score(
+    task: str | Task,
+    policies: Any,
+    *,
+    name: str = "",
+    endpoint: str = "",
+    reference: Result | str | Path | None = None,
+) -> Result:
+    """Plays ``task`` with ``policies`` (one spec or a list pooled into one row; see
+    :mod:`sharedspace.bench.policies`) and returns the :class:`Result`, compared with
+    ``reference`` (a result or its JSON file) if given. Every input is checked before any
+    episode is played. ``endpoint``: a server that serves the task's pool with its world
+    parameters; by default a local ``sim-server`` is started with them."""
+    task = get_task(task)
+    specs = list(policies) if isinstance(policies, list | tuple) else [policies]
+    if not specs:
+        raise BenchError("no policy to score")
+    made = [make_policy(spec, task) for spec in specs]
+    ref = load_result(reference) if isinstance(reference, str | Path) else reference
+    if ref is not None:
+        _check_same_task(ref, task)
+    with tempfile.TemporaryDirectory() as tmp:
+        connection = _connection(task, endpoint, Path(tmp))
+        client = connection.open()
+        try:
+            for policy in made:
+                _probe(task, policy, client)
+            t0 = time.perf_counter()
+            episodes = []
+            for index, policy in enumerate(made):
+                for e in _play(task, policy, client):
+                    episodes.append({**e, "policy": index})
+            wall = time.perf_counter() - t0
+        finally:
+            client.shutdown()
+    result = Result(
+        task=_task_record(task),
+        policy=name or made[0].name,
+        sources=[p.source for p in made],
+        episodes=episodes,
+        summary={"episodes": len(episodes), **outcome_rates(episodes)},
+        wall_s=wall,
+    )
+    if ref is not None:
+        result.comparison = compare(result, ref, task)
+    return result
+
+
+def compare(result: Result, reference: Result, task: Task | None = None) -> dict[str, Any]:
+    """``result − reference`` success over the episodes both played: the mean and its 95 %
+    interval with the scenes resampled (:func:`sharedspace.stats.paired_clustered`), and, for
+    a task that reports it (``paper``), the interval with the scenes held fixed."""
+    task = task or get_task(result.task["name"])
+    _check_same_task(reference, task)
+    c = paired_clustered(result.success_by_episode(), reference.success_by_episode())
+    out = {"reference": reference.policy, **c}
+    if not task.scenes_fixed_interval:
+        for key in ("lo_fixed", "hi_fixed", "half_width_fixed"):
+            out.pop(key)
+    return out
+
+
+def load_result(path: str | Path) -> Result:
+    """A :class:`Result` from its JSON file."""
+    try:
+        data = json.loads(Path(path).read_text())
+        return Result(**data)
+    except (OSError, ValueError, TypeError) as err:
+        raise BenchError(f"reference {path}: not a benchmark result ({err})") from err
+
+
+def _task_record(task: Task) -> dict[str, Any]:
+    return {
+        "name": task.name,
+        "version": task.version,
+        "fingerprint": task.fingerprint(),
+        "description": task.description,
+    }
+
+
+def _check_same_task(ref: Result, task: Task) -> None:
+    mine = _task_record(task)
+    if (ref.task.get("name"), ref.task.get("version"), ref.task.get("fingerprint")) != (
+        mine["name"],
+        mine["version"],
+        mine["fingerprint"],
+    ):
+        raise BenchError(
+            f"the reference {ref.policy!r} is a result of task {ref.task.get('name')}@"
+            f"{ref.task.get('version')} ({ref.task.get('fingerprint')}), not of "
+            f"{task.tag} ({mine['fingerprint']})"
+        )
+
+
+def _connection(task: Task, endpoint: str, tmp: Path) -> Connection:
+    """The given server, or a local one serving the task's pool with its world parameters."""
+    if endpoint:
+        return Connection.resolve(endpoint)
+    if task.crossing is not None:
+        return Connection.resolve()
+    params = tmp / f"{task.name}-v{task.version}-params.json"
+    params.write_text(json.dumps(task.world_params))
+    return Connection.resolve(local_pools=[str(task.pool_path())], local_params=str(params))
+
+
+class _ActModule(nn.Module):
+    """``act`` as the policy module :func:`sharedspace.episodes.run_episodes` plays."""
+
+    def __init__(self, act):
+        super().__init__()
+        self.act = act
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        td.set("action", torch.as_tensor(self.act(td), dtype=torch.float32))
+        return td
+
+
+def _play(task: Task, policy: Policy, client) -> list[dict[str, Any]]:
+    if task.crossing is not None:
+        from sharedspace.marl.evaluate import play
+
+        rows = play(task.crossing, lambda td, step: policy.act(td), client)
+        cars = {car: k for k, car in enumerate(task.crossing.agents)}
+        return [
+            {"scene": r["scene"], "unit": cars[r["car"]], **_keep(r, ("status", "car_collision"))}
+            for r in rows
+        ]
+    pool = json.loads(task.pool_path().read_text())
+    names = [s["name"] for s in pool["scenarios"]]
+    tests = len(task.check_scenes())
+    variations = max(task.variations, 1)
+    per_env = max(1, MAX_ENVS // tests)
+    episodes = []
+    for start in range(0, variations, per_env):
+        count = min(per_env, variations - start)
+        env = _single_car_env(
+            task, client, tests * count, [start + k // tests for k in range(tests * count)]
+        )
+        try:
+            for e in run_episodes(env, _ActModule(policy.act)):
+                keep = ("status", "avg_speed", "avg_abs_jerk", "max_abs_acc", "steps", "return")
+                unit = e["variation"] if task.variations else 0
+                episodes.append(
+                    {"scene": names[e["scenario_index"]], "unit": unit, **_keep(e, keep)}
+                )
+        finally:
+            env.close()
+    return episodes
+
+
+def _keep(record: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]:
+    return {k: record[k] for k in keys if k in record}
+
+
+def _single_car_env(task: Task, client, num_envs: int, seeds: list[int] | None):
+    from sharedspace.torchrl_env import RemoteBatchedEnv
+    from sharedspace.wire.requests import EnvSpec
+
+    spec = EnvSpec(
+        pool=str(task.pool_path()),
+        split="test",
+        seed=0,
+        pedestrian_model=task.pedestrian_model,
+        max_agents=task.max_agents,
+        variations=dict(task.variation_spec) if task.variations else None,
+    )
+    return RemoteBatchedEnv(
+        spec,
+        num_envs,
+        scenario_order="sequential",
+        variation_seeds=seeds if task.variations else None,
+        client=client,
+    )
+
+
+def _probe(task: Task, policy: Policy, client) -> None:
+    """One observation of the task through the policy: the action's shape, range and
+    finiteness are checked before any episode is played."""
+    if task.crossing is not None:
+        from sharedspace.marl.task import make_env
+
+        env = make_env(
+            task.crossing, "test", 1, client, scenarios=task.crossing.scene_names("test")[:1]
+        )
+        want = (1, task.cars, 2)
+    else:
+        env = _single_car_env(task, client, 1, [0])
+        want = (1, 2)
+    try:
+        action = torch.as_tensor(policy.act(env.reset()))
+    except BenchError:
+        raise
+    except Exception as err:  # a user's policy: say which and why, then stop
+        raise BenchError(
+            f"policy {policy.name!r} failed on the task's observation: {err!r}"
+        ) from err
+    finally:
+        env.close()
+    if tuple(action.shape) != want:
+        raise BenchError(
+            f"policy {policy.name!r} gave actions of shape {tuple(action.shape)} for a batch of "
+            f"shape {want[:-1]}; task {task.tag} wants {want}: [acceleration, yaw rate] per car"
+        )
+    if not bool(torch.isfinite(action).all()):  # the server clips finite ones into [-1, 1]
+        raise BenchError(f"policy {policy.name!r} gave an action that is not finite: {action}")

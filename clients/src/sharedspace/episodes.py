@@ -1,0 +1,106 @@
+"""Playing and summarising episodes: one record per episode of a batched env, and the one
+outcome summary (success, collision, timeout with Wilson intervals) that every learner, table
+and benchmark reports. It knows envs and policies, not trainers: the trainer's evaluation
+(:mod:`sharedspace.train.evaluation`) and the benchmark (:mod:`sharedspace.bench`) both play
+through :func:`run_episodes`."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from sharedspace.names import Feature
+from sharedspace.stats import wilson
+
+__all__ = ["METRICS", "STATUSES", "outcome_rates", "run_episodes", "summarize"]
+
+#: How an episode ends.
+STATUSES = ("success", "collision", "timeout")
+#: The per-episode metrics a summary averages (sim-core ``EpisodeMetrics``).
+METRICS = ("avg_speed", "avg_abs_jerk", "max_abs_acc")
+
+
+def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
+    """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and
+    returns one record per sub-env: scenario index, status, metrics, return, and the ego's
+    speed / normalised action trace (``speeds[0]`` at the start)."""
+    k = env.batch_size[0]
+    records: list[dict[str, Any] | None] = [None] * k
+    traces = [{"speeds": [], "actions": [], "return": 0.0} for _ in range(k)]
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        # The policy may live on a GPU (device=cuda) while the env's tensors are on the CPU.
+        param = next(iter(policy.parameters()), None)
+        device = param.device if param is not None and param.device != env.device else None
+        scen = td["scenario_index"].reshape(-1).tolist()
+        seeds = getattr(env, "last_variation_seeds", None)
+        variation = [-1 if s is None else int(s) for s in (seeds or [None] * k)]
+        for i in range(k):
+            traces[i]["speeds"].append(float(td["features"][i, 0, Feature.SPEED]))
+        for _ in range(max_steps):
+            td = policy(td.to(device)).to(env.device) if device is not None else policy(td)
+            td = env.step(td)
+            nxt = td["next"]
+            done = nxt["done"].reshape(-1)
+            terms = getattr(env, "last_reward_terms", None) or {}
+            for i in range(k):
+                if records[i] is not None:
+                    continue
+                traces[i]["speeds"].append(float(nxt["features"][i, 0, Feature.SPEED]))
+                traces[i]["actions"].append(td["action"][i].tolist())
+                traces[i]["return"] += float(nxt["reward"][i])
+                for term, values in terms.items():
+                    sums = traces[i].setdefault("reward_terms", {})
+                    sums[term] = sums.get(term, 0.0) + float(values[i])
+                if done[i]:
+                    status = next(
+                        (s for s in STATUSES if bool(nxt[f"episode_{s}"][i])),
+                        "timeout",
+                    )
+                    records[i] = {
+                        "scenario_index": int(scen[i]),
+                        "variation": variation[i],
+                        "status": status,
+                        "avg_speed": float(nxt["episode_avg_speed"][i]),
+                        "avg_abs_jerk": float(nxt["episode_avg_abs_jerk"][i]),
+                        "max_abs_acc": float(nxt["episode_max_abs_acc"][i]),
+                        "steps": len(traces[i]["actions"]),
+                        **traces[i],
+                    }
+            if all(r is not None for r in records):
+                break
+            td = env.maybe_reset(step_mdp(td))
+    return [r for r in records if r is not None]
+
+
+def outcome_rates(
+    rows: Sequence[dict[str, Any]], flags: Sequence[str] = ()
+) -> dict[str, dict[str, Any]]:
+    """How episodes ended: for each of :data:`STATUSES` (a row's ``status``) and each boolean
+    field of ``flags``, its ``rate``, ``count`` and Wilson 95 % interval ``ci95``. The one
+    outcome summary of every learner (single-car rows here, per-car rows in ``marl``)."""
+    n = len(rows)
+    out: dict[str, dict[str, Any]] = {}
+    for key in (*STATUSES, *flags):
+        hits = sum(bool(r[key]) if key in flags else r["status"] == key for r in rows)
+        lo, hi = wilson(hits, n)
+        out[key] = {"rate": hits / max(n, 1), "count": hits, "ci95": [lo, hi]}
+    return out
+
+
+def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """Means over episodes (``MetricsSummary::of``): status shares (:func:`outcome_rates`)
+    and metric means."""
+    n = len(episodes)
+    if n == 0:
+        return {"episodes": 0, **dict.fromkeys(STATUSES + METRICS, 0.0)}
+    row: dict[str, float] = {"episodes": n}
+    for s, rate in outcome_rates(episodes).items():
+        row[s] = rate["rate"]
+    for key in METRICS:
+        row[key] = float(np.mean([e[key] for e in episodes]))
+    return row
