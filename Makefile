@@ -11,6 +11,7 @@ PY := $(VENV)/bin/python
 UV_VERSION := 0.13.9
 UV := $(VENV)/bin/uv
 SERVER := target/release/sim-server
+GENERAL_POOL := out/table2g/pool-general.json
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
 .PHONY: help run build wheel ppo marl benchmarl serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
@@ -82,7 +83,7 @@ browser: ## Debian's chromium + chromium-driver (the viewer's browser test)
 view: $(SERVER) $(VENV)/.installed $(VIEWER_PAGE) ## live viewer in the browser of the servers on VIEW_CONNECT (default tcp/127.0.0.1:7447; docs/VIEWER.md)
 	$(PY) -m sharedspace.viewer --connect $(or $(VIEW_CONNECT),tcp/127.0.0.1:7447) $(ARGS)
 
-run: $(SERVER) $(VENV)/.installed ## the main job: serve, train G-SAC-Cog remotely, evaluate, plot (embedded pool)
+run: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## the main job: serve, train PPO-GCN-Cog remotely, evaluate, plot; score the shipped best policies with the bench
 	./scripts/run_main.sh
 
 serve: $(SERVER) ## a simulation server on this machine (deploy/server.json5; ARGS='--cfg capacity:64')
@@ -92,7 +93,7 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
 	$(SERVER) router --config deploy/router.json5 $(ARGS)
 
-test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
+test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(GENERAL_POOL) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	$(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
@@ -179,8 +180,8 @@ table2v: $(SERVER) $(VENV)/.installed ## Table II on seeded variations: the ship
 		--drivers pursuit_3 pursuit_5 hold stop $(POWERED_ARGS) \
 		--json results/variations/baseline.json --markdown results/variations/baseline.md
 
-# hbs-general (every pedestrian and car of each car's window) as a file: Table II-G's pool.
-GENERAL_POOL := out/table2g/pool-general.json
+# hbs-general (every pedestrian and car of each car's window) as a file: Table II-G's pool (the
+# bench's `crowd` task; GENERAL_POOL is set at the top).
 $(GENERAL_POOL): scenarios/data/hbs.csv.gz
 	mkdir -p $(dir $@)
 	csv=$$(mktemp) && gunzip -c $< > $$csv && \

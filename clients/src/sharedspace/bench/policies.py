@@ -152,9 +152,17 @@ def _checkpoint(path: Path, task: Task, name: str) -> Policy:
     if not path.is_file():
         raise BenchError(f"policy {path}: no such checkpoint")
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    beside = path.parent / "config.json"
+    if isinstance(ckpt, dict) and "actor" not in ckpt and beside.is_file():
+        # `marl`'s shipped policy.pt: the actor's weights, its run's config.json beside
+        run = json.loads(beside.read_text())
+        if "task" in run and "config" in run:
+            ckpt = {"actor": ckpt, "config": run["config"], "world": {"task": run["task"]}}
     if not isinstance(ckpt, dict) or "actor" not in ckpt or "config" not in ckpt:
         raise BenchError(f"policy {path}: not a checkpoint of sharedspace.train or .marl")
     algorithm = ckpt.get("algorithm") or ckpt["config"].get("algorithm", "sac")
+    if "task" in (ckpt.get("world") or {}) and algorithm not in ("mappo", "ippo", "masac"):
+        algorithm = "mappo"  # a multi-car run's config from before the algorithm was recorded
     source = {"kind": "checkpoint", "path": str(path), "algorithm": algorithm}
     source["network"] = ckpt.get("network", "")
     if algorithm in ("mappo", "ippo", "masac"):
@@ -178,14 +186,17 @@ def _checkpoint(path: Path, task: Task, name: str) -> Policy:
 
 
 def _run_name(path: Path) -> str:
-    """``runs/NAME/checkpoints/last.pt`` -> NAME; else the file's stem."""
-    return path.parent.parent.name if path.parent.name == "checkpoints" else path.stem
+    """``runs/NAME/checkpoints/last.pt`` or ``runs/NAME/policy.pt`` -> NAME; else the stem."""
+    if path.parent.name == "checkpoints":
+        return path.parent.parent.name
+    return path.parent.name if path.stem == "policy" else path.stem
 
 
 def world_mismatches(world: dict[str, Any], config: dict[str, Any], task: Task) -> list[str]:
     """How a single-car checkpoint's recorded world differs from ``task``'s: ``max_agents``,
     the pedestrian model, the world parameters (by content where the file is at hand) and the
-    pool (its test scenes, where the file is at hand)."""
+    pool (its test scenes, where the file is at hand). Checkpoints older than the ``world``
+    record (the shipped Table II policies) name no parameters file: those are not checked."""
     get = lambda key: world.get(key, config.get(key))  # noqa: E731 - older checkpoints: config
     out = []
     if int(get("max_agents") or 0) != task.max_agents:
@@ -199,7 +210,7 @@ def world_mismatches(world: dict[str, Any], config: dict[str, Any], task: Task) 
         found = _read_params(params)
         if found is not None and found != task.world_params:
             out.append(f"world parameters of {params} differ from the task's")
-    elif task.world_params:
+    elif task.world_params and world:  # a checkpoint recording no world is taken at its word
         out.append("the server's default world parameters, not the task's")
     pool = str(get("scenario_pool") or "")
     pool_file = (
@@ -238,7 +249,9 @@ def _single_car_act(path: Path) -> Callable:
     from sharedspace.train.envs import ResidualAction
     from sharedspace.train.learners import load_checkpoint_actor
 
-    cfg, actor = load_checkpoint_actor(str(path))
+    # The network is built against a local server of the checkpoint's world, not the server it
+    # trained against (gone, or elsewhere).
+    cfg, actor = load_checkpoint_actor(str(path), ["server_endpoint=", "zenoh_config="])
     act = _module_act(actor, "action")
     if not cfg.base_driver:
         return act

@@ -107,7 +107,15 @@ class MarlConfig:
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> MarlConfig:
-        return cls(**fields)
+        """A saved config (a checkpoint's, a run's ``config.json``). Runs saved before each
+        algorithm's options were checked hold every option: those of other algorithms than
+        theirs fall back to their defaults, and fields configs no longer have are dropped."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        algorithm = fields.get("algorithm", cls.algorithm)
+        others = {
+            n for owners, names in OPTIONS_OF.items() if algorithm not in owners for n in names
+        }
+        return cls(**{k: v for k, v in fields.items() if k in known and k not in others})
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

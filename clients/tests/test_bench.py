@@ -1,0 +1,183 @@
+"""The benchmark (``sharedspace.bench``) against a live server: a policy from outside enters
+with no trainer loaded, every form of a policy scores the same episodes the same way, bad input
+is refused before any episode is played, results compare only within a task version, and the
+frozen tasks still hold the scenes and worlds they were frozen with."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from tensordict.nn import TensorDictModule  # noqa: E402
+
+from sharedspace.bench import TASKS, BenchError, get_task, load_result, score  # noqa: E402
+from sharedspace.bench.__main__ import main as bench_main  # noqa: E402
+from sharedspace.bench.policies import _read_params  # noqa: E402
+from sharedspace.marl.task import CrossingTask  # noqa: E402
+from sharedspace.scripted import SCRIPTED  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+#: The paper's 18 test scenes in 2 seeded variations: a task small enough for a debug server.
+SMALL = dataclasses.replace(TASKS["paper"], name="paper-small", variations=2)
+#: The crossing task on 3 of its test scenes.
+SMALL_CROSSING = dataclasses.replace(
+    TASKS["crossing"], name="crossing-small", crossing=CrossingTask(test_scenes=3)
+)
+
+
+def brake_near(obs):
+    """A policy from outside: brake while anyone is within 5 m ahead, else accelerate gently."""
+    f, m = obs["features"], obs["mask"].astype(bool)
+    ahead = (f[1:, 0] > 0) & (np.hypot(f[1:, 0], f[1:, 1]) < 5.0) & m[1:]
+    return np.array([-1.0 if ahead.any() else 0.3, 0.0], dtype=np.float32)
+
+
+def test_a_plain_function_is_scored_with_no_trainer_imported(tmp_path):
+    script = textwrap.dedent(
+        """
+        import dataclasses, json, sys
+        import numpy as np
+        from sharedspace.bench import TASKS, score
+
+        def brake_near(obs):
+            f, m = obs["features"], obs["mask"].astype(bool)
+            ahead = (f[1:, 0] > 0) & (np.hypot(f[1:, 0], f[1:, 1]) < 5.0) & m[1:]
+            return np.array([-1.0 if ahead.any() else 0.3, 0.0], dtype=np.float32)
+
+        task = dataclasses.replace(TASKS["paper"], name="paper-small", variations=2)
+        result = score(task, brake_near, name="brake_near")
+        loaded = sorted(m for m in sys.modules if m.startswith("sharedspace."))
+        print(json.dumps({"summary": result.summary, "loaded": loaded}))
+        """
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=os.environ.copy(),
+        check=True,
+    )
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["summary"]["episodes"] == 36
+    assert sum(got["summary"][s]["count"] for s in ("success", "collision", "timeout")) == 36
+    assert not [m for m in got["loaded"] if m.startswith("sharedspace.train")], got["loaded"]
+
+
+def test_every_form_of_one_driver_plays_the_same_episodes():
+    """car_aware by name, as a TorchRL module and as a function over the PettingZoo observation:
+    one policy, so the same outcome in every episode."""
+    driver = SCRIPTED["car_aware"]()
+    module = TensorDictModule(driver, in_keys=["features", "mask"], out_keys=["action"])
+
+    def as_function(obs):
+        f = torch.as_tensor(obs["features"])[None]
+        m = torch.as_tensor(obs["mask"].astype(bool))[None]
+        return driver(f, m)[0].numpy()
+
+    rows = [score(SMALL, p) for p in ("car_aware", module, as_function)]
+    keyed = [{(e["scene"], e["unit"]): e["status"] for e in r.episodes} for r in rows]
+    assert len(keyed[0]) == 36 and keyed[0] == keyed[1] == keyed[2]
+    assert {e["unit"] for e in rows[0].episodes} == {0, 1}, "variations 0 and 1 of every scene"
+
+
+def test_bad_input_is_refused_before_any_episode_is_played(tmp_path):
+    calls = []
+
+    def three_numbers(obs):
+        calls.append(1)
+        return np.zeros(3, dtype=np.float32)
+
+    with pytest.raises(BenchError, match="unknown task 'crowds'"):
+        score("crowds", "car_aware")
+    with pytest.raises(BenchError, match=r"shape \(3,\)"):
+        score(SMALL, three_numbers)
+    assert len(calls) == 1, "only the probe's one observation reached the policy"
+    with pytest.raises(BenchError, match="not finite"):
+        score(SMALL, lambda obs: np.array([np.nan, 0.0]))
+    with pytest.raises(BenchError, match="not a scripted driver"):
+        score(SMALL, "car_awar")
+
+    other_world = tmp_path / "other.pt"
+    torch.save(
+        {
+            "actor": {},
+            "algorithm": "ppo",
+            "config": {"algorithm": "ppo", "max_agents": 10},
+            "world": {"max_agents": 10, "server_params": "params/table2g.json5"},
+        },
+        other_world,
+    )
+    with pytest.raises(BenchError, match="another world.*max_agents 10, the task's 8"):
+        score(SMALL, str(other_world))
+
+    old = score(SMALL, "hold")
+    stale = dataclasses.replace(old, task={**old.task, "version": 0})
+    with pytest.raises(BenchError, match="not of paper-small@1"):
+        score(SMALL, "car_aware", reference=stale)
+    assert bench_main(["crowds", "--policy", "car_aware"]) == 2
+
+
+def test_a_result_pairs_with_a_reference_of_its_task(tmp_path):
+    ref = score(SMALL, "pursuit_3")
+    path = tmp_path / "ref.json"
+    path.write_text(json.dumps(ref.to_json()))
+    again = score(SMALL, "pursuit_3", reference=path)
+    c = again.comparison
+    assert c["diff"] == 0.0 and c["lo"] == 0.0 and c["hi"] == 0.0 and c["pairs"] == 36
+    assert "lo_fixed" in c, "the paper's tasks also hold the scenes fixed"
+    better = score(SMALL, "car_aware", reference=ref)
+    mine, theirs = better.summary["success"]["rate"], ref.summary["success"]["rate"]
+    assert better.comparison["diff"] == pytest.approx(mine - theirs)
+    assert "Paired success difference, car_aware − pursuit_3" in better.markdown()
+    assert load_result(path).episodes == ref.episodes
+
+
+def test_seeds_pool_into_one_row():
+    pooled = score(SMALL, ["car_aware", "hold"], name="two")
+    assert pooled.summary["episodes"] == 72 and pooled.policy == "two"
+    assert {e["policy"] for e in pooled.episodes} == {0, 1}
+    one, other = score(SMALL, "car_aware"), score(SMALL, "hold")
+    expected = {
+        k: (v + other.success_by_episode()[k]) / 2 for k, v in one.success_by_episode().items()
+    }
+    assert pooled.success_by_episode() == expected
+
+
+def test_the_crossing_task_scores_every_car():
+    result = score(SMALL_CROSSING, brake_near)
+    assert result.summary["episodes"] == 3 * 4
+    assert {e["unit"] for e in result.episodes} == {0, 1, 2, 3}
+    scripted = score(SMALL_CROSSING, "car_aware", reference=score(SMALL_CROSSING, "car_aware"))
+    assert scripted.comparison["diff"] == 0.0
+
+
+def test_the_frozen_tasks_keep_their_scenes_worlds_and_versions():
+    """A task changes only with a new version: its fingerprint is committed here."""
+    assert {t.tag: t.fingerprint() for t in TASKS.values()} == {
+        "paper@1": "6980e1352c852b61",
+        "crowd@1": "a5fb92d7a56c6916",
+        "crossing@1": "05534396a44be26b",
+    }
+    assert len(TASKS["paper"].check_scenes()) == 18
+    assert TASKS["paper"].world_params == _read_params("params/table2.json5")
+    assert TASKS["crowd"].world_params == _read_params("params/table2g.json5")
+    assert get_task("crowd@1") is TASKS["crowd"]
+    with pytest.raises(BenchError, match="version 1, not 2"):
+        get_task("crowd@2")
+
+
+def test_the_crowd_task_holds_the_extracted_general_pool():
+    """The pool file is extracted from the committed recordings (`make test` makes it)."""
+    assert len(TASKS["crowd"].check_scenes()) == 76
