@@ -181,3 +181,17 @@ def test_the_frozen_tasks_keep_their_scenes_worlds_and_versions():
 def test_the_crowd_task_holds_the_extracted_general_pool():
     """The pool file is extracted from the committed recordings (`make test` makes it)."""
     assert len(TASKS["crowd"].check_scenes()) == 76
+
+
+def test_a_leaderboard_ranks_the_rows_and_pairs_them_with_the_script(tmp_path):
+    from sharedspace.bench.leaderboard import main as leaderboard_main
+
+    for driver in ("car_aware", "hold"):
+        result = score(SMALL, driver)
+        (tmp_path / f"{driver}.json").write_text(json.dumps(result.to_json()))
+    (tmp_path / "runs.json").write_text("{}")  # not a result: passed over
+    out = tmp_path / "LEADERBOARD.md"
+    assert leaderboard_main([str(tmp_path), "--out", str(out)]) == 0
+    lines = [line for line in out.read_text().splitlines() if line.startswith("| ")]
+    assert [line.split(" | ")[0] for line in lines[1:]] == ["| car_aware", "| hold"]
+    assert lines[2].count("[") == 3, "hold's success interval, and both paired intervals"

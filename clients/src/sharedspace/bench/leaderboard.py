@@ -1,0 +1,77 @@
+"""A task's leaderboard from its result files: one row per result, best success first, each
+with its Wilson intervals and its paired difference against the task's ``car_aware`` row.
+
+    python -m sharedspace.bench.leaderboard results/bench/crowd [--out LEADERBOARD.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from sharedspace.bench.score import Result, compare, load_result
+from sharedspace.bench.tasks import BenchError
+from sharedspace.episodes import STATUSES
+
+__all__ = ["render"]
+
+
+def render(results: Sequence[Result], reference: str = "car_aware") -> str:
+    """The markdown table of ``results`` (all of one task version)."""
+    ref = next((r for r in results if r.policy == reference), None)
+    task = results[0].task
+    lines = [
+        f"Task `{task['name']}@{task['version']}` ({task['description']}; fingerprint "
+        f"{task['fingerprint']}). Paired differences: scenes resampled, 95 %"
+        + ("; scenes fixed in brackets after it." if _fixed(results, ref) else "."),
+        "",
+        f"| row | seeds | episodes | success [95 %] | collision | timeout | − {reference} |",
+        "|---|---:|---:|---|---:|---:|---|",
+    ]
+    for r in sorted(results, key=lambda r: -r.summary["success"]["rate"]):
+        s = r.summary
+        cell = "–"
+        if ref is not None and r is not ref:
+            c = compare(r, ref)
+            cell = f"{c['diff']:+.3f} [{c['lo']:+.3f}, {c['hi']:+.3f}]"
+            if "lo_fixed" in c:
+                cell += f" [{c['lo_fixed']:+.3f}, {c['hi_fixed']:+.3f}]"
+        success = s["success"]
+        lines.append(
+            f"| {r.policy} | {len(r.sources)} | {s['episodes']} | {success['rate']:.3f} "
+            f"[{success['ci95'][0]:.3f}, {success['ci95'][1]:.3f}] | "
+            + " | ".join(f"{s[k]['rate']:.3f}" for k in STATUSES[1:])
+            + f" | {cell} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _fixed(results: Sequence[Result], ref: Result | None) -> bool:
+    others = [r for r in results if r is not ref]
+    return ref is not None and bool(others) and "lo_fixed" in compare(others[0], ref)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m sharedspace.bench.leaderboard", description=__doc__
+    )
+    ap.add_argument("folder", help="a task's results folder (OUT/TASK of the bench)")
+    ap.add_argument("--out", default="", help="also write the table to this file")
+    args = ap.parse_args(argv)
+    results = []
+    for path in sorted(Path(args.folder).glob("*.json")):
+        try:  # the folder also keeps the runs' wall times and the paired questions
+            results.append(load_result(path))
+        except BenchError:
+            continue
+    text = render(results)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
