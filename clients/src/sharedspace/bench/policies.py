@@ -59,7 +59,7 @@ def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
     if isinstance(spec, str | Path):
         text = str(spec)
         if text in SCRIPTED:
-            return _scripted(text, task, name)
+            return _scripted(text, name)
         if text.endswith(".pt") or Path(text).is_file():
             return _checkpoint(Path(text), task, name)
         if ":" in text:
@@ -77,16 +77,17 @@ def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
     raise BenchError(f"policy {spec!r}: give a driver name, a checkpoint, a callable or a module")
 
 
-def _obs(td: TensorDictBase, task: Task) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    root = td.get(GROUP) if task.crossing is not None else td
+def _obs(td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``features``, ``adjacency`` and ``mask`` of a batch, one car per env or grouped cars."""
+    root = td.get(GROUP) if GROUP in td.keys() else td
     return root.get("features"), root.get("adjacency"), root.get("mask")
 
 
-def _scripted(driver: str, task: Task, name: str) -> Policy:
+def _scripted(driver: str, name: str) -> Policy:
     module = SCRIPTED[driver]()
 
     def act(td: TensorDictBase) -> torch.Tensor:
-        features, _, mask = _obs(td, task)
+        features, _, mask = _obs(td)
         return module(features, mask)
 
     return Policy(name or driver, {"kind": "driver", "driver": driver}, act)
@@ -96,7 +97,7 @@ def _function_act(fn: Callable[[dict[str, np.ndarray]], Any]) -> Callable:
     """Calls ``fn`` on each agent's observation, as a PettingZoo env hands it over."""
 
     def act(td: TensorDictBase) -> torch.Tensor:
-        features, adjacency, mask = _obs_any(td)
+        features, adjacency, mask = _obs(td)
         lead = features.shape[:-2]
         f = features.reshape(-1, *features.shape[-2:]).numpy()
         a = adjacency.reshape(-1, *adjacency.shape[-2:]).numpy()
@@ -113,11 +114,6 @@ def _function_act(fn: Callable[[dict[str, np.ndarray]], Any]) -> Callable:
         return torch.from_numpy(out).reshape(*lead, 2)
 
     return act
-
-
-def _obs_any(td: TensorDictBase):
-    root = td.get(GROUP) if GROUP in td.keys() else td
-    return root.get("features"), root.get("adjacency"), root.get("mask")
 
 
 def _action_key(task: Task) -> str | tuple[str, str]:
