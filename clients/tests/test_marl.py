@@ -175,6 +175,9 @@ def test_bad_configs_name_what_was_wrong():
     assert np.isclose(apply_overrides(MarlConfig(), ["lr=1"]).lr, 1.0)
     with pytest.raises(ValueError, match="utd_ratio is an option of algorithm=masac"):
         apply_overrides(MarlConfig(), ["utd_ratio=1"])
+    # a run saved before the options were checked holds all of them, and retired fields
+    saved = MarlConfig.from_saved({"algorithm": "mappo", "utd_ratio": 5, "retired_knob": 1})
+    assert saved.algorithm == "mappo" and saved.utd_ratio == MarlConfig().utd_ratio
     with pytest.raises(ValueError, match="ppo_epochs is an option of algorithm=mappo"):
         MarlConfig(algorithm="masac", ppo_epochs=2)
     with pytest.raises(ValueError, match="a residual without a script"):

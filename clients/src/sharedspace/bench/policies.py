@@ -269,7 +269,7 @@ def _marl_act(ckpt: dict[str, Any], task: Task, path: Path) -> Callable:
         raise BenchError(
             f"policy {path}: trained on another crossing task (differs in {', '.join(differing)})"
         )
-    cfg = MarlConfig.from_dict(ckpt["config"])
+    cfg = MarlConfig.from_saved(ckpt["config"])
     actor = make_actor(cfg, task.crossing)
     actor.load_state_dict(ckpt["actor"])
     act = policy_act(actor, cfg.base_driver, cfg.residual_scale)

@@ -105,7 +105,7 @@ def score(
     made = [make_policy(spec, task) for spec in specs]
     ref = load_result(reference) if isinstance(reference, str | Path) else reference
     if ref is not None:
-        _check_same_task(ref, task)
+        _check_same_task(ref, _task_record(task))
     with tempfile.TemporaryDirectory() as tmp:
         connection = _connection(task, endpoint, Path(tmp))
         client = connection.open()
@@ -129,19 +129,19 @@ def score(
         wall_s=wall,
     )
     if ref is not None:
-        result.comparison = compare(result, ref, task)
+        result.comparison = compare(result, ref)
     return result
 
 
-def compare(result: Result, reference: Result, task: Task | None = None) -> dict[str, Any]:
+def compare(result: Result, reference: Result) -> dict[str, Any]:
     """``result − reference`` success over the episodes both played: the mean and its 95 %
     interval with the scenes resampled (:func:`sharedspace.stats.paired_clustered`), and, for
-    a task that reports it (``paper``), the interval with the scenes held fixed."""
-    task = task or get_task(result.task["name"])
-    _check_same_task(reference, task)
+    a task that reports it (``paper``), the interval with the scenes held fixed. Both must be
+    results of one task version."""
+    _check_same_task(reference, result.task)
     c = paired_clustered(result.success_by_episode(), reference.success_by_episode())
     out = {"reference": reference.policy, **c}
-    if not task.scenes_fixed_interval:
+    if not result.task.get("scenes_fixed_interval"):
         for key in ("lo_fixed", "hi_fixed", "half_width_fixed"):
             out.pop(key)
     return out
@@ -162,20 +162,18 @@ def _task_record(task: Task) -> dict[str, Any]:
         "version": task.version,
         "fingerprint": task.fingerprint(),
         "description": task.description,
+        "scenes_fixed_interval": task.scenes_fixed_interval,
     }
 
 
-def _check_same_task(ref: Result, task: Task) -> None:
-    mine = _task_record(task)
-    if (ref.task.get("name"), ref.task.get("version"), ref.task.get("fingerprint")) != (
-        mine["name"],
-        mine["version"],
-        mine["fingerprint"],
-    ):
+def _check_same_task(ref: Result, task: dict[str, Any]) -> None:
+    """``ref`` is a result of the task ``task`` records (name, version, fingerprint)."""
+    keys = ("name", "version", "fingerprint")
+    if tuple(ref.task.get(k) for k in keys) != tuple(task.get(k) for k in keys):
         raise BenchError(
             f"the reference {ref.policy!r} is a result of task {ref.task.get('name')}@"
             f"{ref.task.get('version')} ({ref.task.get('fingerprint')}), not of "
-            f"{task.tag} ({mine['fingerprint']})"
+            f"{task['name']}@{task['version']} ({task['fingerprint']})"
         )
 
 

@@ -107,7 +107,11 @@ class MarlConfig:
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> MarlConfig:
-        """A saved config (a checkpoint's, a run's ``config.json``). Runs saved before each
+        return cls(**fields)
+
+    @classmethod
+    def from_saved(cls, fields: dict[str, Any]) -> MarlConfig:
+        """A run's saved config (a checkpoint's, a ``config.json``). Runs saved before each
         algorithm's options were checked hold every option: those of other algorithms than
         theirs fall back to their defaults, and fields configs no longer have are dropped."""
         known = {f.name for f in dataclasses.fields(cls)}

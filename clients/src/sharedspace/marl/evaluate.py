@@ -18,10 +18,10 @@ from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sharedspace.client import Connection, SimClient
+from sharedspace.episodes import STATUSES, outcome_rates
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.names import Feature
 from sharedspace.scripted import SCRIPTED
-from sharedspace.episodes import STATUSES, outcome_rates
 
 __all__ = [
     "STATUSES",
