@@ -25,10 +25,10 @@ def main() -> None:
     for path in args.checkpoints:
         cfg, actor = load_checkpoint_actor(path)
         summary = evaluate_split(cfg, actor, args.split)["summary"]
-        frames = load_checkpoint(path)["counters"]["frames"]
-        out[path] = {"frames": frames, **summary}
+        ckpt = load_checkpoint(path)
+        out[path] = {"frames": ckpt["counters"]["frames"], **summary}
         print(
-            f"{path}: {describe(load_checkpoint(path))}: success {summary['success']:.3f}, "
+            f"{path}: {describe(ckpt)}: success {summary['success']:.3f}, "
             f"collision {summary['collision']:.3f}, timeout {summary['timeout']:.3f} "
             f"on {summary['episodes']} {args.split} scenes"
         )

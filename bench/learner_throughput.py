@@ -97,7 +97,10 @@ def ppo_rate(base: TrainConfig, variant: str, frames: int, log_dir: Path) -> dic
 def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
     """SAC-GCN with its defaults, timed over the batches after its random warm-up."""
     warmup = 1000
-    world = {k: getattr(base, k) for k in ("scenario_pool", "server_endpoint", "server_prefix")}
+    world = {
+        k: getattr(base, k)
+        for k in ("scenario_pool", "server_endpoint", "server_prefix")
+    }
     cfg = apply_overrides(
         TrainConfig(device="cpu", **world, **WORLD),
         [

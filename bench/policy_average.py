@@ -57,7 +57,9 @@ def main() -> None:
         if (i + 1) % args.every:
             continue
         row = {"frames": frames}
-        for name, params in [("last", state)] + [(f"ema{d}", averages[d]) for d in args.decays]:
+        for name, params in [("last", state)] + [
+            (f"ema{d}", averages[d]) for d in args.decays
+        ]:
             actor.load_state_dict(params)
             summary = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
             row[name] = summary["success"]
@@ -68,7 +70,11 @@ def main() -> None:
     print("| frames | " + " | ".join(names) + " |")
     print("|---:|" + "---:|" * len(names))
     for row in rows:
-        print(f"| {row['frames']:,} | " + " | ".join(f"{row[n]:.3f}" for n in names) + " |")
+        print(
+            f"| {row['frames']:,} | "
+            + " | ".join(f"{row[n]:.3f}" for n in names)
+            + " |"
+        )
     for n in names:
         vals = [row[n] for row in rows]
         mean = sum(vals) / len(vals)

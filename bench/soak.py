@@ -86,24 +86,26 @@ def sim_server_pid(pid: int, binary: str) -> int:
     raise RuntimeError(f"no {comm} process under pid {pid}")
 
 
+def window_medians(
+    points: list[tuple[float, float]], start_s: float, end_s: float, window_s: float
+) -> tuple[float, float]:
+    """Medians of ``points`` (seconds, value) in ``[start_s, start_s + window_s)`` and in
+    ``[end_s - window_s, end_s]``; NaN for an empty window."""
+    first = [v for t, v in points if start_s <= t < start_s + window_s]
+    last = [v for t, v in points if end_s - window_s <= t <= end_s]
+    return (
+        float(np.median(first)) if first else float("nan"),
+        float(np.median(last)) if last else float("nan"),
+    )
+
+
 def window_growth(
     points: list[tuple[float, float]], start_s: float, end_s: float, window_s: float
 ) -> float:
-    """Relative change from the median of ``points`` (seconds, value) in
-    ``[start_s, start_s + window_s)`` to their median in ``[end_s - window_s, end_s]``; NaN
-    (which no bound passes) when a window is empty."""
-    first = [v for t, v in points if start_s <= t < start_s + window_s]
-    last = [v for t, v in points if end_s - window_s <= t <= end_s]
-    if not first or not last:
-        return float("nan")
-    return float(np.median(last) / np.median(first) - 1.0)
-
-
-def _window_median(
-    points: list[tuple[float, float]], start_s: float, end_s: float
-) -> float:
-    values = [v for t, v in points if start_s <= t <= end_s]
-    return float(np.median(values)) if values else float("nan")
+    """Relative change from the first window's median to the last's
+    (:func:`window_medians`); NaN (which no bound passes) when a window is empty."""
+    first, last = window_medians(points, start_s, end_s, window_s)
+    return last / first - 1.0
 
 
 def slope_per_h(points: list[tuple[float, float]]) -> float:
@@ -441,17 +443,13 @@ def main() -> int:
     )  # reported
     # The criterion: median RSS of the last window against the median of the first window
     # after warm-up (single highest samples follow the live envs of the moment).
-    rss_points = [(s["t"], s["rss_mib"]) for s in samples]
-    window_s = args.heap_window_min * 60
-    growth = window_growth(
-        rss_points, args.warmup_min * 60, args.minutes * 60, window_s
+    rss_first, rss_last = window_medians(
+        [(s["t"], s["rss_mib"]) for s in samples],
+        args.warmup_min * 60,
+        args.minutes * 60,
+        args.heap_window_min * 60,
     )
-    rss_first = _window_median(
-        rss_points, args.warmup_min * 60, args.warmup_min * 60 + window_s
-    )
-    rss_last = _window_median(
-        rss_points, args.minutes * 60 - window_s, args.minutes * 60
-    )
+    growth = rss_last / rss_first - 1.0
     slope_from = max(args.warmup_min, args.minutes - args.slope_min) * 60
     tail = [(s["t"], s["rss_mib"]) for s in samples if s["t"] >= slope_from]
     slope = slope_per_h(tail)

@@ -87,10 +87,10 @@ class Module:
     """One module: its own code (child modules' bodies cut out), children and imports."""
 
     path: str
-    file: Path
     code: str = ""
     children: set[str] = field(default_factory=set)
     defined: set[str] = field(default_factory=set)
+    uses: list[list[str]] = field(default_factory=list)  # every `use` path, as written
     imports: dict[str, list[str]] = field(default_factory=dict)  # name -> path as written
     globs: list[list[str]] = field(default_factory=list)
 
@@ -172,7 +172,7 @@ def _read_module(modules, path: str, file: Path, code: str | None, dir_: Path | 
             raise SourceError(f"{file}: #[path] attributes are not followed")
         is_dir_owner = file.name in ("lib.rs", "mod.rs", "main.rs")
         dir_ = file.parent if is_dir_owner else file.parent / file.stem
-    module = Module(path, file)
+    module = Module(path)
     modules[path] = module
     own, pos = [], 0
     while m := _MOD.search(code, pos):
@@ -203,12 +203,13 @@ def _read_module(modules, path: str, file: Path, code: str | None, dir_: Path | 
         module.defined.add(m[1] or m[2])
     for m in _USE.finditer(module.code):
         for segs in use_tree(m[1]):
-            if segs[-1] == "*":
-                module.globs.append(segs[:-1])
-            elif "=" in segs:
-                module.imports[segs[-1]] = segs[:-2]
-            else:
-                module.imports[segs[-1]] = segs
+            target = segs[:-2] if "=" in segs else segs  # `a::b as c` names a::b
+            if target[-1] == "*":
+                module.globs.append(target[:-1])
+                module.uses.append(target[:-1])
+                continue
+            module.imports[segs[-1]] = target
+            module.uses.append(target)
 
 
 class Resolver:
@@ -289,15 +290,11 @@ def module_uses(crate_dir: Path) -> tuple[set[str], list[tuple[str, str]]]:
     resolver = Resolver(modules, crate_name(crate_dir))
     uses: list[tuple[str, str]] = []
     for path, module in modules.items():
-        named = [segs[:-2] if "=" in segs else segs for segs in _use_paths(module)]
+        named = list(module.uses)
         code = _USE.sub(" ", module.code)
         named += [[m[1], *re.split(r"\s*::\s*", m[2].strip())[1:]] for m in _PATH.finditer(code)]
         for segs in named:
-            segs = [s for s in segs if s != "*"]
             if segs and (target := resolver.resolve(segs, path)) is not None:
                 uses.append((path, target))
     return set(modules), uses
 
-
-def _use_paths(module: Module) -> list[list[str]]:
-    return [segs for m in _USE.finditer(module.code) for segs in use_tree(m[1])]

@@ -6,12 +6,11 @@ frozen tasks still hold the scenes and worlds they were frozen with."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 import os
 import subprocess
 import sys
-import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,8 +24,6 @@ from sharedspace.bench.__main__ import main as bench_main  # noqa: E402
 from sharedspace.bench.policies import _read_params  # noqa: E402
 from sharedspace.marl.task import CrossingTask  # noqa: E402
 from sharedspace.scripted import SCRIPTED  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[2]
 
 #: The paper's 18 test scenes in 2 seeded variations: a task small enough for a debug server.
 SMALL = dataclasses.replace(TASKS["paper"], name="paper-small", variations=2)
@@ -44,22 +41,17 @@ def brake_near(obs):
 
 
 def test_a_plain_function_is_scored_with_no_trainer_imported(tmp_path):
-    script = textwrap.dedent(
-        """
-        import dataclasses, json, sys
-        import numpy as np
-        from sharedspace.bench import TASKS, score
-
-        def brake_near(obs):
-            f, m = obs["features"], obs["mask"].astype(bool)
-            ahead = (f[1:, 0] > 0) & (np.hypot(f[1:, 0], f[1:, 1]) < 5.0) & m[1:]
-            return np.array([-1.0 if ahead.any() else 0.3, 0.0], dtype=np.float32)
-
-        task = dataclasses.replace(TASKS["paper"], name="paper-small", variations=2)
-        result = score(task, brake_near, name="brake_near")
-        loaded = sorted(m for m in sys.modules if m.startswith("sharedspace."))
-        print(json.dumps({"summary": result.summary, "loaded": loaded}))
-        """
+    script = "\n".join(
+        [
+            "import dataclasses, json, sys",
+            "import numpy as np",
+            "from sharedspace.bench import TASKS, score",
+            inspect.getsource(brake_near),
+            'task = dataclasses.replace(TASKS["paper"], name="paper-small", variations=2)',
+            'result = score(task, brake_near, name="brake_near")',
+            'loaded = sorted(m for m in sys.modules if m.startswith("sharedspace."))',
+            'print(json.dumps({"summary": result.summary, "loaded": loaded}))',
+        ]
     )
     out = subprocess.run(
         [sys.executable, "-c", script],

@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
 from sharedspace.bench.score import score
 from sharedspace.bench.tasks import TASKS, BenchError
@@ -50,13 +49,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     print(result.markdown())
     if args.out:
-        import json
-
-        folder = Path(args.out) / result.task["name"]
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / f"{result.policy}.json").write_text(json.dumps(result.to_json()))
-        (folder / f"{result.policy}.md").write_text(result.markdown())
-        print(f"wrote {folder / result.policy}.json and .md")
+        path = result.save(args.out)
+        print(f"wrote {path} and {path.with_suffix('.md').name}")
     return 0
 
 

@@ -25,7 +25,7 @@ def render(results: Sequence[Result], reference: str = "car_aware") -> str:
     lines = [
         f"Task `{task['name']}@{task['version']}` ({task['description']}; fingerprint "
         f"{task['fingerprint']}). Paired differences: scenes resampled, 95 %"
-        + ("; scenes fixed in brackets after it." if _fixed(results, ref) else "."),
+        + ("; scenes fixed in brackets after it." if task.get("scenes_fixed_interval") else "."),
         "",
         f"| row | seeds | episodes | success [95 %] | collision | timeout | − {reference} |",
         "|---|---:|---:|---|---:|---:|---|",
@@ -46,11 +46,6 @@ def render(results: Sequence[Result], reference: str = "car_aware") -> str:
             + f" | {cell} |"
         )
     return "\n".join(lines) + "\n"
-
-
-def _fixed(results: Sequence[Result], ref: Result | None) -> bool:
-    others = [r for r in results if r is not ref]
-    return ref is not None and bool(others) and "lo_fixed" in compare(others[0], ref)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

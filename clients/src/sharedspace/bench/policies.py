@@ -228,15 +228,11 @@ def world_mismatches(world: dict[str, Any], config: dict[str, Any], task: Task) 
 
 
 def _read_params(path: str) -> dict[str, Any] | None:
-    file = Path(path) if Path(path).is_absolute() else REPO / path
-    if not file.is_file():
-        return None
-    import re
+    """A world parameters file (JSON5), or None where it is not at hand."""
+    import json5
 
-    text = re.sub(r"//[^\n]*", "", file.read_text())
-    text = re.sub(r"([{,]\s*)([A-Za-z_]\w*)\s*:", r'\1"\2":', text)  # JSON5 keys
-    text = re.sub(r",(\s*[}\]])", r"\1", text)  # trailing commas
-    return json.loads(text)
+    file = Path(path) if Path(path).is_absolute() else REPO / path
+    return json5.loads(file.read_text()) if file.is_file() else None
 
 
 def _single_car_act(path: Path) -> Callable:

@@ -33,6 +33,7 @@ import torch
 
 from sharedspace.bench.score import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
+from sharedspace.paper.demos import TRAINING_VARIATIONS  # Table II-G's learners' variations
 
 __all__ = ["ARMS", "NETWORKS", "TRAIN_WORLDS", "main"]
 
@@ -40,13 +41,6 @@ __all__ = ["ARMS", "NETWORKS", "TRAIN_WORLDS", "main"]
 NETWORKS = ("g_sac_cog", "g_sac_nocog", "s_sac")
 #: How a row's learner starts: from scratch, or as a residual over the car-aware script.
 ARMS: dict[str, list[str]] = {"scratch": [], "residual": ["base_driver=car_aware"]}
-#: The training variations of Table II-G's learners (docs/RESULTS.md): wider than the test's.
-TRAIN_VARIATIONS = {
-    "position_sigma": 0.5,
-    "start_offset_steps": 2,
-    "desired_speed_scale": 0.2,
-    "mirror": True,
-}
 #: Each single-car task's training world: its pool (train split), parameters and M.
 TRAIN_WORLDS: dict[str, list[str]] = {
     "paper": ["scenario_pool=", "server_params=params/table2.json5", "max_agents=8"],
@@ -77,7 +71,7 @@ def train_run(task: str, arm: str, network: str, seed: int, frames: int, out: Pa
         f"seed={seed}",
         f"total_frames={frames}",
         *TRAIN_WORLDS[task],
-        f"variations={json.dumps(TRAIN_VARIATIONS)}",
+        f"variations={json.dumps(TRAINING_VARIATIONS)}",
         *ARMS[arm],
         "eval_interval=262144",
         "checkpoint_interval=524288",
@@ -103,19 +97,13 @@ def ship(task: str, arm: str, network: str, seed: int, out: Path) -> Path:
     return path
 
 
-def save(result: Result, folder: Path) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / f"{result.policy}.json").write_text(json.dumps(result.to_json()))
-    (folder / f"{result.policy}.md").write_text(result.markdown())
-
-
-def reference(task: str, driver: str, folder: Path) -> Result:
+def reference(task: str, driver: str, out: Path) -> Result:
     """The scripted driver's row of ``task`` (played once, then read back)."""
-    path = folder / f"{driver}.json"
+    path = out / task / f"{driver}.json"
     if path.is_file():
         return load_result(path)
     result = score(task, driver)
-    save(result, folder)
+    result.save(out)
     return result
 
 
@@ -144,15 +132,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                 log_path.write_text(json.dumps(log, indent=1))
                 print(f"{name}: trained in {spent / 60:.1f} min", flush=True)
 
-    car_aware = reference(args.task, "car_aware", folder)
-    reference(args.task, "pursuit_3", folder)
+    car_aware = reference(args.task, "car_aware", out)
+    reference(args.task, "pursuit_3", out)
     rows: dict[str, Result] = {}
     for network in args.networks:
         policies = [str(ship(args.task, args.arm, network, s, out)) for s in args.seeds]
         rows[network] = score(
             args.task, policies, name=f"{args.arm}-{network}", reference=car_aware
         )
-        save(rows[network], folder)
+        rows[network].save(out)
         print(rows[network].markdown(), flush=True)
     question = {}
     for other in ("g_sac_nocog", "s_sac"):

@@ -38,7 +38,7 @@ MAX_ENVS = 512
 class Result:
     """One row of a task's leaderboard: what played, every episode, and the summary."""
 
-    task: dict[str, Any]  # name, version, fingerprint, description
+    task: dict[str, Any]  # name, version, fingerprint, description, scenes_fixed_interval
     policy: str  # the row's name
     sources: list[dict[str, Any]]  # what each pooled policy is (driver, checkpoint, function)
     episodes: list[dict[str, Any]]  # scene, unit (variation or car), status, policy index, ...
@@ -49,6 +49,15 @@ class Result:
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
+
+    def save(self, out: str | Path) -> Path:
+        """Writes ``out/TASK/ROW.json`` (every episode) and ``.md``; returns the JSON's path."""
+        folder = Path(out) / self.task["name"]
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"{self.policy}.md").write_text(self.markdown())
+        path = folder / f"{self.policy}.json"
+        path.write_text(json.dumps(self.to_json()))
+        return path
 
     def markdown(self) -> str:
         """The row as a markdown table (success, collision, timeout with Wilson 95 %), and the
@@ -259,8 +268,8 @@ def _single_car_env(task: Task, client, num_envs: int, seeds: list[int] | None):
 
 
 def _probe(task: Task, policy: Policy, client) -> None:
-    """One observation of the task through the policy: the action's shape, range and
-    finiteness are checked before any episode is played."""
+    """One observation of the task through the policy: the action's shape and finiteness are
+    checked before any episode is played."""
     if task.crossing is not None:
         from sharedspace.marl.task import make_env
 
