@@ -187,3 +187,102 @@ def test_a_leaderboard_ranks_the_rows_and_pairs_them_with_the_script(tmp_path):
     lines = [line for line in out.read_text().splitlines() if line.startswith("| ")]
     assert [line.split(" | ")[0] for line in lines[1:]] == ["| car_aware", "| hold"]
     assert lines[2].count("[") == 3, "hold's success interval, and both paired intervals"
+
+
+def _checkpoint(tmp_path, name: str, **fields) -> str:
+    path = tmp_path / f"{name}.pt"
+    torch.save({"actor": {}, **fields}, path)
+    return str(path)
+
+
+def test_every_policy_the_bench_cannot_play_is_named_before_a_server_starts(tmp_path):
+    """Each refusal of make_policy and score: the spec, the file, the world, the task kind."""
+    bad = [
+        (42, "give a driver name, a checkpoint, a callable or a module"),
+        ([], "no policy to score"),
+        ("no_such_module_x:act", "cannot import it"),
+        (str(tmp_path / "gone.pt"), "no such checkpoint"),
+        (_checkpoint(tmp_path, "junk"), "not a checkpoint of sharedspace.train or .marl"),
+        (
+            _checkpoint(tmp_path, "cars", algorithm="mappo", config={"algorithm": "mappo"}),
+            "a multi-car checkpoint \\(mappo\\), task paper-small@1 has one car",
+        ),
+        (
+            _checkpoint(
+                tmp_path,
+                "crowd",
+                algorithm="ppo",
+                config={"algorithm": "ppo"},
+                world={"max_agents": 8, "server_params": "params/table2g.json5"},
+            ),
+            "world parameters of params/table2g.json5 differ",
+        ),
+        (
+            _checkpoint(
+                tmp_path,
+                "paperpool",
+                algorithm="ppo",
+                config={"algorithm": "ppo"},
+                world={
+                    "max_agents": 8,
+                    "server_params": "params/table2.json5",
+                    "scenario_pool": "out/table2g/pool-general.json",
+                },
+            ),
+            "pool out/table2g/pool-general.json, whose test scenes are not the task's",
+        ),
+    ]
+    for spec, message in bad:
+        with pytest.raises(BenchError, match=message):
+            score(SMALL, spec)
+    crowd_from_default_pool = _checkpoint(
+        tmp_path,
+        "default",
+        algorithm="ppo",
+        config={"algorithm": "ppo"},
+        world={"max_agents": 10, "server_params": "params/table2g.json5", "scenario_pool": ""},
+    )
+    with pytest.raises(BenchError, match="pool default, whose test scenes are not the task's"):
+        score("crowd", crowd_from_default_pool)
+    one_car = _checkpoint(tmp_path, "one", algorithm="ppo", config={"algorithm": "ppo"})
+    with pytest.raises(
+        BenchError, match="a single-car checkpoint \\(ppo\\); task crossing-small@1 has 4 cars"
+    ):
+        score(SMALL_CROSSING, one_car)
+    other_crossing = _checkpoint(
+        tmp_path,
+        "three",
+        algorithm="mappo",
+        config={"algorithm": "mappo"},
+        world={"task": {**vars(CrossingTask()), "cars": 3}},
+    )
+    with pytest.raises(
+        BenchError, match="another crossing task \\(differs in cars, test_scenes\\)"
+    ):
+        score(SMALL_CROSSING, other_crossing)
+
+
+def test_a_policy_that_fails_or_writes_nothing_is_stopped_at_the_probe(tmp_path):
+    def broken(obs):
+        raise ZeroDivisionError("my bug")
+
+    with pytest.raises(BenchError, match="failed on the task's observation: ZeroDivisionError"):
+        score(SMALL, broken)
+    writes_elsewhere = TensorDictModule(
+        lambda features: features[..., 0, :2], in_keys=["features"], out_keys=["not_action"]
+    )
+    with pytest.raises(BenchError, match="wrote no 'action'"):
+        score(SMALL, writes_elsewhere)
+    junk = tmp_path / "junk.json"
+    junk.write_text("{}")
+    with pytest.raises(BenchError, match="not a benchmark result"):
+        score(SMALL, "hold", reference=junk)
+
+
+def test_a_task_whose_pool_is_missing_or_changed_is_refused():
+    missing = dataclasses.replace(SMALL, pool="out/nowhere/pool.json", pool_hint="make it so")
+    with pytest.raises(BenchError, match="missing: make it so"):
+        score(missing, "hold")
+    changed = dataclasses.replace(SMALL, scenes_sha256="0" * 64)
+    with pytest.raises(BenchError, match="the pool changed, so the task needs a new version"):
+        score(changed, "hold")

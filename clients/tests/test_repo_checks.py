@@ -6,6 +6,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 
 import long_functions  # noqa: E402
@@ -30,6 +32,7 @@ def test_uses_within_a_module_and_of_ancestors_are_no_sibling_edges():
 
 
 def _crate(tmp_path, files: dict[str, str]):
+    tmp_path.mkdir(parents=True, exist_ok=True)
     (tmp_path / "Cargo.toml").write_text('[package]\nname = "tiny-crate"\n')
     for name, text in files.items():
         path = tmp_path / "src" / name
@@ -82,3 +85,18 @@ def test_long_functions_are_measured_in_both_languages(tmp_path):
         "fn g();\n#[cfg(test)]\nmod tests {\n    fn t() {\n    }\n}\n"
     )
     assert dict(long_functions.rust_functions(rs)) == {"f": 5, "g": 1}
+
+
+def test_rust_source_the_reader_cannot_follow_is_an_error(tmp_path):
+    crate = _crate(tmp_path / "path", {"lib.rs": '#[path = "other.rs"]\nmod a;\n'})
+    with pytest.raises(rust_uses.SourceError, match="#\\[path\\] attributes are not followed"):
+        rust_uses.module_uses(crate)
+    crate = _crate(tmp_path / "missing", {"lib.rs": "mod gone;\n"})
+    with pytest.raises(rust_uses.SourceError, match="`mod gone;` has no file"):
+        rust_uses.module_uses(crate)
+    crate = _crate(tmp_path / "brace", {"lib.rs": "mod a {\n    fn f() {}\n"})
+    with pytest.raises(rust_uses.SourceError, match="an unbalanced brace"):
+        rust_uses.module_uses(crate)
+    crate = _crate(tmp_path / "comment", {"lib.rs": "/* never closed\nmod a;\n"})
+    with pytest.raises(rust_uses.SourceError, match="an unterminated block comment"):
+        rust_uses.module_uses(crate)

@@ -34,7 +34,8 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from sharedspace.bench.tasks import REPO, BenchError, Task
+from sharedspace.bench.tasks import REPO, BenchError, Task, scenes_fingerprint, test_scenes
+from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.scripted import SCRIPTED
 
 __all__ = ["Policy", "make_policy"]
@@ -209,21 +210,12 @@ def world_mismatches(world: dict[str, Any], config: dict[str, Any], task: Task) 
     elif task.world_params and world:  # a checkpoint recording no world is taken at its word
         out.append("the server's default world parameters, not the task's")
     pool = str(get("scenario_pool") or "")
-    pool_file = (
-        (REPO / pool)
-        if pool and not Path(pool).is_absolute()
-        else Path(pool)
-        if pool
-        else REPO / task.pool
-    )
-    if pool_file.is_file():
-        from sharedspace.bench.tasks import scenes_fingerprint
-
-        scenes = [
-            s for s in json.loads(pool_file.read_text())["scenarios"] if s.get("split") == "test"
-        ]
-        if scenes_fingerprint(scenes) != task.scenes_sha256:
-            out.append(f"pool {pool or 'default'}, whose test scenes are not the task's")
+    if not pool:
+        pool_file = DEFAULT_POOL_PATH  # the server's embedded pool, as a file
+    else:
+        pool_file = Path(pool) if Path(pool).is_absolute() else REPO / pool
+    if pool_file.is_file() and scenes_fingerprint(test_scenes(pool_file)) != task.scenes_sha256:
+        out.append(f"pool {pool or 'default'}, whose test scenes are not the task's")
     return out
 
 

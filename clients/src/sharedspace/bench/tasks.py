@@ -26,7 +26,7 @@ from typing import Any
 from sharedspace.marl.task import CrossingTask
 from sharedspace.pool import DEFAULT_POOL_PATH
 
-__all__ = ["TASKS", "BenchError", "Task", "get_task", "scenes_fingerprint"]
+__all__ = ["TASKS", "BenchError", "Task", "get_task", "scenes_fingerprint", "test_scenes"]
 
 #: The repository's root (pool and parameter files are named relative to it).
 REPO = Path(__file__).resolve().parents[4]
@@ -121,8 +121,7 @@ class Task:
 
     def check_scenes(self) -> list[dict[str, Any]]:
         """The task's test scenes from its pool file, after checking they are the frozen ones."""
-        pool = json.loads(self.pool_path().read_text())
-        scenes = [s for s in pool["scenarios"] if s.get("split", "train") == "test"]
+        scenes = test_scenes(self.pool_path())
         found = scenes_fingerprint(scenes)
         if found != self.scenes_sha256 or len(scenes) != self.test_scenes:
             raise BenchError(
@@ -131,6 +130,12 @@ class Task:
                 "the pool changed, so the task needs a new version"
             )
         return scenes
+
+
+def test_scenes(pool_file: Path) -> list[dict[str, Any]]:
+    """The scenes of a pool file's test split, in pool order."""
+    pool = json.loads(Path(pool_file).read_text())
+    return [s for s in pool["scenarios"] if s.get("split", "train") == "test"]
 
 
 def scenes_fingerprint(scenes: list[dict[str, Any]]) -> str:
