@@ -16,7 +16,38 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from sharedspace.names import Feature
 from sharedspace.stats import wilson
 
-__all__ = ["METRICS", "STATUSES", "outcome_rates", "run_episodes", "summarize"]
+__all__ = [
+    "BENCHMARK_VARIATIONS",
+    "MAX_EVAL_ENVS",
+    "METRICS",
+    "STATUSES",
+    "outcome_rates",
+    "run_episodes",
+    "summarize",
+    "variation_batches",
+]
+
+#: The powered test's scene variations (sim-core ``VariationSpec::benchmark``; docs/RESULTS.md).
+BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
+
+#: Most sub-envs of one evaluation env (the server's default ``max_batch`` is 1024).
+MAX_EVAL_ENVS = 512
+
+
+def variation_batches(
+    scenes: int, variations: int, first: int = 0, max_envs: int = MAX_EVAL_ENVS
+) -> list[list[int]]:
+    """The variation seed of every sub-env, env by env, to play each of ``scenes`` scenes (in
+    sequential order) in the variations ``first .. first + variations - 1``: whole variations
+    per env, at most ``max_envs`` sub-envs (at least one variation). Sub-env ``k`` of an env
+    plays scene ``k % scenes``."""
+    per_env = max(1, max_envs // scenes)
+    batches = []
+    for start in range(first, first + variations, per_env):
+        count = min(per_env, first + variations - start)
+        batches.append([start + k // scenes for k in range(scenes * count)])
+    return batches
+
 
 #: How an episode ends.
 STATUSES = ("success", "collision", "timeout")

@@ -25,13 +25,10 @@ from torch import nn
 from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.bench.tasks import BenchError, Task, get_task
 from sharedspace.client import Connection
-from sharedspace.episodes import STATUSES, outcome_rates, run_episodes
+from sharedspace.episodes import STATUSES, outcome_rates, run_episodes, variation_batches
 from sharedspace.stats import paired_clustered
 
 __all__ = ["Result", "compare", "load_result", "score"]
-
-#: Most sub-envs of one env (the server's default ``max_batch`` is 1024).
-MAX_ENVS = 512
 
 
 @dataclass
@@ -222,14 +219,9 @@ def _play(task: Task, policy: Policy, client) -> list[dict[str, Any]]:
     pool = json.loads(task.pool_path().read_text())
     names = [s["name"] for s in pool["scenarios"]]
     tests = len(task.check_scenes())
-    variations = max(task.variations, 1)
-    per_env = max(1, MAX_ENVS // tests)
     episodes = []
-    for start in range(0, variations, per_env):
-        count = min(per_env, variations - start)
-        env = _single_car_env(
-            task, client, tests * count, [start + k // tests for k in range(tests * count)]
-        )
+    for seeds in variation_batches(tests, max(task.variations, 1)):
+        env = _single_car_env(task, client, len(seeds), seeds)
         try:
             for e in run_episodes(env, _ActModule(policy.act)):
                 keep = ("status", "avg_speed", "avg_abs_jerk", "max_abs_acc", "steps", "return")

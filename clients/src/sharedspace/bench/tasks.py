@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sharedspace.episodes import BENCHMARK_VARIATIONS
 from sharedspace.marl.task import CrossingTask
 from sharedspace.pool import DEFAULT_POOL_PATH
 
@@ -30,9 +31,6 @@ __all__ = ["TASKS", "BenchError", "Task", "get_task", "scenes_fingerprint", "tes
 
 #: The repository's root (pool and parameter files are named relative to it).
 REPO = Path(__file__).resolve().parents[4]
-
-#: The powered test's scene variations (sim-core ``VariationSpec::benchmark``).
-BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
 
 #: Table II's world (params/table2.json5): the calibrated CR-SFM crowd and its risk weights.
 TABLE2_WORLD: dict[str, Any] = {

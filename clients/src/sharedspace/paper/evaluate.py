@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from sharedspace.episodes import BENCHMARK_VARIATIONS, variation_batches
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.pool import load_pool, recorded_headings, split_indices
 from sharedspace.stats import wilson
@@ -70,12 +71,6 @@ COLUMNS = (
     ("avg_abs_jerk", "Avg |jerk| (m/s^3)"),
     ("max_abs_acc", "Avg max |acc| (m/s^2)"),
 )
-
-#: The powered test's scene variations (sim-core ``VariationSpec::benchmark``; docs/RESULTS.md).
-BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
-
-#: Most sub-envs of one evaluation env (the server's default ``max_batch`` is 1024).
-MAX_EVAL_ENVS = 512
 
 
 def human_metrics(speeds: Sequence[float], dt: float) -> dict[str, Any]:
@@ -140,21 +135,17 @@ def play_variations(
 ) -> list[dict[str, Any]]:
     """Plays every scenario of ``split`` in the variations of seeds ``first .. first +
     variations - 1`` of ``spec`` (default :data:`BENCHMARK_VARIATIONS`): one episode per
-    (scenario, variation), each record with its ``variation`` seed. Envs of at most
-    :data:`MAX_EVAL_ENVS` sub-envs, whole variations each. ``fresh_policy()``, if given, makes
-    the policy anew for each env (a driver that counts its steps)."""
+    (scenario, variation), each record with its ``variation`` seed. Envs of whole variations
+    (:func:`sharedspace.episodes.variation_batches`). ``fresh_policy()``, if given, makes the
+    policy anew for each env (a driver that counts its steps)."""
     pool = load_pool(cfg.scenario_pool or None)
     n = len(split_indices(pool, split))
-    per_env = max(1, MAX_EVAL_ENVS // n)
     episodes: list[dict[str, Any]] = []
-    for start in range(first, first + variations, per_env):
-        count = min(per_env, first + variations - start)
-        # Sub-env k plays the split's scenario k % n (sequential order) in variation k // n.
-        seeds = [start + k // n for k in range(n * count)]
+    for seeds in variation_batches(n, variations, first):
         env = make_env(
             cfg,
             split=split,
-            num_envs=n * count,
+            num_envs=len(seeds),
             seed=cfg.seed,
             scenario_order="sequential",
             variations=dict(spec or BENCHMARK_VARIATIONS),

@@ -28,8 +28,8 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
+from sharedspace.episodes import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
 from sharedspace.names import Feature
-from sharedspace.paper.evaluate import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.train.config import (
     TrainConfig,
