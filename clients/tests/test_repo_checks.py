@@ -87,16 +87,15 @@ def test_long_functions_are_measured_in_both_languages(tmp_path):
     assert dict(long_functions.rust_functions(rs)) == {"f": 5, "g": 1}
 
 
-def test_rust_source_the_reader_cannot_follow_is_an_error(tmp_path):
-    crate = _crate(tmp_path / "path", {"lib.rs": '#[path = "other.rs"]\nmod a;\n'})
-    with pytest.raises(rust_uses.SourceError, match="#\\[path\\] attributes are not followed"):
-        rust_uses.module_uses(crate)
-    crate = _crate(tmp_path / "missing", {"lib.rs": "mod gone;\n"})
-    with pytest.raises(rust_uses.SourceError, match="`mod gone;` has no file"):
-        rust_uses.module_uses(crate)
-    crate = _crate(tmp_path / "brace", {"lib.rs": "mod a {\n    fn f() {}\n"})
-    with pytest.raises(rust_uses.SourceError, match="an unbalanced brace"):
-        rust_uses.module_uses(crate)
-    crate = _crate(tmp_path / "comment", {"lib.rs": "/* never closed\nmod a;\n"})
-    with pytest.raises(rust_uses.SourceError, match="an unterminated block comment"):
-        rust_uses.module_uses(crate)
+@pytest.mark.parametrize(
+    ("lib", "message"),
+    [
+        ('#[path = "other.rs"]\nmod a;\n', "#\\[path\\] attributes are not followed"),
+        ("mod gone;\n", "`mod gone;` has no file"),
+        ("mod a {\n    fn f() {}\n", "an unbalanced brace"),
+        ("/* never closed\nmod a;\n", "an unterminated block comment"),
+    ],
+)
+def test_rust_source_the_reader_cannot_follow_is_an_error(tmp_path, lib, message):
+    with pytest.raises(rust_uses.SourceError, match=message):
+        rust_uses.module_uses(_crate(tmp_path, {"lib.rs": lib}))
