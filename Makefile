@@ -14,7 +14,7 @@ SERVER := target/release/sim-server
 GENERAL_POOL := out/table2g/pool-general.json
 HBS_CSV ?= ../shared/data/hbs/hbs.csv
 
-.PHONY: help run build wheel ppo marl benchmarl serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
+.PHONY: help run build wheel wheel-check ppo marl benchmarl serve router view browser cycles test lint fmt bench bench-rust bench-pysf soak calibrate table1 table2 table2v table2g train eval lint-py venv clean demos
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z0-9_-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  %-12s %s\n", $$1, $$2}'
@@ -61,15 +61,31 @@ MATURIN := $(VENV)/bin/maturin
 WHEEL_TOOLS := $(VENV)/.installed
 WHEEL_PROFILE := --release
 DIST := dist
+# The server wheel runs on every Linux with glibc >= 2.17 (manylinux2014: CentOS 7, Ubuntu 18.04,
+# Debian 10, RHEL 8/9 clusters): zig links it against glibc 2.17's symbols, with no container.
+# zig comes from the pinned `ziglang` package (clients/requirements-dev.txt); maturin runs it as
+# `python3 -m ziglang`, hence the venv first on PATH. `make wheel WHEEL_LINK=` links against this
+# machine's glibc instead (the wheel is then tagged for it, manylinux_2_35 here).
+WHEEL_LINK := --zig --compatibility manylinux2014
+WHEEL_PATH := $(abspath $(VENV)/bin):$(PATH)
+# The highest glibc the server wheel may need (`make wheel-check`, scripts/wheel_check.py).
+WHEEL_MAX_GLIBC := 2.17
 # The Python wheel carries the viewer's built page (sharedspace/viewer_page), so that an installed
 # `python -m sharedspace.viewer` needs no checkout.
 PAGE_IN_PACKAGE := clients/src/sharedspace/viewer_page
-wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel and the Python package's wheel (with the viewer's page), in dist/
-	rm -f $(DIST)/sharedspace*.whl
-	$(MATURIN) build $(WHEEL_PROFILE) --locked --manifest-path sim-server/Cargo.toml --out $(DIST)
+wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel (manylinux2014) and sdist, and the Python package's wheel (with the viewer's page), in dist/
+	rm -f $(DIST)/sharedspace*.whl $(DIST)/sharedspace_server-*.tar.gz
+	PATH="$(WHEEL_PATH)" $(MATURIN) build $(WHEEL_PROFILE) $(WHEEL_LINK) --locked --manifest-path sim-server/Cargo.toml --out $(DIST)
+	@# the server's source, for a platform with no wheel (macOS, aarch64): `pip install` builds it
+	@# with cargo (README, "Install from wheels")
+	$(MATURIN) sdist --manifest-path sim-server/Cargo.toml --out $(DIST)
 	rm -rf $(PAGE_IN_PACKAGE) && cp -r viewer/dist $(PAGE_IN_PACKAGE)
 	$(UV) build --quiet --wheel --out-dir $(DIST) clients; status=$$?; rm -rf $(PAGE_IN_PACKAGE); exit $$status
-	@ls -l $(DIST)/*.whl
+	@ls -l $(DIST)/*.whl $(DIST)/*.tar.gz
+
+wheel-check: wheel ## the server wheel's platform tags and its binary's highest glibc symbol, at most WHEEL_MAX_GLIBC (2.17)
+	$(PY) scripts/wheel_check.py $(DIST)/sharedspace_server-*.whl --max-glibc $(WHEEL_MAX_GLIBC)
+	$(VENV)/bin/auditwheel show $(DIST)/sharedspace_server-*.whl
 
 # scripts/module_cycles.py reads the crates' `use` paths from their source (scripts/rust_uses.py):
 # no tool to build.
@@ -105,7 +121,7 @@ test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(G
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
 	@# the other end of the torchrl range (0.11, BenchMARL's pin): the envs and a BenchMARL experiment
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 600 $(BENCHMARL_VENV)/bin/python -m pytest clients/tests_benchmarl -q -p no:cacheprovider
-	$(PY) -m ruff check clients calibration bench
+	$(PY) -m ruff check clients calibration bench scripts
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 lint: ## cargo fmt --check and clippy -D warnings
@@ -113,7 +129,7 @@ lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 
 lint-py: $(VENV)/.installed ## ruff and the import contracts (clients/pyproject.toml) on the Python code
-	$(PY) -m ruff check clients calibration bench
+	$(PY) -m ruff check clients calibration bench scripts
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 fmt: ## format the Rust code

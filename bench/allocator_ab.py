@@ -13,8 +13,13 @@ feature for this comparison). Every round times, for each build one after the ot
 Medians over the rounds are printed side by side with the ratio (the machines swing 1.5-2x
 within minutes, so the builds are only compared within one run, interleaved).
 
+``--also LABEL=PATH`` times more builds in the same rounds, each with its ratio to the jemalloc
+build: the wheel's binary, linked through zig against glibc 2.17's symbols, against the same
+source linked against this machine's glibc (issue 52).
+
 Usage: python bench/allocator_ab.py --jemalloc target/release/sim-server
-       --glibc GLIBC_BUILD/sim-server [--n 100 1000] [--k 256] [--rounds 5] [--json F]
+       --glibc GLIBC_BUILD/sim-server [--also zig=WHEEL_BUILD/sim-server] [--n 100 1000]
+       [--k 256] [--rounds 5] [--json F]
 """
 
 from __future__ import annotations
@@ -66,6 +71,13 @@ def main() -> int:
     ap.add_argument(
         "--glibc", required=True, help="the --features glibc build's sim-server"
     )
+    ap.add_argument(
+        "--also",
+        action="append",
+        default=[],
+        metavar="LABEL=PATH",
+        help="another build to time in the same rounds (its allocator is reported, not checked)",
+    )
     ap.add_argument("--n", type=int, nargs="+", default=[100, 1000], help="pedestrians")
     ap.add_argument("--k", type=int, default=256, help="envs in the batch")
     ap.add_argument(
@@ -77,10 +89,15 @@ def main() -> int:
     ap.add_argument("--json", help="also write the samples to this file")
     args = ap.parse_args()
     builds = {"jemalloc": args.jemalloc, "glibc": args.glibc}
+    for also in args.also:
+        label, sep, path = also.partition("=")
+        if not sep or not label or not path or label in builds:
+            sys.exit(f"--also {also!r}: expected LABEL=PATH with a new label")
+        builds[label] = path
     names = {b: allocator_of(path) for b, path in builds.items()}
-    for build, name in names.items():
-        if name != build:
-            sys.exit(f"{builds[build]} reports allocator {name!r}, not {build!r}")
+    for build in ("jemalloc", "glibc"):
+        if names[build] != build:
+            sys.exit(f"{builds[build]} reports allocator {names[build]!r}, not {build!r}")
 
     step = {b: {n: [] for n in args.n} for b in builds}
     batch: dict[str, list[float]] = {b: [] for b in builds}
@@ -92,21 +109,34 @@ def main() -> int:
 
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     print(f"{date}, {platform.machine()}, {os.cpu_count()} cores, {args.rounds} rounds")
-    print("| measure | jemalloc | glibc | glibc / jemalloc time |")
-    print("|---|---:|---:|---:|")
-    for n in args.n:
-        je, gl = (statistics.median(step[b][n]) for b in builds)
-        print(f"| world step, N = {n} (µs) | {je:,.1f} | {gl:,.1f} | {gl / je:.2f} |")
-    je, gl = (statistics.median(batch[b]) for b in builds)
+    others = [b for b in builds if b != "jemalloc"]
+    labels = {b: f"{b} ({names[b]})" if b not in ("jemalloc", "glibc") else b for b in builds}
     print(
-        f"| batch K = {args.k} (env-steps/s) | {je:,.0f} | {gl:,.0f} | {je / gl:.2f} |"
+        "| measure | "
+        + " | ".join(labels[b] for b in builds)
+        + " | "
+        + " | ".join(f"{b} / jemalloc" for b in others)
+        + " |"
     )
+    print("|---|" + "---:|" * (len(builds) + len(others)))
+    # ratios as "how much slower than jemalloc": time over time, rate under rate
+    for n in args.n:
+        med = {b: statistics.median(step[b][n]) for b in builds}
+        cells = [f"{med[b]:,.1f}" for b in builds]
+        ratios = [f"{med[b] / med['jemalloc']:.2f}" for b in others]
+        print(f"| world step, N = {n} (µs) | " + " | ".join(cells + ratios) + " |")
+    med = {b: statistics.median(batch[b]) for b in builds}
+    cells = [f"{med[b]:,.0f}" for b in builds]
+    ratios = [f"{med['jemalloc'] / med[b]:.2f}" for b in others]
+    print(f"| batch K = {args.k} (env-steps/s) | " + " | ".join(cells + ratios) + " |")
     if args.json:
         Path(args.json).write_text(
             json.dumps(
                 {
                     "date": date,
                     "args": vars(args),
+                    "builds": builds,
+                    "allocators": names,
                     "step_us": step,
                     "batch_env_steps_per_s": batch,
                 },

@@ -58,25 +58,80 @@ def test_pip_install_into_a_fresh_venv_outside_the_checkout(sim_server, tmp_path
     assert run.stdout.startswith("episode ") and "hbs-car" in run.stdout
 
 
-def make_wheels(out: Path) -> tuple[Path, Path]:
-    """The two wheels of ``make wheel`` (``sharedspace-server``: sim-server/pyproject.toml, maturin;
-    ``sharedspace`` with the viewer's page), built by that target in the dev profile: it reuses
-    the debug build of ``make test`` (a release build would add minutes); the packaging is the
-    same."""
-    built = subprocess.run(
-        ["make", "--no-print-directory", "wheel", "WHEEL_PROFILE=", f"DIST={out}"],
-        cwd=REPO_ROOT,
+sys.path.insert(0, str(REPO_ROOT / "scripts"))
+
+import wheel_check  # noqa: E402 - scripts/, the check of `make wheel-check`
+
+
+@pytest.fixture(scope="module")
+def wheels(tmp_path_factory) -> dict[str, Path]:
+    """What ``make wheel`` builds: ``sharedspace-server``'s wheel (sim-server/pyproject.toml,
+    maturin) and sdist, and ``sharedspace``'s wheel with the viewer's page. Built by that target
+    in the dev profile and linked against this machine's glibc: it reuses the debug build of
+    ``make test`` (the release build's link through zig, to glibc 2.17, compiles every crate
+    again: minutes; ``make wheel-check`` checks that wheel). The packaging is the same.
+    ``SHAREDSPACE_TEST_WHEELS=DIR`` takes the files of a ``make wheel DIST=DIR`` already run
+    instead, to run these tests on the release wheels."""
+    given = os.environ.get("SHAREDSPACE_TEST_WHEELS")
+    out = Path(given).resolve() if given else tmp_path_factory.mktemp("dist")
+    if not given:
+        built = subprocess.run(
+            [
+                "make",
+                "--no-print-directory",
+                "wheel",
+                "WHEEL_PROFILE=",
+                "WHEEL_LINK=",
+                f"DIST={out}",
+            ],
+            cwd=REPO_ROOT,
+            capture_output=True,
+            text=True,
+            timeout=1500,
+        )
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr[-3000:]
+    (server,) = out.glob("sharedspace_server-*.whl")
+    (sdist,) = out.glob("sharedspace_server-*.tar.gz")
+    (package,) = out.glob("sharedspace-*.whl")
+    return {"server": server, "sdist": sdist, "package": package}
+
+
+def test_the_server_wheel_is_tagged_for_the_glibc_its_binary_needs(wheels):
+    """The wheel's platform tag is what pip trusts: it must name a glibc no older than the one
+    its binary requires (maturin derives it from the link; `make wheel-check` holds the release
+    wheel to manylinux2014, glibc 2.17)."""
+    report = wheel_check.inspect(wheels["server"])
+    ((name, need),) = report.binaries.items()
+    assert name.endswith("/scripts/sim-server") and need is not None
+    promised = [v for v in report.tag_glibc.values() if v is not None]
+    assert promised and min(promised) >= need[0], (report.tags, need)
+    assert not report.problems(max(promised))
+
+
+def test_the_server_sdist_carries_every_file_its_build_needs(wheels, tmp_path):
+    """The sdist is what pip builds where no wheel fits (macOS, aarch64): unpacked outside the
+    checkout, its workspace resolves from its own Cargo.lock and every crate, test and bench
+    compiles (`cargo check`, offline: the registry crates of make test's build, whose checked
+    artefacts in target/ it reuses; what is not in the sdist, like params/, is not there)."""
+    import tarfile
+
+    with tarfile.open(wheels["sdist"]) as archive:
+        archive.extractall(tmp_path, filter="data")
+    (root,) = tmp_path.iterdir()
+    assert (root / "pyproject.toml").is_file() and (root / "Cargo.lock").is_file()
+    assert not (root / "params").exists()
+    checked = subprocess.run(
+        ["cargo", "check", "--offline", "--locked", "--workspace", "--all-targets", "--quiet"],
+        cwd=root,
+        env={**os.environ, "CARGO_TARGET_DIR": str(REPO_ROOT / "target")},
         capture_output=True,
         text=True,
-        timeout=1500,
+        timeout=900,
     )
-    assert built.returncode == 0, built.stdout[-2000:] + built.stderr[-3000:]
-    (server,) = out.glob("sharedspace_server-*.whl")
-    (package,) = out.glob("sharedspace-*.whl")
-    return server, package
+    assert checked.returncode == 0, checked.stderr[-3000:]
 
 
-def test_the_wheels_install_into_a_fresh_venv_and_train_with_the_bundled_server(tmp_path):
+def test_the_wheels_install_into_a_fresh_venv_and_train_with_the_bundled_server(wheels, tmp_path):
     """The wheels of `make wheel` into a fresh venv outside the checkout, offline from uv's cache
     (the one `make venv` filled: torch is not downloaded a second time). With only
     `sharedspace[train]`, ``python -m sharedspace.train`` says where to get a server; with the
@@ -87,7 +142,7 @@ def test_the_wheels_install_into_a_fresh_venv_and_train_with_the_bundled_server(
 
     uv = Path(sys.executable).parent / "uv"
     assert uv.is_file(), f"{uv} missing: `make venv` installs uv"
-    server_wheel, package_wheel = make_wheels(tmp_path / "dist")
+    server_wheel, package_wheel = wheels["server"], wheels["package"]
     venv = tmp_path / "venv"
     subprocess.run([str(uv), "venv", "-q", "--python", sys.executable, str(venv)], check=True)
     python = venv / "bin" / "python"

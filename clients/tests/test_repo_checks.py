@@ -1,5 +1,6 @@
-"""The two structure checks of `make test` (scripts/module_cycles.py, scripts/long_functions.py)
-on small inputs: each finds what it is for, and nothing else."""
+"""The repository's checks on small inputs: the two structure checks of `make test`
+(scripts/module_cycles.py, scripts/long_functions.py) and the wheel's glibc check of `make
+wheel-check` (scripts/wheel_check.py): each finds what it is for, and nothing else."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 import long_functions  # noqa: E402
 import module_cycles  # noqa: E402
 import rust_uses  # noqa: E402
+import wheel_check  # noqa: E402
 
 MODULES = {"c", "c::a", "c::b", "c::d", "c::d::x", "c::d::y"}
 
@@ -99,3 +101,55 @@ def test_long_functions_are_measured_in_both_languages(tmp_path):
 def test_rust_source_the_reader_cannot_follow_is_an_error(tmp_path, lib, message):
     with pytest.raises(rust_uses.SourceError, match=message):
         rust_uses.module_uses(_crate(tmp_path, {"lib.rs": lib}))
+
+
+def _wheel(path: Path, tag: str, files: dict[str, bytes]) -> Path:
+    """A wheel named for ``tag`` holding ``files`` and the WHEEL metadata that repeats the tag."""
+    import zipfile
+
+    wheel = path / f"tiny-0.1.0-py3-none-{tag}.whl"
+    with zipfile.ZipFile(wheel, "w") as archive:
+        for name, data in files.items():
+            archive.writestr(name, data)
+        tags = "".join(f"Tag: py3-none-{t}\n" for t in tag.split("."))
+        archive.writestr("tiny-0.1.0.dist-info/WHEEL", f"Wheel-Version: 1.0\n{tags}")
+    return wheel
+
+
+# A real binary of this machine: linked against its glibc, as the wheel of a plain `cargo build`.
+SYSTEM_BINARY = Path("/bin/true")
+
+
+def test_the_wheel_check_refuses_a_binary_newer_than_its_promise(tmp_path, capsys):
+    from elftools.elf.elffile import ELFFile
+
+    with SYSTEM_BINARY.open("rb") as f:
+        need, symbol = wheel_check.highest_glibc(ELFFile(f))
+    assert need > (2, 17), "this machine's glibc is older than the check's target"
+    files = {"tiny-0.1.0.data/scripts/tool": SYSTEM_BINARY.read_bytes()}
+    # tagged manylinux2014 but linked against this machine's glibc: the binary breaks the promise
+    wheel = _wheel(tmp_path, "manylinux2014_x86_64.manylinux_2_17_x86_64", files)
+    assert wheel_check.main([str(wheel), "--max-glibc", "2.17"]) == 1
+    out = capsys.readouterr().out
+    assert f"tiny-0.1.0.data/scripts/tool requires {symbol} > GLIBC_2.17" in out
+    assert "needs glibc" not in out  # the tags keep the promise; only the binary breaks it
+    # the same binary at exactly its own glibc passes, one minor version below it fails
+    honest = _wheel(tmp_path, f"manylinux_{need[0]}_{need[1]}_x86_64", files)
+    assert wheel_check.main([str(honest), "--max-glibc", f"{need[0]}.{need[1]}"]) == 0
+    assert wheel_check.main([str(honest), "--max-glibc", f"{need[0]}.{need[1] - 1}"]) == 1
+    assert f"needs glibc {need[0]}.{need[1]} > {need[0]}.{need[1] - 1}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "tag, files, message",
+    [
+        ("linux_x86_64", {"t/tool": SYSTEM_BINARY.read_bytes()}, "promises no glibc"),
+        ("manylinux_2_17_x86_64", {"t/readme.txt": b"text"}, "holds no ELF binary"),
+        ("any", {"t/tool": SYSTEM_BINARY.read_bytes()}, "no platform tag"),
+        ("manylinux_2_17_x86_64", {"t/tool": b"\x7fELF broken"}, "broken ELF file"),
+    ],
+)
+def test_a_wheel_the_check_cannot_vouch_for_fails_it(tmp_path, capsys, tag, files, message):
+    wheel = _wheel(tmp_path, tag, files)
+    assert wheel_check.main([str(wheel)]) == 1
+    assert message in capsys.readouterr().out

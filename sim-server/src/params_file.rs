@@ -42,7 +42,9 @@ pub enum ParamsFileError {
 }
 
 /// The calibrated parameters shipped as defaults (paper Table I calibration, docs/RESULTS.md).
-pub const SHIPPED_PARAMS: &str = include_str!("../../params/calibrated.json5");
+/// Read through `sim-server/shipped/`, a symlink to `params/calibrated.json5`: a file inside the
+/// crate, so that the server's sdist (`cargo package`, `maturin sdist`) carries it.
+pub const SHIPPED_PARAMS: &str = include_str!("../shipped/calibrated.json5");
 const SHIPPED_ORIGIN: &str = "params/calibrated.json5 (shipped defaults)";
 /// The `--params` word that selects model.md's starting values instead of the shipped ones.
 pub const SPEC_DEFAULTS: &str = "spec";
