@@ -111,7 +111,7 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 
 test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(GENERAL_POOL) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
 	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	$(CARGO) clippy --workspace --all-targets --features sim-server/bench -- -D warnings
 	$(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
 	$(PYTHON) scripts/long_functions.py --limit 80 sim-server/src clients/src
 	$(CARGO) test --workspace
@@ -126,7 +126,7 @@ test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(G
 
 lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	$(CARGO) clippy --workspace --all-targets --features sim-server/bench -- -D warnings
 
 lint-py: $(VENV)/.installed ## ruff and the import contracts (clients/pyproject.toml) on the Python code
 	$(PY) -m ruff check clients calibration bench scripts
@@ -138,7 +138,7 @@ fmt: ## format the Rust code
 bench: bench-rust bench-pysf ## every benchmark (results go in docs/BENCHMARKS.md)
 
 bench-rust: ## criterion benchmarks
-	$(CARGO) bench --workspace
+	$(CARGO) bench --workspace --features sim-server/bench
 
 soak: $(SERVER) $(VENV)/.installed ## soak: 8 trainers x 64 envs for 10 min with churn and kills (ARGS='--minutes 600' for 10 h; not in make test)
 	$(PY) bench/soak.py $(ARGS)

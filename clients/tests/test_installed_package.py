@@ -62,6 +62,9 @@ sys.path.insert(0, str(REPO_ROOT / "scripts"))
 
 import wheel_check  # noqa: E402 - scripts/, the check of `make wheel-check`
 
+# The criterion benchmarks are behind sim-server's `bench` feature (sim-server/Cargo.toml).
+BENCH = ["--features", "sim-server/bench"]
+
 
 @pytest.fixture(scope="module")
 def wheels(tmp_path_factory) -> dict[str, Path]:
@@ -120,8 +123,18 @@ def test_the_server_sdist_carries_every_file_its_build_needs(wheels, tmp_path):
     (root,) = tmp_path.iterdir()
     assert (root / "pyproject.toml").is_file() and (root / "Cargo.lock").is_file()
     assert not (root / "params").exists()
+    # the feature set of make test's clippy, whose checked dependencies this reuses
     checked = subprocess.run(
-        ["cargo", "check", "--offline", "--locked", "--workspace", "--all-targets", "--quiet"],
+        [
+            "cargo",
+            "check",
+            "--offline",
+            "--locked",
+            "--workspace",
+            "--all-targets",
+            "--quiet",
+            *BENCH,
+        ],
         cwd=root,
         env={**os.environ, "CARGO_TARGET_DIR": str(REPO_ROOT / "target")},
         capture_output=True,

@@ -7,8 +7,8 @@
 //!
 //! Server, bare queryable and client run in this process, each in its own zenoh session, over
 //! tcp/127.0.0.1 with multicast scouting off. Run with
-//! `cargo bench -p sim-server --bench server_roundtrip` (optional argument: seconds per
-//! measurement, default 2).
+//! `cargo bench -p sim-server --features bench --bench server_roundtrip` (optional argument:
+//! seconds per measurement, default 2).
 
 use std::time::{Duration, Instant};
 
