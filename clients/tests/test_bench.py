@@ -232,34 +232,43 @@ def test_every_policy_the_bench_cannot_play_is_named_before_a_server_starts(tmp_
             "pool out/table2g/pool-general.json, whose test scenes are not the task's",
         ),
     ]
-    for spec, message in bad:
+    # the refusals that need a task of another kind than SMALL
+    bad_for_task = [
+        (
+            "crowd",
+            _checkpoint(
+                tmp_path,
+                "default",
+                algorithm="ppo",
+                config={"algorithm": "ppo"},
+                world={
+                    "max_agents": 10,
+                    "server_params": "params/table2g.json5",
+                    "scenario_pool": "",
+                },
+            ),
+            "pool default, whose test scenes are not the task's",
+        ),
+        (
+            SMALL_CROSSING,
+            _checkpoint(tmp_path, "one", algorithm="ppo", config={"algorithm": "ppo"}),
+            "a single-car checkpoint \\(ppo\\); task crossing-small@1 has 4 cars",
+        ),
+        (
+            SMALL_CROSSING,
+            _checkpoint(
+                tmp_path,
+                "three",
+                algorithm="mappo",
+                config={"algorithm": "mappo"},
+                world={"task": {**vars(CrossingTask()), "cars": 3}},
+            ),
+            "another crossing task \\(differs in cars, test_scenes\\)",
+        ),
+    ]
+    for task, spec, message in [(SMALL, spec, message) for spec, message in bad] + bad_for_task:
         with pytest.raises(BenchError, match=message):
-            score(SMALL, spec)
-    crowd_from_default_pool = _checkpoint(
-        tmp_path,
-        "default",
-        algorithm="ppo",
-        config={"algorithm": "ppo"},
-        world={"max_agents": 10, "server_params": "params/table2g.json5", "scenario_pool": ""},
-    )
-    with pytest.raises(BenchError, match="pool default, whose test scenes are not the task's"):
-        score("crowd", crowd_from_default_pool)
-    one_car = _checkpoint(tmp_path, "one", algorithm="ppo", config={"algorithm": "ppo"})
-    with pytest.raises(
-        BenchError, match="a single-car checkpoint \\(ppo\\); task crossing-small@1 has 4 cars"
-    ):
-        score(SMALL_CROSSING, one_car)
-    other_crossing = _checkpoint(
-        tmp_path,
-        "three",
-        algorithm="mappo",
-        config={"algorithm": "mappo"},
-        world={"task": {**vars(CrossingTask()), "cars": 3}},
-    )
-    with pytest.raises(
-        BenchError, match="another crossing task \\(differs in cars, test_scenes\\)"
-    ):
-        score(SMALL_CROSSING, other_crossing)
+            score(task, spec)
 
 
 def test_a_policy_that_fails_or_writes_nothing_is_stopped_at_the_probe(tmp_path):
