@@ -153,3 +153,13 @@ def test_a_wheel_the_check_cannot_vouch_for_fails_it(tmp_path, capsys, tag, file
     wheel = _wheel(tmp_path, tag, files)
     assert wheel_check.main([str(wheel)]) == 1
     assert message in capsys.readouterr().out
+
+
+def test_a_file_that_is_no_wheel_and_a_malformed_glibc_bound_are_named(tmp_path, capsys):
+    not_a_zip = tmp_path / "tiny-0.1.0-py3-none-manylinux_2_17_x86_64.whl"
+    not_a_zip.write_text("not a zip")
+    assert wheel_check.main([str(not_a_zip)]) == 1
+    assert "not a readable wheel" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        wheel_check.main([str(not_a_zip), "--max-glibc", "2.17.1"])
+    assert "a glibc version is MAJOR.MINOR, like 2.17: '2.17.1'" in capsys.readouterr().err
