@@ -121,7 +121,7 @@ test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(G
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
 	@# the other end of the torchrl range (0.11, BenchMARL's pin): the envs and a BenchMARL experiment
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 600 $(BENCHMARL_VENV)/bin/python -m pytest clients/tests_benchmarl -q -p no:cacheprovider
-	$(PY) -m ruff check clients calibration bench scripts
+	$(PY) -m ruff check clients calibration benchmarks scripts
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 lint: ## cargo fmt --check and clippy -D warnings
@@ -129,7 +129,7 @@ lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) clippy --workspace --all-targets --features sim-server/bench -- -D warnings
 
 lint-py: $(VENV)/.installed ## ruff and the import contracts (clients/pyproject.toml) on the Python code
-	$(PY) -m ruff check clients calibration bench scripts
+	$(PY) -m ruff check clients calibration benchmarks scripts
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 fmt: ## format the Rust code
@@ -141,10 +141,10 @@ bench-rust: ## criterion benchmarks
 	$(CARGO) bench --workspace --features sim-server/bench
 
 soak: $(SERVER) $(VENV)/.installed ## soak: 8 trainers x 64 envs for 10 min with churn and kills (ARGS='--minutes 600' for 10 h; not in make test)
-	$(PY) bench/soak.py $(ARGS)
+	$(PY) benchmarks/soak.py $(ARGS)
 
 bench-pysf: $(SERVER) $(VENV)/.installed ## world step vs pysocialforce, side by side, same N
-	$(PY) bench/step_vs_pysocialforce.py --server $(SERVER)
+	$(PY) benchmarks/step_vs_pysocialforce.py --server $(SERVER)
 
 CALIBRATED := params/calibrated.json5
 CALIBRATED_COLL := params/calibrated_collisions.json5

@@ -4,9 +4,10 @@
 #
 # 1. starts `sim-server serve` on a free loopback port (multicast scouting off), with the world
 #    parameters of the paper's Table II (params/table2.json5);
-# 2. trains the fast learner against it over Zenoh: PPO with the GCN over the risk graph, from
-#    scratch, on 256 envs stepped together (RUN_FRAMES frames, default 786 432: about 2 minutes;
-#    progress bar: frames/s, return, success, the env's share of the time);
+# 2. trains the fast learner for the benchmark's `paper` task against it over Zenoh: PPO with the
+#    GCN over the risk graph, from scratch, on 256 envs stepped together (RUN_FRAMES frames,
+#    default 786 432: about 2 minutes; progress bar: frames/s, return, success, the env's share
+#    of the time; curves on the validation scenes carved from the train scenes);
 # 3. evaluates its last checkpoint on the 18 test scenes (the paper's Table II columns, next to
 #    the recorded human driver) and plots its curves, profiles and a scene with its risk graph
 #    (out/main/plots);
@@ -25,17 +26,19 @@ mkdir -p "$out"
 
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 endpoint="tcp/127.0.0.1:$port"
+# The validation split the trainer carves from the paper pool's train scenes (task=paper): the
+# server serves it beside the embedded pools, so that the run's curves never touch test scenes.
+validation=$("$py" -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(task="paper", device="cpu").training_pool())')
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
-    --cfg server_id:main --cfg 'params:"params/table2.json5"' > "$out/server.log" 2>&1 &
+    --cfg server_id:main --cfg 'params:"params/table2.json5"' \
+    --cfg "pools:[\"embedded:hbs-paper\",\"embedded:hbs-general\",\"$validation\"]" > "$out/server.log" 2>&1 &
 server_pid=$!
 trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
 echo "== sim-server serving on $endpoint (log: $out/server.log)"
 
 remote=("server_endpoint=$endpoint" server_prefix=sharedspace)
 echo "== training PPO-GCN-Cog from scratch: $frames frames against the server"
-"$py" -m sharedspace.train --set algorithm=ppo variant=g_sac_cog "total_frames=$frames" \
-    server_params=params/table2.json5 \
-    'variations={"position_sigma":0.5,"start_offset_steps":2,"desired_speed_scale":0.2,"mirror":true}' \
+"$py" -m sharedspace.train --set algorithm=ppo task=paper network=gcn_risk "total_frames=$frames" \
     eval_interval=262144 "checkpoint_interval=$frames" progress=true "log_dir=$out" "${remote[@]}"
 
 echo

@@ -114,7 +114,7 @@ if [ "${TABLE2_TRAIN:-1}" = 1 ]; then
             else
                 echo "== $variant seed $seed: training"
                 args+=("variant=$variant" "seed=$seed" init_random_frames=2000 num_envs=8 "${train_pool[@]}"
-                    "eval_interval=$eval_every" "checkpoint_interval=$ckpt_every" save_buffer=true
+                    "eval_interval=$eval_every" eval_split=test "checkpoint_interval=$ckpt_every" save_buffer=true
                     progress=false "log_dir=$run")
                 # shellcheck disable=SC2206 # word splitting is the format of TABLE2_SET
                 args+=(${TABLE2_SET:-})

@@ -45,8 +45,8 @@ def _remote(sim_server) -> list[str]:
     return [f"server_endpoint={sim_server.endpoint}", f"server_prefix={sim_server.prefix}"]
 
 
-@pytest.mark.parametrize("variant", ["g_sac_cog", "g_sac_nocog", "s_sac"])
-def test_ppo_iterations_learn_for_every_network(variant, sim_server, tmp_path):
+@pytest.mark.parametrize("network", ["gcn_risk", "gcn_uniform", "mlp"])
+def test_ppo_iterations_learn_for_every_network(network, sim_server, tmp_path):
     """Three iterations (96 frames) against the live server: every gradient step moves the
     actor, the losses are finite, the feature normalisation has seen the batches, and the
     metrics name where the time went."""
@@ -55,7 +55,7 @@ def test_ppo_iterations_learn_for_every_network(variant, sim_server, tmp_path):
         [
             *TINY,
             *_remote(sim_server),
-            f"variant={variant}",
+            f"network={network}",
             "total_frames=96",
             f"log_dir={tmp_path}",
         ],
@@ -77,7 +77,7 @@ def test_ppo_iterations_learn_for_every_network(variant, sim_server, tmp_path):
     for r in rows:
         assert torch.isfinite(torch.tensor(float(r["value"]))), r
     ckpt = load_checkpoint(tmp_path / "checkpoints" / "last.pt")
-    assert (ckpt["format"], ckpt["algorithm"], ckpt["network"]) == (FORMAT, "ppo", variant)
+    assert (ckpt["format"], ckpt["algorithm"], ckpt["network"]) == (FORMAT, "ppo", network)
     assert ckpt["world"]["reward"]["name"] == "learner"
     assert ckpt["world"]["max_agents"] == 5
     norm = {k: v for k, v in ckpt["actor"].items() if k.endswith("norm.count")}
@@ -158,7 +158,13 @@ def test_feature_norm_tracks_present_nodes_by_role():
         (["algorithm=ppo", "reward=kind"], "reward"),
         (["algorithm=ppo", "rollout_steps=0"], "rollout_steps"),
         (["algorithm=ppo", "minibatch_size=lots"], "minibatch_size"),
-        (["variant=transformer"], "variant"),
+        (["network=transformer"], "network"),
+        (["variant=transformer"], "network"),  # the old name of the field
+        (["algorithm=mappo"], "algorithm"),  # several cars per env
+        (["task=nowhere"], "task"),
+        (["task=crossing"], "task"),
+        (["task=paper", "max_agents=12"], "max_agents"),
+        (["eval_split=train"], "eval_split"),
     ],
 )
 def test_a_bad_config_names_its_field(overrides, field):
@@ -176,4 +182,5 @@ def test_the_algorithm_fills_in_what_was_left_to_it():
     assert (sac_cfg.num_envs, sac_cfg.reward, sac_cfg.world_reward_weights) == (8, "world", {})
     kept = apply_overrides(TrainConfig(), ["num_envs=32", "reward=learner", "algorithm=sac"])
     assert (kept.num_envs, kept.reward) == (32, "learner")
-    assert apply_overrides(TrainConfig(), ["variant=mlp"]).variant == "s_sac"
+    assert apply_overrides(TrainConfig(), ["variant=s_sac"]).network == "mlp"
+    assert (ppo_cfg.eval_interval, sac_cfg.eval_interval) == (524_288, 20_000)

@@ -33,7 +33,7 @@ def test_discovery_and_info(sim_server, sim_client):
     assert sim_client.pick_server()["server_id"] == sim_server.server_id
     assert sim_client.info(sim_server.server_id)["server_id"] == sim_server.server_id
     assert sim_server.server_id in sim_client.transport.alive_servers()
-    # The server's own tables and its allocator's figures, for soaks (bench/soak.py).
+    # The server's own tables and its allocator's figures, for soaks (benchmarks/soak.py).
     assert info["tables"]["envs"] == info["load"]
     assert {"trainers", "fair_trainers", "pooled_step_buffers"} <= set(info["tables"])
     assert info["allocator"]["in_use"] > 0

@@ -125,7 +125,7 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     tiny = [
         *TINY_TRAIN,
         "eval_interval=64",
-        "eval_envs=18",
+        "eval_split=test",  # the table2 command's curves (paper tooling)
         "checkpoint_interval=0",
         "total_frames=64",
     ]
@@ -168,7 +168,7 @@ def test_table2_over_a_tiny_real_run(sim_server, tmp_path):
     assert "STALE-BLOCK" not in text and "G-SAC-Cog" in text and text.endswith("tail\n")
     assert (ship / "g_sac_cog-s0.pt").is_file() and (ship / "g_sac_cog-s0.json").is_file()
     record = tmp_path / "results" / "runs" / "g_sac_cog-s0"
-    assert json.loads((record / "config.json").read_text())["variant"] == "g_sac_cog"
+    assert json.loads((record / "config.json").read_text())["network"] == "gcn_risk"
     assert len(json.loads((record / "eval_test.json").read_text())["episodes"]) == 18
     with gzip.open(record / "metrics.csv.gz", "rt") as f:
         assert f.readline() == "frames,wall_s,metric,value\n" and ",eval/success," in f.read()

@@ -1,4 +1,4 @@
-"""GCN normalisation by hand and the forward shapes of the three network variants."""
+"""GCN normalisation by hand and the forward shapes of the three registered networks."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ pytest.importorskip("torchrl")
 from sac_reference import make_loss  # noqa: E402
 
 from sharedspace.train.config import (  # noqa: E402
-    VARIANTS,
     TrainConfig,
     apply_overrides,
     load_config,
@@ -24,6 +23,7 @@ from sharedspace.train.gcn import (  # noqa: E402
     normalized_adjacency,
     uniform_adjacency,
 )
+from sharedspace.train.networks import NETWORKS  # noqa: E402
 from sharedspace.train.sac import make_actor, make_critic  # noqa: E402
 
 
@@ -66,10 +66,10 @@ def test_uniform_adjacency():
     assert torch.allclose(n[:3, :3], torch.full((3, 3), 1.0 / 3.0))
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_variant_shapes_and_padding_invariance(variant):
+@pytest.mark.parametrize("graph", ["risk", "uniform", None])
+def test_encoder_shapes_and_padding_invariance(graph):
     torch.manual_seed(0)
-    enc = GraphEncoder(variant, max_agents=5, gcn_hidden=8, gcn_layers=2)
+    enc = GraphEncoder(graph, max_agents=5, gcn_hidden=8, gcn_layers=2)
     f = torch.randn(3, 7, 5, 11)
     adj = torch.rand(3, 7, 5, 5)
     mask = torch.tensor([True, True, True, False, False]).expand(3, 7, 5)
@@ -81,17 +81,17 @@ def test_variant_shapes_and_padding_invariance(variant):
     adj2[..., 3:, :] = 5.0
     adj2[..., :, 3:] = 5.0
     assert torch.allclose(enc(f2, adj2, mask), out, atol=1e-6)
-    if variant == "g_sac_cog":  # the risk graph matters for the cognitive variant only
+    if graph == "risk":  # the risk graph matters for the GCN over it only
         assert not torch.allclose(enc(f, adj * 0.1, mask), out)
     else:
         assert torch.allclose(enc(f, adj * 0.1, mask), out, atol=1e-6)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_actor_critic_loss_shapes(variant):
+@pytest.mark.parametrize("network", list(NETWORKS))
+def test_actor_critic_loss_shapes(network):
     cfg = apply_overrides(
         TrainConfig(),
-        dict(variant=variant, max_agents=4, num_envs=2, hidden_sizes=[16], gcn_hidden=8),
+        dict(network=network, max_agents=4, num_envs=2, hidden_sizes=[16], gcn_hidden=8),
     )
     env = make_env(cfg)
     actor = make_actor(cfg, env.action_spec_unbatched)
@@ -108,14 +108,14 @@ def test_actor_critic_loss_shapes(variant):
 
 def test_config_file_and_overrides(tmp_path):
     p = tmp_path / "c.toml"
-    p.write_text('variant = "s_sac"\nnum_envs = 3\nhidden_sizes = [32, 16]\n')
+    p.write_text('variant = "s_sac"\nnum_envs = 3\nhidden_sizes = [32, 16]\n')  # old name
     cfg = load_config(p, ["lr=1e-3", "save_buffer=true", "total_frames=1e4"])
-    assert (cfg.variant, cfg.num_envs, cfg.hidden_sizes) == ("s_sac", 3, [32, 16])
+    assert (cfg.network, cfg.num_envs, cfg.hidden_sizes) == ("mlp", 3, [32, 16])
     assert cfg.lr == 1e-3 and cfg.save_buffer is True and cfg.total_frames == 10_000
     with pytest.raises(KeyError):
         load_config(None, ["nope=1"])
     with pytest.raises(ValueError):
-        load_config(None, ["variant=foo"])
+        load_config(None, ["network=foo"])
 
 
 def test_a_retired_field_of_an_old_config_is_ignored_and_an_env_field_is_checked():

@@ -1,5 +1,5 @@
 """The learner (sharedspace.train.update.SACUpdate) computes TorchRL's SACLoss: same losses and
-same gradients on the same parameters, batch and random draws, for every network variant."""
+same gradients on the same parameters, batch and random draws, for every built-in network."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from sac_reference import make_loss  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from torchrl.data import Bounded  # noqa: E402
 
-from sharedspace.train.config import VARIANTS, TrainConfig  # noqa: E402
+from sharedspace.train.config import TrainConfig  # noqa: E402
+from sharedspace.train.networks import NETWORKS  # noqa: E402
 from sharedspace.train.sac import make_actor, make_critic  # noqa: E402
 from sharedspace.train.update import SACUpdate  # noqa: E402
 
@@ -46,7 +47,7 @@ def replay_batch(gen: torch.Generator) -> TensorDict:
 def reference_and_update(variant: str, layer_norm: bool = False):
     """TorchRL's SACLoss and an SACUpdate holding the same actor and the same critic weights;
     the targets are moved away from the critics so that the target path is exercised."""
-    cfg = TrainConfig(variant=variant, gamma=0.97, critic_layer_norm=layer_norm)
+    cfg = TrainConfig(network=variant, gamma=0.97, critic_layer_norm=layer_norm)
     spec = Bounded(-1.0, 1.0, (2,))
     actor, critic = make_actor(cfg, spec), make_critic(cfg, spec)
     probe = replay_batch(torch.Generator().manual_seed(1))
@@ -84,7 +85,7 @@ def reference_and_update(variant: str, layer_norm: bool = False):
 
 
 @pytest.mark.parametrize("layer_norm", [False, True], ids=["plain", "layer_norm"])
-@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("variant", list(NETWORKS))
 def test_losses_and_gradients_equal_torchrl_sacloss(variant, layer_norm):
     torch.manual_seed(0)
     loss, update, actor = reference_and_update(variant, layer_norm)

@@ -1,7 +1,7 @@
 //! The benchmark scene of one full world step (cognition, risk and graph all on): one external
 //! AV among `N` CR-SFM pedestrians at 0.25 pedestrians per square metre, shared by the criterion
 //! bench (`benches/world_step.rs`) and `sim-server bench-step`, which the pysocialforce
-//! comparison script (`bench/step_vs_pysocialforce.py`) runs side by side with pysocialforce.
+//! comparison script (`benchmarks/step_vs_pysocialforce.py`) runs side by side with pysocialforce.
 
 use std::sync::Arc;
 use std::time::Instant;

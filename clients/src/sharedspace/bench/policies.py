@@ -15,14 +15,14 @@ A policy spec is one of:
 - a TorchRL module (a ``TensorDictModuleBase``) that reads the env's tensordict and writes
   ``action`` (``("vehicle", "action")`` on the crossing task); played deterministically.
 
-Only a checkpoint imports the trainers (:mod:`sharedspace.train`, :mod:`sharedspace.marl`):
-a function or a driver is scored with none of them loaded.
+Only a checkpoint builds a learner's network (:mod:`sharedspace.train.learners`,
+:mod:`sharedspace.marl.networks`); the checkpoint reader and the registry are all a function or
+a driver loads of the trainers.
 """
 
 from __future__ import annotations
 
 import importlib
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,23 +146,21 @@ def _imported(target: str, task: Task, name: str) -> Policy:
 
 
 def _checkpoint(path: Path, task: Task, name: str) -> Policy:
-    if not path.is_file():
-        raise BenchError(f"policy {path}: no such checkpoint")
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    beside = path.parent / "config.json"
-    if isinstance(ckpt, dict) and "actor" not in ckpt and beside.is_file():
-        # `marl`'s shipped policy.pt: the actor's weights, its run's config.json beside
-        run = json.loads(beside.read_text())
-        if "task" in run and "config" in run:
-            ckpt = {"actor": ckpt, "config": run["config"], "world": {"task": run["task"]}}
-    if not isinstance(ckpt, dict) or "actor" not in ckpt or "config" not in ckpt:
-        raise BenchError(f"policy {path}: not a checkpoint of sharedspace.train or .marl")
-    algorithm = ckpt.get("algorithm") or ckpt["config"].get("algorithm", "sac")
-    if "task" in (ckpt.get("world") or {}) and algorithm not in ("mappo", "ippo", "masac"):
-        algorithm = "mappo"  # a multi-car run's config from before the algorithm was recorded
+    from sharedspace.train.checkpoint import NotACheckpoint, read_checkpoint
+    from sharedspace.train.registry import UnknownAlgorithm, get_algorithm
+
+    try:
+        ckpt = read_checkpoint(path)
+    except NotACheckpoint as err:
+        raise BenchError(f"policy {err}") from None
+    algorithm = ckpt["algorithm"]
+    try:
+        multi_car = get_algorithm(algorithm).multi_car
+    except UnknownAlgorithm as err:
+        raise BenchError(f"policy {path}: {err} (register it before scoring)") from None
     source = {"kind": "checkpoint", "path": str(path), "algorithm": algorithm}
-    source["network"] = ckpt.get("network", "")
-    if algorithm in ("mappo", "ippo", "masac"):
+    source["network"] = ckpt["network"]
+    if multi_car:
         if task.crossing is None:
             raise BenchError(
                 f"policy {path}: a multi-car checkpoint ({algorithm}), task {task.tag} has one car"
@@ -173,13 +171,13 @@ def _checkpoint(path: Path, task: Task, name: str) -> Policy:
             f"policy {path}: a single-car checkpoint ({algorithm}); task {task.tag} has "
             f"{task.cars} cars"
         )
-    mismatches = world_mismatches(ckpt.get("world") or {}, ckpt["config"], task)
+    mismatches = world_mismatches(ckpt["world"], ckpt["config"], task)
     if mismatches:
         raise BenchError(
             f"policy {path}: trained in another world than task {task.tag}: "
             + "; ".join(mismatches)
         )
-    return Policy(name or _run_name(path), source, _single_car_act(path))
+    return Policy(name or _run_name(path), source, _single_car_act(ckpt))
 
 
 def _run_name(path: Path) -> str:
@@ -227,15 +225,14 @@ def _read_params(path: str) -> dict[str, Any] | None:
     return json5.loads(file.read_text()) if file.is_file() else None
 
 
-def _single_car_act(path: Path) -> Callable:
-    """A single-car checkpoint's deterministic action; a residual learner's goes through the
-    one residual transform (:class:`~sharedspace.train.envs.ResidualAction`) as in training."""
+def _single_car_act(ckpt: dict[str, Any]) -> Callable:
+    """A single-car checkpoint's deterministic action (its actor built with no server); a
+    residual learner's goes through the one residual transform
+    (:class:`~sharedspace.train.envs.ResidualAction`) as in training."""
     from sharedspace.train.envs import ResidualAction
     from sharedspace.train.learners import load_checkpoint_actor
 
-    # The network is built against a local server of the checkpoint's world, not the server it
-    # trained against (gone, or elsewhere).
-    cfg, actor = load_checkpoint_actor(str(path), ["server_endpoint=", "zenoh_config="])
+    cfg, actor = load_checkpoint_actor(ckpt)
     act = _module_act(actor, "action")
     if not cfg.base_driver:
         return act

@@ -3,10 +3,11 @@ three networks, 3 seeds, from scratch or as a residual over the car-aware script
 task's train split and scored by the benchmark beside the scripts.
 
     python -m sharedspace.bench.rows crowd --arm residual [--frames 1500000] [--seeds 0 1 2]
-        [--networks g_sac_cog g_sac_nocog s_sac] [--out results/bench]
+        [--networks gcn_risk gcn_uniform mlp] [--out results/bench]
 
-Each run trains in its own process (``python -m sharedspace.train``) into
-``OUT/runs/TASK-ARM-NETWORK-sSEED`` (config, metrics with the test-split curve, checkpoints);
+Each run trains for the task in its own process (``python -m sharedspace.train --set
+task=TASK``) into ``OUT/runs/TASK-ARM-NETWORK-sSEED`` (config, metrics with the curve on the
+validation split carved from the train scenes, checkpoints);
 a finished run is kept, an unfinished one resumes from its last checkpoint. Its last checkpoint
 is the run's policy (nothing is chosen on the test scenes), shipped without its learner state
 as ``OUT/policies/TASK-ARM-NETWORK-sSEED.pt``. Then every network's seeds are scored as one
@@ -14,8 +15,10 @@ pooled row (``OUT/TASK/ARM-NETWORK.json`` / ``.md``) against the task's ``car_aw
 the paper's question is asked of the rows: Cog − NoCog and Cog − S, paired. ``OUT/TASK/runs.json``
 keeps each run's wall time.
 
-The recipe (the trainer's PPO defaults and ``TRAIN_WORLDS``) was chosen on a validation split
-carved from the train scenes (results/ppo/tuning), never on the test scenes.
+The recipe (the trainer's PPO defaults and the tasks' training worlds, :mod:`sharedspace.worlds`)
+was chosen on a validation split carved from the train scenes (results/ppo/tuning), never on the
+test scenes. The residual arm's shipped runs (2026-12-06) name their networks by the old names
+(``s_sac``, ``g_sac_nocog``, ``g_sac_cog``), which ``--networks`` still accepts.
 """
 
 from __future__ import annotations
@@ -29,27 +32,31 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from sharedspace.bench.score import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
-from sharedspace.paper.demos import TRAINING_VARIATIONS  # Table II-G's learners' variations
+from sharedspace.train.checkpoint import read_checkpoint
+from sharedspace.train.checkpoint import ship as ship_checkpoint
+from sharedspace.train.networks import UnknownNetwork, canonical_network
+from sharedspace.worlds import TRAINING_TASKS
 
-__all__ = ["ARMS", "NETWORKS", "TRAIN_WORLDS", "main"]
+__all__ = ["ARMS", "NETWORKS", "main"]
 
-#: The paper's three networks (``TrainConfig.variant``).
-NETWORKS = ("g_sac_cog", "g_sac_nocog", "s_sac")
+#: The paper's three networks (:mod:`sharedspace.train.networks`), risk graph first.
+NETWORKS = ("gcn_risk", "gcn_uniform", "mlp")
 #: How a row's learner starts: from scratch, or as a residual over the car-aware script.
 ARMS: dict[str, list[str]] = {"scratch": [], "residual": ["base_driver=car_aware"]}
-#: Each single-car task's training world: its pool (train split), parameters and M.
-TRAIN_WORLDS: dict[str, list[str]] = {
-    "paper": ["scenario_pool=", "server_params=params/table2.json5", "max_agents=8"],
-    "crowd": [
-        "scenario_pool=out/table2g/pool-general.json",
-        "server_params=params/table2g.json5",
-        "max_agents=10",
-    ],
-}
+#: The single-car tasks a row trains for.
+SINGLE_CAR_TASKS = tuple(n for n, t in TRAINING_TASKS.items() if t.cars == 1)
+
+
+def _network_name(name: str) -> str:
+    """A ``--networks`` entry: a registered network or an alias (kept as given: the residual
+    arm's shipped runs are named by the old names)."""
+    try:
+        canonical_network(name)
+    except UnknownNetwork as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return name
 
 
 def run_name(task: str, arm: str, network: str, seed: int) -> str:
@@ -62,16 +69,15 @@ def train_run(task: str, arm: str, network: str, seed: int, frames: int, out: Pa
     last = log_dir / "checkpoints" / "last.pt"
     done = 0
     if last.is_file():
-        done = int(torch.load(last, map_location="cpu", weights_only=False)["counters"]["frames"])
+        done = int(read_checkpoint(last)["counters"]["frames"])
         if done >= frames:
             return 0.0
     overrides = [
         "algorithm=ppo",
-        f"variant={network}",
+        f"task={task}",
+        f"network={network}",
         f"seed={seed}",
         f"total_frames={frames}",
-        *TRAIN_WORLDS[task],
-        f"variations={json.dumps(TRAINING_VARIATIONS)}",
         *ARMS[arm],
         "eval_interval=262144",
         "checkpoint_interval=524288",
@@ -88,13 +94,8 @@ def train_run(task: str, arm: str, network: str, seed: int, frames: int, out: Pa
 def ship(task: str, arm: str, network: str, seed: int, out: Path) -> Path:
     """The run's last checkpoint without its learner state: the policy a result names."""
     name = run_name(task, arm, network, seed)
-    ckpt = torch.load(out / "runs" / name / "checkpoints" / "last.pt", weights_only=False)
-    for key in ("learner", "optimizers", "torch_rng"):
-        ckpt.pop(key, None)
-    path = out / "policies" / f"{name}.pt"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(ckpt, path)
-    return path
+    ckpt = read_checkpoint(out / "runs" / name / "checkpoints" / "last.pt")
+    return ship_checkpoint(ckpt, out / "policies" / f"{name}.pt")
 
 
 def reference(task: str, driver: str, out: Path) -> Result:
@@ -109,9 +110,9 @@ def reference(task: str, driver: str, out: Path) -> Result:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sharedspace.bench.rows", description=__doc__)
-    ap.add_argument("task", choices=sorted(TRAIN_WORLDS))
+    ap.add_argument("task", choices=SINGLE_CAR_TASKS)
     ap.add_argument("--arm", choices=sorted(ARMS), required=True)
-    ap.add_argument("--networks", nargs="+", default=list(NETWORKS), choices=NETWORKS)
+    ap.add_argument("--networks", nargs="+", default=list(NETWORKS), type=_network_name)
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--frames", type=int, default=1_500_000, help="env frames per run")
     ap.add_argument("--out", default="results/bench")
@@ -143,9 +144,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows[network].save(out)
         print(rows[network].markdown(), flush=True)
     question = {}
-    for other in ("g_sac_nocog", "s_sac"):
-        if "g_sac_cog" in rows and other in rows:
-            question[f"g_sac_cog - {other}"] = compare(rows["g_sac_cog"], rows[other])
+    by_network = {canonical_network(n): row for n, row in rows.items()}
+    for a, b in (("gcn_risk", "gcn_uniform"), ("gcn_risk", "mlp"), ("gcn_uniform", "mlp")):
+        if a in by_network and b in by_network:
+            question[f"{a} - {b}"] = compare(by_network[a], by_network[b])
     if question:
         (folder / f"{args.arm}-question.json").write_text(json.dumps(question, indent=1))
         for key, c in question.items():

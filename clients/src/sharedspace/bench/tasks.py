@@ -26,34 +26,9 @@ from typing import Any
 from sharedspace.episodes import BENCHMARK_VARIATIONS
 from sharedspace.marl.task import CrossingTask
 from sharedspace.pool import DEFAULT_POOL_PATH
+from sharedspace.worlds import REPO, TABLE2_WORLD, TABLE2G_WORLD
 
 __all__ = ["TASKS", "BenchError", "Task", "get_task", "scenes_fingerprint", "test_scenes"]
-
-#: The repository's root (pool and parameter files are named relative to it).
-REPO = Path(__file__).resolve().parents[4]
-
-#: Table II's world (params/table2.json5): the calibrated CR-SFM crowd and its risk weights.
-TABLE2_WORLD: dict[str, Any] = {
-    "pedestrians": {
-        "cr_sfm": {
-            "tau": 0.74303,
-            "a_ped": 1.0562,
-            "b_ped": 0.1,
-            "a_veh": 0.1,
-            "b_veh": 0.66589,
-            "lambda3": 0.0,
-            "lambda1": 1.3439,
-            "lambda2": 0.63559,
-        }
-    },
-    "risk": {"gamma1": 0.5, "gamma2": 1.0, "lambda": 1.0},
-}
-
-#: Table II-G's world (params/table2g.json5): Table II's, pedestrians' vehicle repulsion 5.0.
-TABLE2G_WORLD: dict[str, Any] = {
-    "pedestrians": {"cr_sfm": {**TABLE2_WORLD["pedestrians"]["cr_sfm"], "a_veh": 5.0}},
-    "risk": dict(TABLE2_WORLD["risk"]),
-}
 
 
 class BenchError(ValueError):

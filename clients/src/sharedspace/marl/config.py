@@ -9,27 +9,16 @@ from typing import Any
 from sharedspace.client import Connection
 from sharedspace.scripted import SCRIPTED
 from sharedspace.train.config import ConfigError, apply_overrides, check_algorithm_options
+from sharedspace.train.registry import ALGORITHMS as REGISTERED
+from sharedspace.train.registry import UnknownAlgorithm, algorithm_names, get_algorithm
 from sharedspace.train.reward import REWARDS
 
 __all__ = ["ALGORITHMS", "MarlConfig", "apply_overrides"]
 
 #: MAPPO (shared centralised critic), IPPO (each car's own critic input), MASAC (centralised
-#: Q-critics, off-policy).
-ALGORITHMS = ("mappo", "ippo", "masac")
-#: The options only some algorithms read: giving one to another is an error naming it.
-OPTIONS_OF = {
-    ("mappo", "ippo"): ("ppo_epochs", "minibatch_size", "clip_epsilon", "entropy_coeff", "lmbda"),
-    ("masac",): (
-        "utd_ratio",
-        "batch_size",
-        "buffer_size",
-        "tau",
-        "alpha_init",
-        "actor_warmup_frames",
-        "actor_lr",
-        "residual_penalty",
-    ),
-}
+#: Q-critics, off-policy): the registered multi-car algorithms
+#: (:mod:`sharedspace.train.registry`, their options there).
+ALGORITHMS = algorithm_names(cars="many")
 
 
 @dataclass
@@ -79,9 +68,11 @@ class MarlConfig:
     residual_penalty: float = 10.0  # + this x mean(pre-tanh residual mean ^ 2) in the actor's loss
 
     def __post_init__(self) -> None:
-        if self.algorithm not in ALGORITHMS:
-            raise ConfigError(f"algorithm must be one of {ALGORITHMS}, got {self.algorithm!r}")
-        check_algorithm_options(self, OPTIONS_OF)
+        try:
+            get_algorithm(self.algorithm, cars="many")
+        except UnknownAlgorithm as err:
+            raise ConfigError(str(err)) from None
+        check_algorithm_options(self)
         for name in ("total_frames", "num_envs", "frames_per_batch", "minibatch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -116,9 +107,8 @@ class MarlConfig:
         theirs fall back to their defaults, and fields configs no longer have are dropped."""
         known = {f.name for f in dataclasses.fields(cls)}
         algorithm = fields.get("algorithm", cls.algorithm)
-        others = {
-            n for owners, names in OPTIONS_OF.items() if algorithm not in owners for n in names
-        }
+        mine = get_algorithm(algorithm).options
+        others = {n for a in REGISTERED.values() for n in a.options if n not in mine}
         return cls(**{k: v for k, v in fields.items() if k in known and k not in others})
 
     def to_dict(self) -> dict[str, Any]:

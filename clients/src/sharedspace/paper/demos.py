@@ -49,16 +49,10 @@ from sharedspace.train.config import (
 from sharedspace.train.envs import make_env
 from sharedspace.train.evaluation import STATUSES
 from sharedspace.train.prior import KEYS, read_header, world_of, write_prior
+from sharedspace.worlds import TRAINING_VARIATIONS  # the learners' variations, the demos' default
 
 __all__ = ["RECIPE", "TRAINING_VARIATIONS", "record_episodes", "record_demos", "main"]
 
-#: The variations the Table II-G learners train on (``make table2g``), the demos' default.
-TRAINING_VARIATIONS = {
-    "position_sigma": 0.5,
-    "start_offset_steps": 2,
-    "desired_speed_scale": 0.2,
-    "mirror": True,
-}
 
 #: The sources of a dataset, in source-code order: name -> driver, action noise (standard
 #: deviation on the normalised action), and the first variation seed and count per scene

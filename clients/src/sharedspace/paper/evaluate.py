@@ -205,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if args.checkpoint:
         cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
-        name = cfg.variant
+        name = cfg.network
     else:
         cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
         actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver

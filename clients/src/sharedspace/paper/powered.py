@@ -44,14 +44,19 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
+from sharedspace.train.networks import network_label
 
-__all__ = ["LABELS", "group_table", "comparisons", "render", "main"]
+__all__ = ["LABELS", "group_table", "comparisons", "label", "render", "main"]
 
-#: Row labels of the variants and drivers.
+
+def label(name: str) -> str:
+    """A row's label: a driver's from :data:`LABELS`, a learned network's the paper's SAC
+    label (:func:`sharedspace.train.networks.network_label`), else the name."""
+    return LABELS.get(name) or network_label(name, "sac")
+
+
+#: Row labels of the drivers (a learned row's is its network's, :func:`label`).
 LABELS = {
-    "g_sac_cog": "G-SAC-Cog",
-    "g_sac_nocog": "G-SAC-NoCog",
-    "s_sac": "S-SAC",
     "car_aware": "car_aware (script)",
     "bc_script": "BC-script (cloned car_aware)",
     "pursuit_3": "pursuit_3 (script)",
@@ -141,7 +146,7 @@ def render(result: dict[str, Any]) -> str:
     for name, row in table.items():
         runs = " / ".join(f"{r['success']:.3f}" for r in row["runs"].values())
         lines.append(
-            f"| {LABELS.get(name, name)} | {len(row['runs'])} | {row['episodes']} "
+            f"| {label(name)} | {len(row['runs'])} | {row['episodes']} "
             f"| {row['success']:.3f} {_ci(row['success_ci'])} "
             f"| {row['collision']:.3f} {_ci(row['collision_ci'])} "
             f"| {row['timeout']:.3f} {_ci(row['timeout_ci'])} | {runs} |"
@@ -162,7 +167,7 @@ def render(result: dict[str, Any]) -> str:
     for c in result["comparisons"]:
         s, col = c["success"], c["collision"]
         lines.append(
-            f"| {LABELS.get(c['a'], c['a'])} − {LABELS.get(c['b'], c['b'])} "
+            f"| {label(c['a'])} − {label(c['b'])} "
             f"| {s['diff']:+.3f} | [{s['lo']:+.3f}, {s['hi']:+.3f}] ({s['half_width']:.3f}) "
             f"| [{s['lo_fixed']:+.3f}, {s['hi_fixed']:+.3f}] ({s['half_width_fixed']:.3f}) "
             f"| {col['diff']:+.3f} [{col['lo']:+.3f}, {col['hi']:+.3f}] |"
@@ -191,7 +196,7 @@ def by_m(
             }
             c = paired_clustered(pooled(sub[a], "success"), pooled(sub[b], "success"))
             cells.append(f"{c['diff']:+.3f} ± {c['half_width']:.3f} / {c['half_width_fixed']:.3f}")
-        lines.append(f"| {LABELS.get(a, a)} − {LABELS.get(b, b)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label(a)} − {label(b)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -289,7 +294,7 @@ def _play_groups(args, overrides: list[str], spec: dict[str, Any]) -> dict[str, 
         t0 = time.perf_counter()
         eps = play_variations(cfg, actor, args.variations, args.split, spec)
         run = f"{path.parent.parent.name}/{path.stem}" if group else path.stem
-        groups.setdefault(group or cfg.variant, {})[run] = eps
+        groups.setdefault(group or cfg.network, {})[run] = eps
         ok = sum(e["status"] == "success" for e in eps) / len(eps)
         print(f"{run}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
     cfg = apply_overrides(TrainConfig(), overrides)

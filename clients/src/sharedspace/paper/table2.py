@@ -40,7 +40,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from sharedspace.paper.drivers import DRIVERS, make_driver, reachability
 from sharedspace.paper.evaluate import (
@@ -54,13 +53,15 @@ from sharedspace.paper.evaluate import (
 from sharedspace.paper.planner import open_loop_search, unavoidable_first_step
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_bootstrap, sign_test, wilson
+from sharedspace.train.checkpoint import read_checkpoint
+from sharedspace.train.checkpoint import ship as ship_checkpoint
 from sharedspace.train.config import (
-    VARIANTS,
     TrainConfig,
     add_overrides_argument,
     apply_overrides,
     command_parser,
 )
+from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_network, network_label
 
 __all__ = ["main", "render", "ship"]
 
@@ -72,7 +73,19 @@ PAPER_ROWS = {
     "UAW-PCG (paper)": (0.83, 0.17, 0.0, None, None, None),
     "Human (paper)": (1.0, 0.0, 0.0, 2.924, 0.609, 4.240),
 }
-VARIANT_NAMES = {"g_sac_cog": "G-SAC-Cog", "g_sac_nocog": "G-SAC-NoCog", "s_sac": "S-SAC"}
+
+
+def _label(network: str) -> str:
+    """A learned row's label: the paper's SAC label of the run folder's network."""
+    return network_label(network, "sac")
+
+
+def _network_order(name: str) -> int:
+    """Rows in the registry's order (risk graph, uniform graph, MLP, then any other)."""
+    try:
+        return list(NETWORKS).index(canonical_network(name))
+    except UnknownNetwork:
+        return len(NETWORKS)
 
 
 def find_runs(runs: Path) -> dict[str, dict[int, Path]]:
@@ -80,7 +93,7 @@ def find_runs(runs: Path) -> dict[str, dict[int, Path]]:
     out: dict[str, dict[int, Path]] = {}
     for ckpt in sorted(runs.glob("*-s*/checkpoints/last.pt")):
         m = re.fullmatch(r"(.+)-s(\d+)", ckpt.parent.parent.name)
-        if m and m.group(1) in VARIANTS:
+        if m and _network_order(m.group(1)) < len(NETWORKS):
             out.setdefault(m.group(1), {})[int(m.group(2))] = ckpt.parent.parent
     return out
 
@@ -89,7 +102,7 @@ def evaluate_run(run: Path, overrides: Sequence[str], split: str = "test") -> di
     """The evaluation of ``run``'s last checkpoint on ``split`` (cached in
     ``eval_{split}.json`` per frame count)."""
     ckpt = run / "checkpoints" / "last.pt"
-    frames = int(torch.load(ckpt, weights_only=False)["counters"]["frames"])
+    frames = int(read_checkpoint(ckpt)["counters"]["frames"])
     cache = run / f"eval_{split}.json"
     if cache.exists():
         cached = json.loads(cache.read_text())
@@ -198,9 +211,8 @@ def ship(
         for seed, run in per_seed.items():
             if evaluated[variant][seed]["frames"] < budget:
                 continue
-            ckpt = torch.load(run / "checkpoints" / "last.pt", weights_only=False)
             name = f"{variant}-s{seed}"
-            torch.save({k: ckpt[k] for k in ("config", "actor", "counters")}, out / f"{name}.pt")
+            ship_checkpoint(read_checkpoint(run / "checkpoints" / "last.pt"), out / f"{name}.pt")
             rec = evaluated[variant][seed]
             (out / f"{name}.json").write_text(
                 json.dumps(
@@ -247,7 +259,7 @@ def _seed_table(table: dict[str, Any]) -> list[str]:
         frames = sorted(set(s["frames"].values()))
         cells = [f"{s[c]['mean']:.3f} ± {s[c]['std']:.3f}" for c, _ in COLUMNS]
         lines.append(
-            f"| {VARIANT_NAMES.get(v, v)} | {len(s['seeds'])} | "
+            f"| {_label(v)} | {len(s['seeds'])} | "
             f"{'/'.join(str(f) for f in frames)} | " + " | ".join(cells) + " |"
         )
     for name, row in table["drivers"].items():
@@ -279,7 +291,7 @@ def _pooled_table(table: dict[str, Any]) -> list[str]:
             p = s[f"pooled_{st}"]
             lo, hi = p["wilson95"]
             cells.append(f"{p['k']}/{p['n']} = {p['rate']:.3f} [{lo:.3f}, {hi:.3f}]")
-        lines.append(f"| {VARIANT_NAMES.get(v, v)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {_label(v)} | " + " | ".join(cells) + " |")
     lines.append("")
     return lines
 
@@ -298,7 +310,7 @@ def _paired_table(table: dict[str, Any]) -> list[str]:
             a, b = key.split(" vs ")
             lo, hi = p["bootstrap95"]
             lines.append(
-                f"| {VARIANT_NAMES.get(a, a)} vs {VARIANT_NAMES.get(b, b)} | "
+                f"| {_label(a)} vs {_label(b)} | "
                 f"{p['mean_diff']:+.3f} [{lo:+.3f}, {hi:+.3f}] | "
                 f"{p['better']} / {p['worse']} / {p['tied']} | {p['sign_test_p']:.3f} |"
             )
@@ -325,7 +337,7 @@ def _reward_terms_table(table: dict[str, Any]) -> list[str]:
 def _failing_table(table: dict[str, Any]) -> tuple[list[str], dict[str, Any]]:
     """The test scenarios a learned policy or the replayed human failed, and the table."""
     lines: list[str] = []
-    learned = {VARIANT_NAMES.get(v, v) for v in table["variants"]} | {"human_replay"}
+    learned = {_label(v) for v in table["variants"]} | {"human_replay"}
     failing = {
         name: row
         for name, row in sorted(table["outcomes"].items())
@@ -415,7 +427,7 @@ def _generalisation_table(table: dict[str, Any]) -> list[str]:
                 for split in ("train", "test")
                 for c in ("success", "collision")
             ]
-            lines.append(f"| {VARIANT_NAMES.get(v, v)} | " + " | ".join(cells) + " |")
+            lines.append(f"| {_label(v)} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -434,7 +446,7 @@ def _curves_table(table: dict[str, Any]) -> list[str]:
         lines.append("|---|" + "---:|" * len(frames))
         for v, c in curves.items():
             cells = [f"{c[str(f)]['success']:.2f}" if str(f) in c else "–" for f in frames]
-            lines.append(f"| {VARIANT_NAMES.get(v, v)} | " + " | ".join(cells) + " |")
+            lines.append(f"| {_label(v)} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -508,7 +520,7 @@ def _learned_outcomes(evaluated: dict, pool: list[dict[str, Any]], outcomes: dic
     """Each learned variant's statuses per scenario (a letter per seed) into ``outcomes``, its
     reward terms into ``terms``."""
     for v, per in evaluated.items():
-        key = VARIANT_NAMES.get(v, v)
+        key = _label(v)
         for seed in sorted(per):
             for e in per[seed]["episodes"]:
                 row = outcomes.setdefault(pool[e["scenario_index"]]["name"], {})
@@ -542,7 +554,7 @@ def tabulate(args, runs: dict) -> tuple[dict[str, Any], dict]:
     evaluated = {
         v: {s: evaluate_run(p, args.set) for s, p in sorted(r.items())} for v, r in runs.items()
     }
-    variants = {v: variant_stats(evaluated[v]) for v in VARIANTS if v in evaluated}
+    variants = {v: variant_stats(evaluated[v]) for v in sorted(evaluated, key=_network_order)}
     success = {v: per_scenario_success(evaluated[v]) for v in variants}
     outcomes: dict[str, dict[str, str]] = {}
     drivers, terms = _scripted(cfg, pool, outcomes)

@@ -17,12 +17,23 @@ Checkpoints written before ``format`` existed (SAC only) load as ``algorithm`` `
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
 import torch
 
-__all__ = ["FORMAT", "describe", "load_checkpoint", "save_checkpoint"]
+from sharedspace.train.networks import UnknownNetwork, canonical_network
+
+__all__ = [
+    "FORMAT",
+    "NotACheckpoint",
+    "describe",
+    "load_checkpoint",
+    "read_checkpoint",
+    "save_checkpoint",
+    "ship",
+]
 
 #: The version of this layout.
 FORMAT = 2
@@ -47,7 +58,7 @@ def save_checkpoint(
     state = {
         "format": FORMAT,
         "algorithm": cfg.algorithm,
-        "network": network or getattr(cfg, "variant", ""),
+        "network": network or getattr(cfg, "network", ""),
         "world": world if world is not None else cfg.world(),
         "config": cfg.to_dict(),
         "actor": actor.state_dict(),
@@ -65,16 +76,64 @@ def save_checkpoint(
     tmp.replace(path)
 
 
-def load_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
-    """A checkpoint's dict, with ``algorithm`` filled in for the SAC checkpoints written before
-    the format had it."""
+class NotACheckpoint(ValueError):
+    """A file that no sharedspace learner wrote."""
+
+
+def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
+    """Any checkpoint a learner wrote, as one dict: ``algorithm``, ``network``, ``world``,
+    ``config``, ``actor``, ``counters`` always present. The one reader of checkpoint files:
+
+    - the current format (:data:`FORMAT`), and format 1 (SAC only, no ``algorithm``);
+    - a shipped policy (the learner state dropped, :func:`ship`);
+    - a multi-car run's ``policy.pt`` (the actor's weights alone, its run's ``config.json``
+      beside it: ``{"config": ..., "task": ...}``);
+    - multi-car configs from before the algorithm was recorded (read as ``mappo``).
+
+    The network is recorded under its registered name where the config names it."""
+    path = Path(path)
+    if not path.is_file():
+        raise NotACheckpoint(f"{path}: no such checkpoint")
     ckpt = torch.load(path, map_location=device, weights_only=False)
+    beside = path.parent / "config.json"
+    if isinstance(ckpt, dict) and "actor" not in ckpt and beside.is_file():
+        run = json.loads(beside.read_text())
+        if "task" in run and "config" in run:
+            ckpt = {"actor": ckpt, "config": run["config"], "world": {"task": run["task"]}}
     if not isinstance(ckpt, dict) or "config" not in ckpt or "actor" not in ckpt:
-        raise ValueError(f"{path} is not a sharedspace checkpoint (no config and actor)")
-    ckpt.setdefault("format", 1)
-    ckpt.setdefault("algorithm", ckpt["config"].get("algorithm", "sac"))
-    ckpt.setdefault("network", ckpt["config"].get("variant", ""))
+        raise NotACheckpoint(f"{path} is not a sharedspace checkpoint (no config and actor)")
+    config = ckpt["config"]
+    world = ckpt.get("world") or {}
+    multi_car = isinstance(world.get("task"), dict)  # the crossing task's fields
+    algorithm = ckpt.get("algorithm") or config.get("algorithm") or "sac"
+    if multi_car and algorithm in ("sac", "ppo"):  # marl configs before algorithm was kept
+        algorithm = "mappo"
+    ckpt["format"] = ckpt.get("format", 1)
+    ckpt["algorithm"] = algorithm
+    ckpt["world"] = world
+    ckpt.setdefault("counters", {})
+    network = ckpt.get("network") or config.get("network") or config.get("variant", "")
+    try:
+        network = canonical_network(network)
+    except UnknownNetwork:
+        pass  # a multi-car network's description, or a network this process has not registered
+    ckpt["network"] = network
     return ckpt
+
+
+#: The name the trainers resume through.
+load_checkpoint = read_checkpoint
+
+
+def ship(ckpt: dict[str, Any], path: str | Path) -> Path:
+    """Writes ``ckpt`` without its learner state (critics, optimisers, random state): the
+    policy a result names. Algorithm, network, world and config stay."""
+    out = {k: v for k, v in ckpt.items() if k not in ("learner", "optimizers", "torch_rng")}
+    out.pop("buffer_dir", None)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(out, path)
+    return path
 
 
 def describe(ckpt: dict[str, Any]) -> str:

@@ -6,73 +6,27 @@ import argparse
 import dataclasses
 import json
 import tomllib
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
+from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.scripted import SCRIPTED
+from sharedspace.train.networks import UnknownNetwork, canonical_network, get_network
+from sharedspace.train.registry import ALGORITHMS, UnknownAlgorithm, get_algorithm
 from sharedspace.train.reward import REWARDS
 from sharedspace.wire import EnvSpec
+from sharedspace.worlds import UnknownTask, training_task, validation_pool_file
 
 __all__ = [
-    "ALGORITHMS",
     "ConfigError",
     "check_algorithm_options",
-    "VARIANTS",
     "TrainConfig",
     "apply_overrides",
     "load_config",
 ]
-
-#: Network variants (paper Section V.B): G-SAC-Cog, G-SAC-NoCog, S-SAC. The names are the
-#: networks' whatever the algorithm: ``algorithm=ppo variant=g_sac_cog`` is PPO over the GCN on
-#: the risk graph (``gcn_cog``, ``gcn_nocog`` and ``mlp`` are the same networks by their plain
-#: names).
-VARIANTS = ("g_sac_cog", "g_sac_nocog", "s_sac")
-#: Plain names of the networks of :data:`VARIANTS`.
-NETWORK_ALIASES = {"gcn_cog": "g_sac_cog", "gcn_nocog": "g_sac_nocog", "mlp": "s_sac"}
-#: Learning algorithms of the single-car learner, one file each (sharedspace.train.sac, .ppo).
-ALGORITHMS = ("sac", "ppo")
-#: The options of one algorithm only, with their defaults: setting one for the other algorithm
-#: is an error that names it (a PPO option given to SAC would silently do nothing).
-PPO_ONLY = (
-    "rollout_steps",
-    "ppo_epochs",
-    "minibatch_size",
-    "clip_epsilon",
-    "entropy_coeff",
-    "critic_coeff",
-    "lmbda",
-    "max_grad_norm",
-    "reward_scale",
-    "normalize_obs",
-    "update_threads",
-    "anneal_lr",
-)
-SAC_ONLY = (
-    "frames_per_batch",
-    "init_random_frames",
-    "utd_ratio",
-    "batch_size",
-    "buffer_size",
-    "tau",
-    "alpha_init",
-    "loss_function",
-    "critic_layer_norm",
-    "critic_warmup",
-    "prior_data",
-    "prior_sources",
-    "prior_successes_only",
-    "bc_weight",
-    "bc_steps",
-    "save_buffer",
-)
-#: ``num_envs`` when the config leaves it 0: SAC's few envs feed a replay buffer; PPO wants a
-#: wide batch of fresh experience per iteration (docs/ARCHITECTURE.md, "Learners").
-DEFAULT_NUM_ENVS = {"sac": 8, "ppo": 256}
 
 
 class ConfigError(ValueError):
@@ -90,6 +44,17 @@ class UnknownFieldError(ConfigError, KeyError):
 #: Fields of older configs, ignored when one is loaded (``env_backend``: the Rust server is
 #: the only backend).
 RETIRED_FIELDS = ("env_backend",)
+#: Fields of older configs under their new names (``variant``: the network is no SAC variant).
+RENAMED_FIELDS = {"variant": "network"}
+#: The fields ``task=`` sets (:class:`sharedspace.worlds.TrainingTask`).
+TASK_FIELDS = (
+    "scenario_pool",
+    "server_params",
+    "max_agents",
+    "variations",
+    "validation_scenes",
+    "validation_variations",
+)
 
 
 @dataclass
@@ -97,15 +62,18 @@ class TrainConfig:
     """Every knob of a single-car run, SAC(-GCN) or PPO. One line of doc per field."""
 
     # --- run
-    algorithm: str = "sac"  # sac (the paper's SAC-GCN) | ppo (on-policy, wide batches)
+    algorithm: str = "sac"  # a registered one-car algorithm: sac (the paper's SAC-GCN) | ppo
+    task: str = ""  # train for a benchmark task (paper | crowd): its world, pool, M, variations
     seed: int = 0  # seed of torch, numpy and the env's scenario sequence
-    variant: str = "g_sac_cog"  # network: g_sac_cog (GCN on the risk graph) | g_sac_nocog (GCN,
-    #                             uniform graph) | s_sac (MLP); or gcn_cog, gcn_nocog, mlp
+    network: str = "gcn_risk"  # a registered network: gcn_risk (GCN on the risk graph) |
+    #                            gcn_uniform (GCN, uniform graph) | mlp (no graph)
     total_frames: int = 200_000  # env transitions to collect (summed over the K sub-envs)
     device: str = "auto"  # torch device of the networks and updates; auto = cuda if torch sees one
     num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
     # --- env
     num_envs: int = 0  # K, sub-envs stepped together; 0 = the algorithm's (sac 8, ppo 256)
+    failover: bool = True  # a lost server's envs are re-created on a survivor (its episodes end
+    #                        truncated); with one server the run ends as without
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
     pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
@@ -166,38 +134,79 @@ class TrainConfig:
     gcn_layers: int = 2  # number of GCN layers (ignored by s_sac)
     readout: str = "ego_mean"  # graph readout: "ego" (node 0) | "ego_mean" (node 0 ++ mean)
     # --- evaluation, logging, checkpoints
-    eval_interval: int = 20_000  # frames between evaluations on the test split (0 = never)
-    eval_split: str = "test"  # split evaluated during training
-    eval_envs: int = 18  # sub-envs of the evaluation env (18 = every test scenario at once)
+    eval_interval: int = -1  # frames between scorings (0 = never; -1 = the algorithm's: sac
+    #                          20 000, ppo 524 288), and once at the end
+    eval_split: str = "validation"  # validation (carved from the train scenes) | test
+    validation_scenes: int = 12  # train scenes carved off as the validation split
+    validation_variations: int = 8  # seeded variations of each validation scene per scoring
     checkpoint_interval: int = 50_000  # frames between checkpoints (0 = only at the end)
     save_buffer: bool = False  # include the replay buffer in checkpoints
     log_dir: str = "runs/default"  # run directory: metrics.csv, TensorBoard events, checkpoints
     progress: bool = True  # show a tqdm progress bar
 
     def __post_init__(self):
-        if self.algorithm not in ALGORITHMS:
-            raise ConfigError(f"algorithm must be one of {ALGORITHMS}, not {self.algorithm!r}")
-        self.variant = NETWORK_ALIASES.get(self.variant, self.variant)
-        if self.variant not in VARIANTS:
-            raise ConfigError(
-                f"variant must be one of {VARIANTS + tuple(NETWORK_ALIASES)}, not {self.variant!r}"
-            )
-        check_algorithm_options(self, {("sac",): SAC_ONLY, ("ppo",): PPO_ONLY})
-        # Fields left to the algorithm or the machine are filled in; `_auto` remembers which,
-        # so that an override of the algorithm fills them in again (`unresolved`).
-        self._auto = {"num_envs": 0, "reward": "", "device": "auto"}
-        self._auto = {k: v for k, v in self._auto.items() if getattr(self, k) == v}
-        self.num_envs = self.num_envs or DEFAULT_NUM_ENVS[self.algorithm]
+        try:
+            self.network = canonical_network(self.network)
+            algo = get_algorithm(self.algorithm, cars="one")
+            task = training_task(self.task) if self.task else None
+        except (UnknownNetwork, UnknownAlgorithm, UnknownTask) as err:
+            raise ConfigError(str(err)) from None
+        check_algorithm_options(self)
+        # Fields left to the algorithm, the task or the machine are filled in; `_auto`
+        # remembers which, so that an override of the algorithm fills them in again.
+        auto = {"num_envs": 0, "reward": "", "device": "auto", "eval_interval": -1}
+        if task is not None:
+            self._take_task(task)
+            auto |= {k: TrainConfig.__dataclass_fields__[k].default for k in TASK_FIELDS}
+        self._auto = {k: v for k, v in auto.items() if getattr(self, k) == v or k in TASK_FIELDS}
+        self.num_envs = self.num_envs or algo.num_envs
+        if self.eval_interval < 0:
+            self.eval_interval = algo.eval_interval
         if self.device == "auto":
             import torch
 
             self.device = "cuda" if torch.cuda.is_available() else "cpu"
-        self.reward = self.reward or ("learner" if self.algorithm == "ppo" else "world")
+        self.reward = self.reward or algo.reward
+        self._check_values()
+
+    def _take_task(self, task) -> None:
+        """The task's training world into the fields it sets; a field given another value than
+        the task's is a :class:`ConfigError` naming it."""
+        if task.cars != 1:
+            raise ConfigError(
+                f"task {task.name} has {task.cars} learning cars per scene: train it with "
+                "python -m sharedspace.marl (mappo, ippo, masac)"
+            )
+        values = {
+            "scenario_pool": task.pool,
+            "server_params": task.server_params,
+            "max_agents": task.max_agents,
+            "variations": dict(task.variations),
+            "validation_scenes": task.validation_scenes,
+            "validation_variations": task.validation_variations,
+        }
+        for name, value in values.items():
+            default = TrainConfig.__dataclass_fields__[name]
+            unset = (
+                default.default_factory()
+                if callable(default.default_factory)
+                else (default.default)
+            )
+            given = getattr(self, name)
+            if given != unset and given != value:
+                raise ConfigError(
+                    f"{name} is set by task={task.name} ({value!r}); this config gives {given!r}"
+                )
+            setattr(self, name, value)
+
+    def _check_values(self) -> None:
         if self.reward not in REWARDS:
             raise ConfigError(f"reward must be one of {sorted(REWARDS)}, not {self.reward!r}")
         self.env_spec("train", self.seed, self.variations)  # names a wrong env field now
         if self.readout not in ("ego", "ego_mean"):
             raise ConfigError(f"readout must be ego or ego_mean, not {self.readout!r}")
+        if self.eval_split not in ("validation", "test"):
+            raise ConfigError(f"eval_split must be validation or test, not {self.eval_split!r}")
         if self.base_driver and self.base_driver not in SCRIPTED:
             raise ConfigError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
         if self.residual_scale != 1.0 and not self.base_driver:
@@ -211,7 +220,15 @@ class TrainConfig:
             raise ConfigError("bc_steps clone the prior data: set prior_data")
         if self.bc_weight > 0 and not (self.prior_data or self.base_driver):
             raise ConfigError("bc_weight imitates the prior data or the base driver: set one")
-        for name in ("total_frames", "num_envs", "rollout_steps", "ppo_epochs", "minibatch_size"):
+        if get_algorithm(self.algorithm).fused_networks_only:
+            if not get_network(self.network).fused_sac:
+                raise ConfigError(
+                    f"network {self.network}: algorithm {self.algorithm}'s fused update knows "
+                    "the built-in encoders only (gcn_risk, gcn_uniform, mlp)"
+                )
+        names = ("total_frames", "num_envs", "rollout_steps", "ppo_epochs", "minibatch_size")
+        names += ("validation_scenes", "validation_variations")
+        for name in names:
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, not {getattr(self, name)}")
 
@@ -221,20 +238,33 @@ class TrainConfig:
         return {**REWARDS[self.reward], **self.reward_weights}
 
     def world(self) -> dict[str, Any]:
-        """What a checkpoint records of the world it was trained in: pool, world parameters,
-        M, crowd, cars, variations and reward."""
-        keys = ("scenario_pool", "server_params", "max_agents", "pedestrian_model")
+        """What a checkpoint records of the world it was trained in: the task (if any), pool
+        (the validation pool carved from it too), world parameters, M, crowd, cars, variations
+        and reward."""
+        keys = ("task", "scenario_pool", "server_params", "max_agents", "pedestrian_model")
         out: dict[str, Any] = {k: getattr(self, k) for k in keys}
         out |= {"vehicle_model": self.vehicle_model, "variations": dict(self.variations)}
         out["reward"] = {"name": self.reward, "weights": self.world_reward_weights}
+        if self.eval_split == "validation":
+            out["validation"] = {"scenes": self.validation_scenes, "seed": 0}
         return out
 
+    def training_pool(self) -> str:
+        """The pool file the envs draw from: with ``eval_split=validation`` the pool carved
+        from ``scenario_pool``'s train scenes (:func:`sharedspace.worlds.validation_pool_file`:
+        its ``train`` split is trained on, its ``test`` split is the validation split); else
+        ``scenario_pool``."""
+        if self.eval_split != "validation":
+            return self.scenario_pool
+        return str(validation_pool_file(self.scenario_pool, self.validation_scenes))
+
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
-        """The envs this config trains or evaluates on: ``split``, ``seed`` and scene
-        ``variations`` (the training env's are ``variations``; evaluation plays the scenes)."""
+        """The envs this config trains or evaluates on: ``split`` (``validation`` is the
+        validation pool's ``test``), ``seed`` and scene ``variations``."""
+        pool = self.training_pool() if split in ("train", "validation") else self.scenario_pool
         return EnvSpec(
-            pool=self.scenario_pool or None,
-            split=split,
+            pool=pool or None,
+            split="test" if split == "validation" else split,
             seed=seed,
             pedestrian_model=self.pedestrian_model,
             max_agents=self.max_agents,
@@ -245,54 +275,58 @@ class TrainConfig:
 
     def connection(self) -> Connection:
         """Where the envs live (:meth:`sharedspace.client.Connection.resolve`): the zenoh file,
-        else the endpoint, else a local ``sim-server`` of this config's pool and parameters."""
-        return Connection.resolve(
+        else the endpoint, else a local ``sim-server`` of this config's pools (the validation
+        pool too) and parameters; with ``failover``."""
+        pools, carved = [self.scenario_pool], self.training_pool()
+        if carved != self.scenario_pool:  # the pool first: the server's default stays its own
+            pools = [self.scenario_pool or str(DEFAULT_POOL_PATH), carved]
+        conn = Connection.resolve(
             self.server_endpoint,
             self.server_prefix,
             self.zenoh_config,
-            [self.scenario_pool] if self.scenario_pool else [],
+            [p for p in pools if p],
             self.server_params or None,
         )
+        return conn.replace(failover=self.failover) if self.failover else conn
 
     RETIRED_FIELDS = RETIRED_FIELDS
+    RENAMED_FIELDS = RENAMED_FIELDS
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> TrainConfig:
         """A config from a saved one (a checkpoint's, ``config.json``), without the fields
         configs no longer have (:data:`RETIRED_FIELDS`)."""
-        return cls(**{k: v for k, v in fields.items() if k not in RETIRED_FIELDS})
-
-    @property
-    def batch_frames(self) -> int:
-        """Frames per collected batch: PPO's ``num_envs * rollout_steps``; SAC's
-        ``frames_per_batch`` (0: ``num_envs * 8``)."""
-        if self.algorithm == "ppo":
-            return self.num_envs * self.rollout_steps
-        return self.frames_per_batch or self.num_envs * 8
+        fields = {RENAMED_FIELDS.get(k, k): v for k, v in fields.items() if k not in RETIRED_FIELDS}
+        if "eval_envs" in fields:  # configs before the validation split
+            fields.pop("eval_envs")
+        return cls(**fields)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
     def unresolved(self) -> dict[str, Any]:
         """:meth:`to_dict` with the fields this config filled in by itself (``num_envs``,
-        ``reward``, ``device``) as they were given: what overrides apply over."""
+        ``reward``, ``device``, ``eval_interval``, a task's fields) as they were given: what
+        overrides apply over."""
         return self.to_dict() | getattr(self, "_auto", {})
 
 
-def check_algorithm_options(cfg, options_of: dict[tuple[str, ...], Sequence[str]]) -> None:
-    """An option that only other algorithms than ``cfg.algorithm`` read, set away from its
-    default, is a :class:`ConfigError` naming it (``options_of``: algorithms -> the options only
-    they read): it would silently do nothing."""
+def check_algorithm_options(cfg) -> None:
+    """An option that only other algorithms than ``cfg.algorithm`` read (their registered
+    ``options``), set away from its default, is a :class:`ConfigError` naming it: it would
+    silently do nothing."""
     defaults = {f.name: f for f in dataclasses.fields(cfg)}
-    for owners, names in options_of.items():
-        if cfg.algorithm in owners:
-            continue
-        for name in names:
+    mine = get_algorithm(cfg.algorithm)
+    for algo in ALGORITHMS.values():
+        for name in algo.options:
+            if name in mine.options or name not in defaults:
+                continue
             f = defaults[name]
             unset = (
                 f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
             )
             if getattr(cfg, name) != unset:
+                owners = [a.name for a in ALGORITHMS.values() if name in a.options]
                 raise ConfigError(
                     f"{name} is an option of algorithm={'|'.join(owners)}, and this config's "
                     f"algorithm is {cfg.algorithm}"
@@ -341,6 +375,7 @@ def apply_overrides(cfg, overrides: list[str] | dict[str, Any]):
         if len(item) != 2:
             raise ConfigError(f"--set {item[0]!r}: expected KEY=VALUE")
         key, value = item[0].strip(), item[1]
+        key = getattr(cfg, "RENAMED_FIELDS", {}).get(key, key)
         if key in retired:
             continue
         if key not in data:

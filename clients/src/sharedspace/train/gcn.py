@@ -5,11 +5,13 @@ graphs ``[B, M, M]``: padding rows and columns of ``A`` are zeroed, self-loops a
 nodes only and ``D`` is the row degree of ``A + I`` (``A[i][j]`` is the influence of ``j`` on ``i``,
 so node ``i`` aggregates its row). Padding nodes are left out of the readout.
 
-Variants (paper Table II):
+The graph an encoder convolves over (``GraphEncoder.graph``; the registered networks of
+:mod:`sharedspace.train.networks` pick one, paper Table II):
 
-- ``g_sac_cog``: ``A`` = the env's risk graph ``psi (1 + lambda u)``;
-- ``g_sac_nocog``: uniform ``A``: 1 between every pair of distinct present nodes, 0 elsewhere;
-- ``s_sac``: no graph, an MLP on the padded, masked node features flattened.
+- ``"risk"``: ``A`` = the env's risk graph ``psi (1 + lambda u)`` (``gcn_risk``, G-SAC-Cog);
+- ``"uniform"``: 1 between every pair of distinct present nodes, 0 elsewhere (``gcn_uniform``,
+  G-SAC-NoCog);
+- ``None``: no graph, an MLP on the padded, masked node features flattened (``mlp``, S-SAC).
 """
 
 from __future__ import annotations
@@ -159,11 +161,15 @@ class FeatureNorm(nn.Module):
 
 class GraphEncoder(nn.Module):
     """Embeds one observation ``(features [*, M, F], adjacency [*, M, M], mask [*, M])`` into
-    ``[*, out_features]`` according to ``variant``."""
+    ``[*, out_features]``: a GCN over ``graph`` (``"risk"``: the env's adjacency, ``"uniform"``:
+    every present pair), or with ``graph`` None an MLP over the flattened nodes."""
+
+    #: The graphs a GCN encoder can convolve over.
+    GRAPHS = ("risk", "uniform")
 
     def __init__(
         self,
-        variant: str,
+        graph: str | None,
         max_agents: int,
         num_features: int = 11,
         gcn_hidden: int = 64,
@@ -172,24 +178,24 @@ class GraphEncoder(nn.Module):
         norm: FeatureNorm | None = None,
     ):
         super().__init__()
-        self.variant = variant
+        self.graph = graph
         self.readout = readout
         self.norm = norm
         self.register_buffer("scale", torch.tensor(FEATURE_SCALE[:num_features]))
-        if variant == "s_sac":
+        if graph is None:
             self.layers = nn.ModuleList()
             self.flat = nn.Sequential(
                 nn.Linear(max_agents * (num_features + 1), gcn_hidden * 2), nn.ReLU()
             )
             self.out_features = gcn_hidden * 2
-        elif variant in ("g_sac_cog", "g_sac_nocog"):
+        elif graph in self.GRAPHS:
             dims = [num_features] + [gcn_hidden] * gcn_layers
             self.layers = nn.ModuleList(
                 GCNLayer(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True)
             )
             self.out_features = gcn_hidden * (2 if readout == "ego_mean" else 1)
         else:
-            raise ValueError(f"unknown variant {variant!r}")
+            raise ValueError(f"graph must be one of {self.GRAPHS} or None, not {graph!r}")
 
     def forward(self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor):
         return self.embed(*self.prepare(features, adjacency, mask))
@@ -204,8 +210,8 @@ class GraphEncoder(nn.Module):
         self, features: torch.Tensor, adjacency: torch.Tensor, mask: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
         """The parameter-free part of the encoder: ``(h, a_hat, m)`` = scaled and masked node
-        features ``[*, M, F]``, the normalised adjacency ``[*, M, M]`` (``None`` for ``s_sac``)
-        and the mask as ``[*, M, 1]`` floats. It depends on the variant only, so the actor and
+        features ``[*, M, F]``, the normalised adjacency ``[*, M, M]`` (``None`` for the MLP)
+        and the mask as ``[*, M, 1]`` floats. It depends on the graph only, so the actor and
         the critics of one update share it (:mod:`sharedspace.train.update`).
 
         Trailing nodes that are padding in every sample are dropped (``M`` becomes the last
@@ -218,14 +224,14 @@ class GraphEncoder(nn.Module):
         h = features / self.scale * m
         if self.norm is not None:
             h = self.norm(h, m)
-        if self.variant == "s_sac":
+        if self.graph is None:
             return h, None, m
-        adj = adjacency if self.variant == "g_sac_cog" else uniform_adjacency(mask)
+        adj = adjacency if self.graph == "risk" else uniform_adjacency(mask)
         return h, normalized_adjacency(adj.to(h.dtype), mask), m
 
     def embed(self, h: torch.Tensor, a_hat: torch.Tensor | None, m: torch.Tensor) -> torch.Tensor:
         """``[*, out_features]`` from :meth:`prepare`'s output."""
-        if self.variant == "s_sac":
+        if self.graph is None:
             x = torch.cat([h, m], -1).flatten(-2)
             first = self.flat[0]  # dropped padding nodes are zero inputs: their weights go too
             return torch.relu(F.linear(x, first.weight[:, : x.shape[-1]], first.bias))

@@ -52,7 +52,8 @@ class MetricLogger:
 
 
 class EpisodeTracker:
-    """Running returns per sub-env across collected batches; ended episodes' stats."""
+    """Running returns per sub-env across collected batches; ended episodes' stats (``lost``:
+    ended truncated by a lost server, with none of success, collision, timeout)."""
 
     def __init__(self, num_envs: int):
         self.returns = np.zeros(num_envs)
@@ -76,6 +77,8 @@ class EpisodeTracker:
                 ep = {"return": float(self.returns[k]), "length": int(self.lengths[k])}
                 for key, values in flags.items():
                     ep[key.removeprefix("episode_")] = float(values[k, t])
+                # truncated with no outcome: its server was lost, the env re-created elsewhere
+                ep["lost"] = float(not any(ep[s] for s in ("success", "collision", "timeout")))
                 ended.append(ep)
                 self.returns[k] = 0.0
                 self.lengths[k] = 0
@@ -91,7 +94,8 @@ def episode_metrics(ended: list[dict[str, float]]) -> dict[str, float]:
         "train/episode_return": float(np.mean([e["return"] for e in ended])),
         "train/episode_length": float(np.mean([e["length"] for e in ended])),
     }
-    for key in ("success", "collision", "timeout", "avg_speed", "avg_abs_jerk", "max_abs_acc"):
+    keys = ("success", "collision", "timeout", "lost", "avg_speed", "avg_abs_jerk", "max_abs_acc")
+    for key in keys:
         out[f"train/{key}"] = float(np.mean([e[key] for e in ended]))
     return out
 

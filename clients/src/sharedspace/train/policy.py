@@ -1,5 +1,5 @@
-"""The networks every single-car algorithm builds on (paper Section IV.C): the graph encoder of
-a config's ``variant`` and the tanh-normal actor over it. SAC adds its Q-critics
+"""The networks every single-car algorithm builds on (paper Section IV.C): the encoder of a
+config's registered ``network`` and the tanh-normal actor over it. SAC adds its Q-critics
 (:mod:`sharedspace.train.sac`), PPO its state-value critic (:mod:`sharedspace.train.ppo`)."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from torchrl.modules import ProbabilisticActor
 from torchrl.modules.distributions import TanhNormal
 
 from sharedspace.train.config import TrainConfig
-from sharedspace.train.gcn import ActorNet, FeatureNorm, GraphEncoder
+from sharedspace.train.gcn import ActorNet, FeatureNorm
+from sharedspace.train.networks import get_network
 
 __all__ = ["OBS_KEYS", "RESIDUAL_INIT_SCALE", "make_encoder", "make_gaussian_actor"]
 
@@ -24,17 +25,10 @@ OBS_KEYS = ["features", "adjacency", "mask"]
 RESIDUAL_INIT_SCALE = 0.1
 
 
-def make_encoder(cfg: TrainConfig, norm: FeatureNorm | None = None) -> GraphEncoder:
-    """The graph encoder of ``cfg.variant`` (GCN over the risk graph, over the uniform graph,
-    or the MLP's flat input), with ``norm`` applied to its node features if given."""
-    return GraphEncoder(
-        cfg.variant,
-        cfg.max_agents,
-        gcn_hidden=cfg.gcn_hidden,
-        gcn_layers=cfg.gcn_layers,
-        readout=cfg.readout,
-        norm=norm,
-    )
+def make_encoder(cfg: TrainConfig, norm: FeatureNorm | None = None) -> nn.Module:
+    """The encoder of the registered network ``cfg.network``
+    (:mod:`sharedspace.train.networks`), with ``norm`` applied to its node features if given."""
+    return get_network(cfg.network).make_encoder(cfg, norm).to(cfg.device)
 
 
 class ActorParams(nn.Module):
@@ -53,7 +47,7 @@ class ActorParams(nn.Module):
 def make_gaussian_actor(
     cfg: TrainConfig,
     action_spec,
-    encoder: GraphEncoder,
+    encoder: nn.Module,
     init_scale: float | None = None,
     return_log_prob: bool = False,
 ) -> ProbabilisticActor:

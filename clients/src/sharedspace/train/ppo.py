@@ -1,7 +1,7 @@
 """PPO on wide batches of envs: the ``make_*`` builders, TorchRL style, and the loop
 :func:`train`, top to bottom.
 
-    python -m sharedspace.train --set algorithm=ppo variant=g_sac_cog
+    python -m sharedspace.train --set algorithm=ppo network=gcn_risk task=paper
 
 Each iteration steps ``num_envs`` (K) sub-envs ``rollout_steps`` (T) times, one ``BatchStep``
 per step for all K, with the current policy; computes advantages by GAE (TorchRL's ``GAE``,
@@ -43,7 +43,7 @@ from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import make_env
 from sharedspace.train.evaluation import evaluate_split
-from sharedspace.train.gcn import FeatureNorm, GraphEncoder, mlp
+from sharedspace.train.gcn import FeatureNorm, mlp
 from sharedspace.train.metrics import (
     EpisodeTracker,
     MetricLogger,
@@ -87,14 +87,15 @@ def make_actor(
     )
 
 
-def encoder_of(actor: ProbabilisticActor) -> GraphEncoder:
-    """The graph encoder inside an actor of :func:`make_actor`."""
+def encoder_of(actor: ProbabilisticActor) -> nn.Module:
+    """The encoder inside an actor of :func:`make_actor`."""
     return actor.module[0].module.net.encoder
 
 
 def feature_norm_of(actor: ProbabilisticActor) -> FeatureNorm | None:
-    """The feature normalisation inside a PPO actor (None without)."""
-    return encoder_of(actor).norm
+    """The feature normalisation inside a PPO actor (None without, or where the network
+    holds none)."""
+    return getattr(encoder_of(actor), "norm", None)
 
 
 class ValueNet(nn.Module):
@@ -185,7 +186,9 @@ class PPOUpdate(nn.Module):
                     if key in out.keys():
                         sums[key] = sums.get(key, 0.0) + float(out[key].detach())
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
-        encoder_of(self.actor).update_norm(flat["features"], flat["mask"])
+        update_norm = getattr(encoder_of(self.actor), "update_norm", None)
+        if update_norm is not None:  # a registered network may hold no normalisation
+            update_norm(flat["features"], flat["mask"])
         stats = {k: v / max(steps, 1) for k, v in sums.items()}
         value, target = flat["state_value"], flat["value_target"]
         stats["explained_variance"] = float(
@@ -207,13 +210,18 @@ def make_update(cfg: TrainConfig, actor: ProbabilisticActor) -> PPOUpdate:
     return PPOUpdate(cfg, actor, make_critic(cfg, feature_norm_of(actor))).to(cfg.device)
 
 
+def batch_frames(cfg: TrainConfig) -> int:
+    """Frames per iteration: ``num_envs * rollout_steps``."""
+    return cfg.num_envs * cfg.rollout_steps
+
+
 def make_collector(cfg: TrainConfig, env: EnvBase, actor, total_frames: int) -> Collector:
     """``Collector`` over the batched env: batches ``[K, T]`` of the current policy; done
     sub-envs are reset by the server's autoreset (``step_and_maybe_reset``)."""
     return Collector(
         env,
         actor,
-        frames_per_batch=cfg.batch_frames,
+        frames_per_batch=batch_frames(cfg),
         total_frames=total_frames,
         device=cfg.device,
         env_device="cpu",
@@ -229,7 +237,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
 
     # ---- counters, env, networks and learner, possibly from a checkpoint
     ckpt = load_checkpoint(resume, cfg.device) if resume else None
-    counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0}
+    counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0, "lost_episodes": 0}
     counters |= ckpt["counters"] if ckpt is not None else {}
     seed_everything(cfg.seed + counters["frames"])
     env = make_env(
@@ -264,6 +272,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         counters["iterations"] += 1
         ended = tracker.update(data)
         counters["episodes"] += len(ended)
+        counters["lost_episodes"] += int(sum(e["lost"] for e in ended))
         reward_mean = float(data["next", "reward"].mean())
         action_scale = float(data["scale"].mean())  # the policy's spread (before the tanh)
 

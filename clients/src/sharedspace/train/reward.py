@@ -9,7 +9,7 @@
   collisions (crossing task: +1 success, -107 collision, -343 timeout), and a learner that
   maximises return learns to drive into people. ``learner`` cuts danger tenfold, makes a
   collision cost 100 and pays 3 per metre of progress: the script's returns then order
-  success > timeout > collision in both worlds (``python bench/script_returns.py``,
+  success > timeout > collision in both worlds (``python benchmarks/script_returns.py``,
   docs/RESULTS.md "The learner reward"). Progress pays 3 because at 1 a learner from scratch
   in Table II-G's crowd, where driving straight on collides in 79 % of the test scenes, learns
   first to stand still (0.3 m/s after 500 000 frames, success 0) and takes millions of frames

@@ -97,6 +97,11 @@ def make_replay_buffer(cfg: TrainConfig) -> TensorDictReplayBuffer:
     )
 
 
+def batch_frames(cfg: TrainConfig) -> int:
+    """Frames per collected batch: ``frames_per_batch``, or 0: ``num_envs * 8``."""
+    return cfg.frames_per_batch or cfg.num_envs * 8
+
+
 def make_collector(
     cfg: TrainConfig, env: EnvBase, actor, total_frames: int, init_random_frames: int
 ) -> Collector:
@@ -105,7 +110,7 @@ def make_collector(
     return Collector(
         env,
         actor,
-        frames_per_batch=cfg.batch_frames,
+        frames_per_batch=batch_frames(cfg),
         total_frames=total_frames,
         init_random_frames=init_random_frames,
         device=cfg.device,
@@ -122,6 +127,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     # ---- counters, possibly from a checkpoint
     ckpt = load_checkpoint(resume, cfg.device) if resume else None
     counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0, "clone_steps": 0}
+    counters["lost_episodes"] = 0
     if ckpt is not None:
         counters.update(ckpt["counters"])
     prior = make_prior(cfg)  # RLPD's prior data (refused here if of another world)
@@ -167,7 +173,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         logger.close()
         return {"counters": counters, "eval": last_eval}
     collector = make_collector(cfg, env, actor, remaining, init_random)
-    num_updates = max(1, int(cfg.batch_frames * cfg.utd_ratio))
+    num_updates = max(1, int(batch_frames(cfg) * cfg.utd_ratio))
     next_eval = next_multiple(counters["frames"], cfg.eval_interval)
     next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
 
@@ -189,6 +195,7 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
         counters["iterations"] += 1
         ended = tracker.update(data)
         counters["episodes"] += len(ended)
+        counters["lost_episodes"] += int(sum(e["lost"] for e in ended))
         buffer.extend(data.exclude("loc", "scale").reshape(-1))
 
         # ---- learn (after the random warm-up)

@@ -15,8 +15,8 @@ the trainer always did. What it does differently is only how the arithmetic is l
   parameters);
 - no TensorDict plumbing or ``vmap`` inside the step, and Adam's fused CPU kernel.
 
-``clients/tests/test_update.py`` checks, for every variant, that the losses and every gradient
-equal ``SACLoss``'s on the same parameters, batch and random draws; ``bench/sac_update.py``
+``clients/tests/test_update.py`` checks, for every network, that the losses and every gradient
+equal ``SACLoss``'s on the same parameters, batch and random draws; ``benchmarks/sac_update.py``
 times both side by side (docs/BENCHMARKS.md).
 """
 
@@ -53,10 +53,10 @@ class CriticEnsemble(nn.Module):
     def __init__(self, qnets: Sequence[QNet]):
         super().__init__()
         enc: GraphEncoder = qnets[0].encoder
-        self.variant = enc.variant
+        self.graph = enc.graph
         self.readout = enc.readout
         self.size = len(qnets)
-        if self.variant == "s_sac":
+        if self.graph is None:
             self.enc_w = nn.ParameterList([_stack([q.encoder.flat[0].weight.T for q in qnets])])
             self.enc_b = nn.ParameterList([_stack([q.encoder.flat[0].bias for q in qnets])])
         else:
@@ -96,7 +96,7 @@ class CriticEnsemble(nn.Module):
         out = []
         for e in range(self.size):
             sd: dict[str, torch.Tensor] = {}
-            if self.variant == "s_sac":
+            if self.graph is None:
                 sd["encoder.flat.0.weight"] = self.enc_w[0][e].T.detach().clone()
                 sd["encoder.flat.0.bias"] = self.enc_b[0][e].detach().clone()
             else:
@@ -116,7 +116,7 @@ class CriticEnsemble(nn.Module):
         """Every critic's graph embedding ``[E, B, D]`` of prepared inputs
         (:meth:`GraphEncoder.prepare`: ``h [B, M, F]``, ``a_hat [B, M, M]``, ``m [B, M, 1]``)."""
         e = self.size
-        if self.variant == "s_sac":
+        if self.graph is None:
             x = torch.cat([h, m], -1).flatten(-2)  # [B, M (F + 1)], shared by every critic
             w, b = self.enc_w[0][:, : x.shape[-1]], self.enc_b[0]  # dropped padding: zeros
             y = x @ w.permute(1, 0, 2).reshape(w.shape[1], -1) + b.reshape(-1)

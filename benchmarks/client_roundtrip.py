@@ -14,7 +14,7 @@ multicast scouting off, unless ``--endpoint`` names a running one):
 4. **RemoteBatchedEnv vs LocalBatchedEnv** (TorchRL, ``step_and_maybe_reset`` with random
    actions, same K): env-steps per second of each (the remote one must be faster).
 
-Usage: python bench/client_roundtrip.py [--server target/release/sim-server] [--seconds 3]
+Usage: python benchmarks/client_roundtrip.py [--server target/release/sim-server] [--seconds 3]
 Prints a table and a JSON line.
 """
 
@@ -57,7 +57,7 @@ def bare_server(port: int, reply_size: int) -> None:
     def on_query(q):
         q.reply(q.key_expr, payload)
 
-    qable = session.declare_queryable("bench/bare", on_query)
+    qable = session.declare_queryable("benchmarks/bare", on_query)
     signal.sigwait({signal.SIGTERM, signal.SIGINT})
     qable.undeclare()
     session.close()
@@ -91,7 +91,7 @@ def start_bare(reply_size: int):
 
     def get(payload: bytes) -> bytes:
         h = session.get(
-            "bench/bare",
+            "benchmarks/bare",
             payload=payload,
             timeout=5.0,
             consolidation=zenoh.ConsolidationMode.NONE,

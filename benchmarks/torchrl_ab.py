@@ -4,7 +4,7 @@ within minutes, so only interleaved blocks compare).
 
     git worktree add ../old REV
     (cd ../old && CARGO_TARGET_DIR=../target-old cargo build --release -p sim-server)
-    .venv/bin/python bench/torchrl_ab.py --old ../old --old-server ../target-old/release/sim-server
+    .venv/bin/python benchmarks/torchrl_ab.py --old ../old --old-server ../target-old/release/sim-server
 
 Each block runs one process per build: ``RemoteBatchedEnv(num_envs=K, max_agents=8)`` of that
 build's package against that build's server (both started here on free loopback ports),

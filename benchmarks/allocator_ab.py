@@ -17,7 +17,7 @@ within minutes, so the builds are only compared within one run, interleaved).
 build: the wheel's binary, linked through zig against glibc 2.17's symbols, against the same
 source linked against this machine's glibc (issue 52).
 
-Usage: python bench/allocator_ab.py --jemalloc target/release/sim-server
+Usage: python benchmarks/allocator_ab.py --jemalloc target/release/sim-server
        --glibc GLIBC_BUILD/sim-server [--also zig=WHEEL_BUILD/sim-server] [--n 100 1000]
        [--k 256] [--rounds 5] [--json F]
 """

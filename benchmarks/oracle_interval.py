@@ -1,7 +1,7 @@
 """How good must a driver be for the scene-clustered 95 % interval of its paired difference from
 the best script to clear 0 on the 18 paper test scenes? (issue 30's target)
 
-    .venv/bin/python bench/oracle_interval.py
+    .venv/bin/python benchmarks/oracle_interval.py
 
 The oracle succeeds in every varied scene the open-loop planner solved (variations 0..31,
 results/variations/baseline.json: 563 of 576, success 0.977); the degraded oracles fail a

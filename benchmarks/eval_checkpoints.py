@@ -2,7 +2,7 @@
 ``sharedspace.train.evaluation.evaluate_split``), in the checkpoint's own world: what a run's
 last checkpoint scores, for runs whose loop ended without a final evaluation.
 
-Usage: python bench/eval_checkpoints.py results/ppo/runs/*/checkpoints/last.pt [--json out.json]
+Usage: python benchmarks/eval_checkpoints.py results/ppo/runs/*/checkpoints/last.pt [--json out.json]
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ all on; `sim-server bench-step`) and pysocialforce 1.1.2's `Simulator.step` (N p
 same density, no obstacles) are timed one after the other, and the ratio of step rates is printed.
 pysocialforce's social force is O(N^2) in time and memory, so at large N it runs only a few steps.
 
-Usage: python bench/step_vs_pysocialforce.py --server target/release/sim-server [--n 3 10 ...]
+Usage: python benchmarks/step_vs_pysocialforce.py --server target/release/sim-server [--n 3 10 ...]
        [--baseline-server OLD_BUILD/sim-server] [--rounds R]
 
 With ``--baseline-server`` every round times the new step, the baseline's step and pysocialforce

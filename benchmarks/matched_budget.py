@@ -1,7 +1,7 @@
 """Matched-budget comparison: G-SAC-Cog trained on the paper pool vs on paper+general scenes,
 both at the same frame count, on the 18 paper test scenes (3 seeds each).
 
-    .venv/bin/python bench/matched_budget.py ENDPOINT step_160000.pt \
+    .venv/bin/python benchmarks/matched_budget.py ENDPOINT step_160000.pt \
         AUG_RUNS PAPER_RUNS OUT.json
 
 against a server with params/table2.json5 serving embedded:hbs-paper and the paper+general pool
@@ -13,9 +13,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from sharedspace.paper.evaluate import load_checkpoint_actor, evaluate_policy
+from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.stats import wilson, sign_test, paired_bootstrap
 
 ep, frames_name, aug_dir, base_dir, out = sys.argv[1:6]
@@ -29,7 +29,7 @@ for label, pattern in (
     for s in range(3):
         ck = pattern.format(s=s)
         cfg, actor = load_checkpoint_actor(ck, ov)
-        fr = int(torch.load(ck, weights_only=False)["counters"]["frames"])
+        fr = int(read_checkpoint(ck)["counters"]["frames"])
         r = evaluate_policy(cfg, actor, "test")
         runs.append(
             {

@@ -15,7 +15,7 @@ reacting cars, params/table2g.json5, ``max_agents`` 10, the training variations)
 Each learner row is also stated as a share of the raw env rate. Prints a markdown table and
 one JSON line (docs/BENCHMARKS.md keeps them with the machine and the date).
 
-Usage: python bench/learner_throughput.py [--pool out/table2g/pool-general.json]
+Usage: python benchmarks/learner_throughput.py [--pool out/table2g/pool-general.json]
        [--envs 256] [--ppo-frames 65536] [--sac-frames 3000] [--mappo-frames 40960]
 """
 
@@ -67,7 +67,7 @@ def ppo_rate(base: TrainConfig, variant: str, frames: int, log_dir: Path) -> dic
     cfg = apply_overrides(
         base,
         [
-            f"variant={variant}",
+            f"network={variant}",
             f"total_frames={frames}",
             f"log_dir={log_dir}",
             "eval_interval=0",
@@ -81,7 +81,7 @@ def ppo_rate(base: TrainConfig, variant: str, frames: int, log_dir: Path) -> dic
     upd = [r for r in rows if r["metric"] == "train/update_s"][1:]
     collect_s = sum(r["value"] for r in iters)
     update_s = sum(r["value"] for r in upd)
-    n = len(iters) * cfg.batch_frames
+    n = len(iters) * cfg.num_envs * cfg.rollout_steps
     timing = out["timing"]
     return {
         "fps": n / (collect_s + update_s),
@@ -105,7 +105,7 @@ def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
         TrainConfig(device="cpu", **world, **WORLD),
         [
             "algorithm=sac",
-            "variant=g_sac_cog",
+            "network=gcn_risk",
             "num_envs=8",
             "reward=world",
             f"total_frames={frames + warmup}",

@@ -9,7 +9,7 @@ both worlds a learner trains in (the table behind ``sharedspace.train.reward``).
 A learner's reward should order success > timeout > collision. Under the world's weights a
 timeout spent beside a pedestrian returns less than a collision; under ``learner`` it does not.
 
-Usage: python bench/script_returns.py [--pool out/table2g/pool-general.json] [--envs 64]
+Usage: python benchmarks/script_returns.py [--pool out/table2g/pool-general.json] [--envs 64]
        [--seed 5] [--json out.json]
 """
 

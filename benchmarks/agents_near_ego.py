@@ -1,7 +1,7 @@
 """How many agents are near the ego on the hbs-general test split (the human record replayed):
 the measurement behind Table II-G's max_agents. Run from the repository root:
 
-    .venv/bin/python bench/agents_near_ego.py
+    .venv/bin/python benchmarks/agents_near_ego.py
 """
 
 import json

@@ -8,7 +8,7 @@
    against the recipe's seeds 0 and 1 (results/table2g/table2g.json) on the deterministic 76 test
    scenes: a variant's outcome per scene is the mean over its seeds, clustered by scene.
 
-Usage: python bench/table2g_compare.py [--json results/table2g/compare.json]
+Usage: python benchmarks/table2g_compare.py [--json results/table2g/compare.json]
 Prints markdown tables.
 """
 

@@ -4,7 +4,7 @@ trainer stepped it) against today's :class:`sharedspace.train.update.SACUpdate`,
 network shapes, batch size and thread count, in interleaved rounds (docs/BENCHMARKS.md,
 "Learner").
 
-    .venv/bin/python bench/sac_update.py [--variant g_sac_cog] [--batch 256] [--rounds 5]
+    .venv/bin/python benchmarks/sac_update.py [--variant gcn_risk] [--batch 256] [--rounds 5]
         [--updates 50] [--threads 1] [--baseline 3dd5f1a] [--json out.json]
 
 The baseline's ``gcn.py`` and ``sac.py`` are read with ``git show`` into a scratch package, so
@@ -31,7 +31,8 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import Bounded
 
-from sharedspace.train.config import VARIANTS, TrainConfig
+from sharedspace.train.config import TrainConfig
+from sharedspace.train.networks import NETWORKS
 from sharedspace.train.sac import make_actor, make_update
 
 REPO = Path(__file__).resolve().parents[1]
@@ -184,7 +185,7 @@ def time_updates(step, batches) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
-        "--variant", default="g_sac_cog", choices=VARIANTS, help="network variant"
+        "--variant", default="gcn_risk", choices=list(NETWORKS), help="network"
     )
     ap.add_argument("--batch", type=int, default=256, help="replay minibatch size")
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds")
@@ -205,7 +206,7 @@ def main() -> int:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
-    cfg = TrainConfig(variant=args.variant, batch_size=args.batch)
+    cfg = TrainConfig(network=args.variant, batch_size=args.batch)
     learners = {
         "old": baseline_learner(cfg, args.baseline),
         "new": fused_learner(cfg),

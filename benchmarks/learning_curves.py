@@ -6,7 +6,7 @@ success and collision with the training wall time so far (collection and updates
 ``eval/train_wall_s``) and the run's wall time including its evaluations (the log's clock),
 then when each run first reaches each of ``--marks`` and its last evaluation.
 
-Usage: python bench/learning_curves.py results/ppo/runs/crowd-scratch-gcn_cog-s* \
+Usage: python benchmarks/learning_curves.py results/ppo/runs/crowd-scratch-gcn_cog-s* \
        [--marks pursuit_3=0.605 car_aware=0.908] [--budget-min 10]
 """
 

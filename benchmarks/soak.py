@@ -31,7 +31,7 @@ workload's drift (docs/BENCHMARKS.md section 6), so a bound of 0.1 MiB/h on eith
 ~10-hour run to decide.
 It prints a markdown table for docs/BENCHMARKS.md and writes everything to ``--out`` (JSON).
 
-Usage: python bench/soak.py [--minutes 10] [--trainers 8] [--envs 64]
+Usage: python benchmarks/soak.py [--minutes 10] [--trainers 8] [--envs 64]
        [--server target/release/sim-server] [--out out/soak/soak.json]
 """
 
@@ -54,7 +54,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "clients" / "src"))
 
-from client_roundtrip import free_port  # noqa: E402 - bench/, beside this script
+from client_roundtrip import free_port  # noqa: E402 - benchmarks/, beside this script
 
 
 def cpu_s(pid: int) -> float:

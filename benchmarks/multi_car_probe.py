@@ -10,9 +10,9 @@ own ego-centric observation) on either
   from ``--seed``).
 Prints the per-car success, collision and timeout with Wilson intervals.
 
-Usage: python bench/multi_car_probe.py --pool out/table2g/pool-general.json [--cars 2]
+Usage: python benchmarks/multi_car_probe.py --pool out/table2g/pool-general.json [--cars 2]
        [--driver car_aware] [--split test] [--variations 1] [--json F]
-       python bench/multi_car_probe.py --synthetic 50 --cars 4 --pedestrians 20 [--seed 1000]
+       python benchmarks/multi_car_probe.py --synthetic 50 --cars 4 --pedestrians 20 [--seed 1000]
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ scores on the run's evaluation split (a validation split: this chooses a recipe)
   per-iteration decay ``d`` (``d ** iterations_between_snapshots`` per snapshot), the feature
   normalisation's statistics taken from the snapshot.
 
-Usage: python bench/policy_average.py results/ppo/tuning/RUN [--decays 0.98 0.99 0.995]
+Usage: python benchmarks/policy_average.py results/ppo/tuning/RUN [--decays 0.98 0.99 0.995]
        [--every 2] [--json out.json]
 """
 
@@ -45,7 +45,7 @@ def main() -> None:
     rows = []
     for i, (frames, path) in enumerate(snaps):
         state = load_checkpoint(str(path))["actor"]
-        gap = (frames - (snaps[i - 1][0] if i else 0)) / cfg.batch_frames
+        gap = (frames - (snaps[i - 1][0] if i else 0)) / (cfg.num_envs * cfg.rollout_steps)
         for d in args.decays:
             w = d**gap
             avg = averages.setdefault(d, {k: v.clone() for k, v in state.items()})

@@ -15,7 +15,7 @@ subscribes to (per-env gates, sim-server/src/server/net.rs ``EnvWatch``). With
 ``--baseline-server`` another build (e.g. one gated per topic only) runs beside it, rounds
 interleaved.
 
-Usage: python bench/viewer_cost.py [--k 8 256] [--rounds 4] [--seconds 5]
+Usage: python benchmarks/viewer_cost.py [--k 8 256] [--rounds 4] [--seconds 5]
 Prints a table and a JSON line.
 """
 

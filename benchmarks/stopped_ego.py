@@ -1,6 +1,6 @@
 """Who hits a car that stops at the start of every scene (issue "Traffic that reacts").
 
-    python bench/stopped_ego.py --pool embedded:hbs-general --split test \
+    python benchmarks/stopped_ego.py --pool embedded:hbs-general --split test \
         --params params/table2.json5 --vehicles idm
 
 Rolls out every scene of the split with the ego braking to a stop (``--av=-1,0``) and reports,

@@ -1,0 +1,157 @@
+"""The networks a learner can put between the observation and its heads, each registered once.
+
+A network is an *encoder*: a ``torch.nn.Module`` that embeds one observation
+``(features [*, M, F], adjacency [*, M, M], mask [*, M])`` into ``[*, out_features]``. Every
+algorithm builds its actor and critics as this encoder plus its own MLP heads, so a network
+registered here serves every algorithm that builds on encoders (PPO; SAC's fused update takes
+the built-in graph encoders, :attr:`Network.fused_sac`).
+
+The paper's three (Section V.B, Table II):
+
+- ``gcn_risk``: a GCN over the env's risk graph ``A = psi (1 + lambda u)``; the paper's SAC
+  row G-SAC-Cog (old names ``g_sac_cog``, ``gcn_cog``);
+- ``gcn_uniform``: the same GCN over the uniform graph of present nodes; G-SAC-NoCog (old
+  names ``g_sac_nocog``, ``gcn_nocog``);
+- ``mlp``: no graph, an MLP over the flattened nodes; S-SAC (old name ``s_sac``).
+
+Adding one (docs/ARCHITECTURE.md, "Adding a network")::
+
+    from sharedspace.train.networks import Network, register_network
+
+    register_network(Network("my_net", "MyNet", lambda cfg, norm: MyEncoder(cfg.max_agents)))
+
+after which ``--set network=my_net`` trains it. An encoder may hold a
+:class:`~sharedspace.train.gcn.FeatureNorm` as ``norm`` (PPO's running feature normalisation,
+updated through ``update_norm(features, mask)`` when the encoder has that method).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from torch import nn
+
+from sharedspace.train.gcn import FeatureNorm, GraphEncoder
+
+__all__ = [
+    "NETWORKS",
+    "Network",
+    "UnknownNetwork",
+    "canonical_network",
+    "get_network",
+    "network_label",
+    "register_network",
+]
+
+
+class UnknownNetwork(ValueError):
+    """A network name that no registered network has."""
+
+
+@dataclass(frozen=True)
+class Network:
+    """One registered network."""
+
+    name: str  # what ``--set network=...`` and a checkpoint call it
+    label: str  # the row label of any algorithm's learner with it (e.g. "GCN-Cog")
+    #: ``(cfg, norm) -> encoder``: ``cfg`` carries ``max_agents``, ``gcn_hidden``,
+    #: ``gcn_layers`` and ``readout``; ``norm`` is the feature normalisation to hold, or None
+    make_encoder: Callable[[Any, FeatureNorm | None], nn.Module]
+    aliases: tuple[str, ...] = ()  # older names, accepted wherever a name is
+    sac_label: str = ""  # the paper's label of its SAC row (S-SAC, G-SAC-NoCog, G-SAC-Cog)
+    fused_sac: bool = False  # SAC's fused update (train/update.py) knows this encoder
+    doc: str = ""  # one line: what it is
+
+
+#: Every registered network by name.
+NETWORKS: dict[str, Network] = {}
+_ALIASES: dict[str, str] = {}
+
+
+def register_network(network: Network) -> Network:
+    """Registers ``network`` (its name and aliases); a name taken by another is refused."""
+    for name in (network.name, *network.aliases):
+        owner = _ALIASES.get(name)
+        if owner is not None and owner != network.name:
+            raise ValueError(f"network name {name!r} is taken by network {owner!r}")
+    NETWORKS[network.name] = network
+    for name in (network.name, *network.aliases):
+        _ALIASES[name] = network.name
+    return network
+
+
+def canonical_network(name: str) -> str:
+    """The registered name of ``name`` (an alias resolves); :class:`UnknownNetwork` naming the
+    registered ones otherwise."""
+    if name not in _ALIASES:
+        known = ", ".join(
+            f"{n} ({', '.join(e.aliases)})" if e.aliases else n for n, e in NETWORKS.items()
+        )
+        raise UnknownNetwork(f"network must be one of {known}; not {name!r}")
+    return _ALIASES[name]
+
+
+def get_network(name: str) -> Network:
+    """The registered network of ``name`` (or of an alias of it)."""
+    return NETWORKS[canonical_network(name)]
+
+
+def network_label(name: str, algorithm: str = "") -> str:
+    """A row label: the paper's SAC label for ``algorithm`` ``sac`` (S-SAC, ...), else the
+    network's; a name no network has is returned as given."""
+    try:
+        net = get_network(name)
+    except UnknownNetwork:
+        return name
+    return net.sac_label if algorithm == "sac" and net.sac_label else net.label
+
+
+def _graph_encoder(graph: str | None) -> Callable[[Any, FeatureNorm | None], nn.Module]:
+    def make(cfg, norm: FeatureNorm | None) -> GraphEncoder:
+        return GraphEncoder(
+            graph,
+            cfg.max_agents,
+            gcn_hidden=cfg.gcn_hidden,
+            gcn_layers=cfg.gcn_layers,
+            readout=cfg.readout,
+            norm=norm,
+        )
+
+    return make
+
+
+register_network(
+    Network(
+        "gcn_risk",
+        "GCN-Cog",
+        _graph_encoder("risk"),
+        aliases=("g_sac_cog", "gcn_cog"),
+        sac_label="G-SAC-Cog",
+        fused_sac=True,
+        doc="GCN over the risk graph psi (1 + lambda u): cognition and physical risk",
+    )
+)
+register_network(
+    Network(
+        "gcn_uniform",
+        "GCN-NoCog",
+        _graph_encoder("uniform"),
+        aliases=("g_sac_nocog", "gcn_nocog"),
+        sac_label="G-SAC-NoCog",
+        fused_sac=True,
+        doc="the same GCN over the uniform graph of present nodes",
+    )
+)
+register_network(
+    Network(
+        "mlp",
+        "MLP",
+        _graph_encoder(None),
+        aliases=("s_sac",),
+        sac_label="S-SAC",
+        fused_sac=True,
+        doc="no graph: an MLP over the padded, masked node features flattened",
+    )
+)

@@ -1,0 +1,193 @@
+"""Every learning algorithm, registered once by name: what it is (one car or several, on- or
+off-policy), the options only it reads, its defaults, and the module that implements it.
+
+An algorithm's module has ``train(cfg, resume=None) -> dict`` (its loop, top to bottom) and
+``make_actor(cfg, action_spec)`` (the policy a checkpoint's ``actor`` weights load into). The
+module is named by its import path and imported when first used, so that the registry (and the
+config that checks names against it) sits below every implementation.
+
+Adding one (docs/ARCHITECTURE.md, "Adding an algorithm")::
+
+    from sharedspace.train.registry import Algorithm, register_algorithm
+
+    register_algorithm(Algorithm("my_algo", module="my_package.my_algo", family="on"))
+
+after which ``python -m sharedspace.train --set algorithm=my_algo`` runs ``my_package.my_algo``'s
+``train`` and ``python -m sharedspace.bench`` plays its checkpoints.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from types import ModuleType
+
+__all__ = [
+    "ALGORITHMS",
+    "Algorithm",
+    "UnknownAlgorithm",
+    "algorithm_names",
+    "get_algorithm",
+    "register_algorithm",
+]
+
+
+class UnknownAlgorithm(ValueError):
+    """An algorithm name that no registered algorithm has."""
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """One registered algorithm."""
+
+    name: str  # what ``--set algorithm=...`` and a checkpoint call it
+    module: str | ModuleType  # its implementation (import path, or the module itself)
+    cars: str = "one"  # "one": a car per env (python -m sharedspace.train); "many": a group
+    family: str = "off"  # "on" (fresh batches, PPO) or "off" (a replay buffer, SAC)
+    options: tuple[str, ...] = ()  # config fields only it reads (another's is refused)
+    num_envs: int = 8  # K, sub-envs, where the config leaves it 0
+    reward: str = "world"  # the named reward (sharedspace.train.reward), where left ""
+    eval_interval: int = 20_000  # frames between validation scorings, where left -1
+    fused_networks_only: bool = False  # its update is written for the built-in encoders
+    doc: str = ""  # one line: what it is
+
+    def load(self) -> ModuleType:
+        """The implementing module (imported on first use)."""
+        if isinstance(self.module, ModuleType):
+            return self.module
+        return importlib.import_module(self.module)
+
+    @property
+    def multi_car(self) -> bool:
+        return self.cars == "many"
+
+
+#: Every registered algorithm by name.
+ALGORITHMS: dict[str, Algorithm] = {}
+
+
+def register_algorithm(algorithm: Algorithm) -> Algorithm:
+    """Registers ``algorithm``; a name taken by another module is refused."""
+    if algorithm.cars not in ("one", "many"):
+        raise ValueError(f"algorithm {algorithm.name}: cars must be 'one' or 'many'")
+    if algorithm.family not in ("on", "off"):
+        raise ValueError(f"algorithm {algorithm.name}: family must be 'on' or 'off'")
+    old = ALGORITHMS.get(algorithm.name)
+    if old is not None and old.module != algorithm.module:
+        raise ValueError(f"algorithm name {algorithm.name!r} is taken (by {old.module})")
+    ALGORITHMS[algorithm.name] = algorithm
+    return algorithm
+
+
+def algorithm_names(cars: str | None = None) -> tuple[str, ...]:
+    """The registered names (of ``cars`` "one" or "many" only, if given)."""
+    return tuple(n for n, a in ALGORITHMS.items() if cars is None or a.cars == cars)
+
+
+def get_algorithm(name: str, cars: str | None = None) -> Algorithm:
+    """The algorithm of ``name``; :class:`UnknownAlgorithm` naming the registered ones (and
+    where ``cars`` is given, a clear error for an algorithm of the other kind)."""
+    if name not in ALGORITHMS:
+        raise UnknownAlgorithm(f"algorithm must be one of {', '.join(ALGORITHMS)}; not {name!r}")
+    algo = ALGORITHMS[name]
+    if cars is not None and algo.cars != cars:
+        where = "several cars" if algo.multi_car else "one car"
+        raise UnknownAlgorithm(
+            f"algorithm {name} learns {where} per env; this world needs one of "
+            f"{', '.join(algorithm_names(cars))}"
+        )
+    return algo
+
+
+#: The built-in algorithms. PPO's defaults: docs/ARCHITECTURE.md, "Learners".
+register_algorithm(
+    Algorithm(
+        "sac",
+        "sharedspace.train.sac",
+        family="off",
+        options=(
+            "frames_per_batch",
+            "init_random_frames",
+            "utd_ratio",
+            "batch_size",
+            "buffer_size",
+            "tau",
+            "alpha_init",
+            "loss_function",
+            "critic_layer_norm",
+            "critic_warmup",
+            "prior_data",
+            "prior_sources",
+            "prior_successes_only",
+            "bc_weight",
+            "bc_steps",
+            "save_buffer",
+        ),
+        num_envs=8,
+        reward="world",
+        eval_interval=20_000,
+        fused_networks_only=True,
+        doc="the paper's SAC-GCN (Algorithm 2): replay buffer, two critics, learned temperature",
+    )
+)
+register_algorithm(
+    Algorithm(
+        "ppo",
+        "sharedspace.train.ppo",
+        family="on",
+        options=(
+            "rollout_steps",
+            "ppo_epochs",
+            "minibatch_size",
+            "clip_epsilon",
+            "entropy_coeff",
+            "critic_coeff",
+            "lmbda",
+            "max_grad_norm",
+            "reward_scale",
+            "normalize_obs",
+            "update_threads",
+            "anneal_lr",
+        ),
+        num_envs=256,
+        reward="learner",
+        # a validation scoring costs about as much as 40 k frames of PPO-GCN: every 500 k
+        # keeps it under a tenth of a run's wall time (docs/BENCHMARKS.md, "Learner")
+        eval_interval=524_288,
+        doc="PPO on wide batches of envs (clipped ratio, GAE), TorchRL's ClipPPOLoss",
+    )
+)
+# The multi-car learners (python -m sharedspace.marl, the crossing task).
+_MARL_PPO = ("ppo_epochs", "minibatch_size", "clip_epsilon", "entropy_coeff", "lmbda")
+for _name, _family, _options, _doc in (
+    ("mappo", "on", _MARL_PPO, "MAPPO: PPO per car, a centralised critic over every car"),
+    ("ippo", "on", _MARL_PPO, "IPPO: PPO per car, each critic over its own car"),
+    (
+        "masac",
+        "off",
+        (
+            "utd_ratio",
+            "batch_size",
+            "buffer_size",
+            "tau",
+            "alpha_init",
+            "actor_warmup_frames",
+            "actor_lr",
+            "residual_penalty",
+        ),
+        "MASAC: SAC per car, centralised Q-critics",
+    ),
+):
+    register_algorithm(
+        Algorithm(
+            _name,
+            "sharedspace.marl.train",
+            cars="many",
+            family=_family,
+            options=_options,
+            num_envs=64,
+            reward="learner",
+            eval_interval=60_000,
+            doc=_doc,
+        )
+    )

@@ -1,0 +1,175 @@
+"""The worlds of the benchmark's tasks, what training *for a task* takes from them, and the
+validation split carved from a pool's train scenes.
+
+``--set task=paper`` (or ``crowd``) sets the training world of the benchmark's task of that name
+(:mod:`sharedspace.bench.tasks` holds the frozen test side and checks that it agrees with this
+table): the pool whose train split is trained on, the world parameters, ``max_agents`` and the
+training variations. A checkpoint trained so records the task, and ``python -m sharedspace.bench
+TASK --policy CKPT`` scores it with no other flag.
+
+**Validation.** Nothing is chosen on test scenes. :func:`validation_pool` carves
+``validation_scenes`` of a pool's train scenes (drawn by a fixed seed) into a pool file of its
+own (``out/validation/``): their split is ``test``, the rest ``train``, and the original test
+scenes are left out, so a run trained on its train split and scored on its ``test`` split never
+sees the task's test scenes. The trainer's curves (``eval/*``) are drawn on it by default.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import random
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sharedspace.pool import DEFAULT_POOL_PATH
+
+__all__ = [
+    "REPO",
+    "TABLE2G_WORLD",
+    "TABLE2_WORLD",
+    "TRAINING_TASKS",
+    "TRAINING_VARIATIONS",
+    "TrainingTask",
+    "UnknownTask",
+    "training_task",
+    "validation_pool",
+    "validation_pool_file",
+]
+
+#: The repository's root (pool and parameter files are named relative to it).
+REPO = Path(__file__).resolve().parents[3]
+
+#: Table II's world (params/table2.json5): the calibrated CR-SFM crowd and its risk weights.
+TABLE2_WORLD: dict[str, Any] = {
+    "pedestrians": {
+        "cr_sfm": {
+            "tau": 0.74303,
+            "a_ped": 1.0562,
+            "b_ped": 0.1,
+            "a_veh": 0.1,
+            "b_veh": 0.66589,
+            "lambda3": 0.0,
+            "lambda1": 1.3439,
+            "lambda2": 0.63559,
+        }
+    },
+    "risk": {"gamma1": 0.5, "gamma2": 1.0, "lambda": 1.0},
+}
+
+#: Table II-G's world (params/table2g.json5): Table II's, pedestrians' vehicle repulsion 5.0.
+TABLE2G_WORLD: dict[str, Any] = {
+    "pedestrians": {"cr_sfm": {**TABLE2_WORLD["pedestrians"]["cr_sfm"], "a_veh": 5.0}},
+    "risk": dict(TABLE2_WORLD["risk"]),
+}
+
+#: The scene variations the single-car learners train on (SPEC 5.2.1): wider than the
+#: benchmark's, so that a policy meets more than the recorded scenes.
+TRAINING_VARIATIONS = {
+    "position_sigma": 0.5,
+    "start_offset_steps": 2,
+    "desired_speed_scale": 0.2,
+    "mirror": True,
+}
+
+
+class UnknownTask(ValueError):
+    """A task name with no training world."""
+
+
+@dataclass(frozen=True)
+class TrainingTask:
+    """A task's training world."""
+
+    name: str  # the benchmark task's name
+    pool: str  # scenario pool file, relative to the repository ("" = hbs-paper, embedded)
+    server_params: str  # world parameters file, relative to the repository
+    world_params: dict[str, Any]  # that file's content
+    max_agents: int  # M
+    variations: dict[str, Any] = field(default_factory=lambda: dict(TRAINING_VARIATIONS))
+    validation_scenes: int = 12  # train scenes carved off as the validation split
+    validation_variations: int = 8  # seeded variations of each validation scene per scoring
+    cars: int = 1  # learning cars per scene (several: python -m sharedspace.marl)
+
+
+#: Every task's training world by name.
+TRAINING_TASKS: dict[str, TrainingTask] = {
+    "paper": TrainingTask(
+        "paper", "", "params/table2.json5", TABLE2_WORLD, 8, validation_scenes=12
+    ),
+    "crowd": TrainingTask(
+        "crowd",
+        "out/table2g/pool-general.json",
+        "params/table2g.json5",
+        TABLE2G_WORLD,
+        10,
+        validation_scenes=60,
+        validation_variations=4,
+    ),
+    "crossing": TrainingTask("crossing", "", "", {}, 8, variations={}, cars=4),
+}
+
+
+def training_task(name: str) -> TrainingTask:
+    """The training world of task ``name``."""
+    if name not in TRAINING_TASKS:
+        raise UnknownTask(f"task must be one of {', '.join(TRAINING_TASKS)}; not {name!r}")
+    return TRAINING_TASKS[name]
+
+
+def repo_path(path: str) -> Path:
+    """``path`` as given if absolute or present from here, else relative to the repository."""
+    p = Path(path)
+    return p if p.is_absolute() or p.exists() else REPO / p
+
+
+def validation_pool(pool: dict[str, Any], n: int, seed: int = 0) -> dict[str, Any]:
+    """A pool document: ``pool``'s train scenes, of which ``n`` (chosen by ``seed``, kept in
+    pool order) are in the ``test`` split as validation scenes; ``pool``'s test scenes are left
+    out. It keeps ``pool``'s vehicle model and is named ``<name>-validation-<n>-s<seed>``."""
+    train = [s for s in pool["scenarios"] if s.get("split", "train") == "train"]
+    if not 0 < n < len(train):
+        raise ValueError(f"validation_scenes: between 1 and {len(train) - 1} scenes, not {n}")
+    held = {s["name"] for s in random.Random(seed).sample(train, n)}
+    scenes = [{**s, "split": "test" if s["name"] in held else "train"} for s in train]
+    kept = {k: pool[k] for k in ("vehicle_model",) if k in pool}  # the world's cars react alike
+    return {
+        **kept,
+        "version": pool["version"],
+        "name": f"{pool['name']}-validation-{n}-s{seed}",
+        "provenance": (
+            f"{pool['name']}'s {len(train)} train scenes, {n} of them (random.Random({seed})"
+            ".sample) as the validation split `test`; its test scenes left out "
+            "(sharedspace.worlds.validation_pool)"
+        ),
+        "scenarios": scenes,
+    }
+
+
+def validation_pool_file(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:
+    """The file of :func:`validation_pool` for the pool file ``pool`` ("" = hbs-paper), written
+    once under ``out`` (default ``REPO/out/validation``, or ``~/.cache/sharedspace/validation``
+    outside a checkout) and named by the source's content, so that a changed pool gets a new
+    file."""
+    source = repo_path(pool) if pool else DEFAULT_POOL_PATH
+    if not source.is_file():
+        raise FileNotFoundError(
+            f"the validation split is carved from a pool file, and {source} is missing"
+        )
+    text = source.read_bytes()
+    digest = hashlib.sha256(text).hexdigest()[:12]
+    if not out:
+        out = (
+            REPO / "out" / "validation"
+            if (REPO / "clients").is_dir()
+            else (Path.home() / ".cache" / "sharedspace" / "validation")
+        )
+    path = Path(out) / f"{source.stem}-{digest}-validation-{n}-s{seed}.json"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        doc = validation_pool(json.loads(text), n, seed)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(doc))
+        tmp.replace(path)
+    return path
