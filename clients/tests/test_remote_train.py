@@ -46,13 +46,13 @@ def test_remote_train_and_evaluate(sim_server, tmp_path, capsys):
         )
         == 0
     )
-    assert "g_sac_cog" in capsys.readouterr().out
+    assert "G-SAC-Cog" in capsys.readouterr().out
     rec = json.loads(eval_json.read_text())
     assert len(rec["episodes"]) == 18
     assert sorted(e["scenario_index"] for e in rec["episodes"]) == sorted(
         h["scenario_index"] for h in rec["human"]
     )
-    row = rec["table"]["g_sac_cog"]
+    row = rec["table"]["G-SAC-Cog"]
     assert row["success"] + row["collision"] + row["timeout"] == pytest.approx(1.0)
 
 

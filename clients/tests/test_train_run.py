@@ -69,10 +69,10 @@ def test_evaluate_checkpoint(run, tmp_path, capsys):
         == 0
     )
     text = capsys.readouterr().out
-    assert "g_sac_cog" in text and "human" in text and "Success" in text
+    assert "G-SAC-Cog" in text and "human" in text and "Success" in text
     rec = json.loads(out.read_text())
     assert len(rec["episodes"]) == 18 and len(rec["human"]) == 18
-    row = rec["table"]["g_sac_cog"]
+    row = rec["table"]["G-SAC-Cog"]
     assert row["success"] + row["collision"] + row["timeout"] == pytest.approx(1.0)
     assert rec["table"]["human"]["success"] == 1.0 and rec["table"]["human"]["avg_speed"] > 0
     ep = rec["episodes"][0]

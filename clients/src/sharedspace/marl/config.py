@@ -9,6 +9,7 @@ from typing import Any
 from sharedspace.client import Connection
 from sharedspace.scripted import SCRIPTED
 from sharedspace.train.config import ConfigError, apply_overrides, check_algorithm_options
+from sharedspace.train.networks import UnknownNetwork, canonical_network
 from sharedspace.train.registry import ALGORITHMS as REGISTERED
 from sharedspace.train.registry import UnknownAlgorithm, algorithm_names, get_algorithm
 from sharedspace.train.reward import REWARDS
@@ -43,6 +44,11 @@ class MarlConfig:
     # --- policy
     base_driver: str = "car_aware"  # the policy's action is a residual over this script; "" off
     residual_scale: float = 2.0  # the env's action = clip(script + residual_scale * policy's)
+    network: str = ""  # a registered network encoding each car's observation (gcn_risk, ...);
+    #                    "" = its node features and mask flattened (the shipped policies')
+    gcn_hidden: int = 64  # width of each GCN layer of a registered GCN network
+    gcn_layers: int = 2  # GCN layers of a registered GCN network
+    readout: str = "ego_mean"  # a registered GCN's readout: ego | ego_mean
     hidden: int = 128  # width of each hidden layer (actor and critic)
     depth: int = 2  # hidden layers
     share_params: bool = True  # one network for every car (the cars are interchangeable)
@@ -73,6 +79,11 @@ class MarlConfig:
         except UnknownAlgorithm as err:
             raise ConfigError(str(err)) from None
         check_algorithm_options(self)
+        if self.network:
+            try:
+                self.network = canonical_network(self.network)
+            except UnknownNetwork as err:
+                raise ConfigError(str(err)) from None
         for name in ("total_frames", "num_envs", "frames_per_batch", "minibatch_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")

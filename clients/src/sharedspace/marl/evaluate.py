@@ -22,6 +22,8 @@ from sharedspace.episodes import STATUSES, outcome_rates
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.names import Feature
 from sharedspace.scripted import SCRIPTED
+from sharedspace.stats import paired_clustered
+from sharedspace.train.envs import ResidualAction
 
 __all__ = [
     "STATUSES",
@@ -49,18 +51,17 @@ def scripted_act(driver: str = "car_aware") -> Act:
 
 
 def policy_act(policy: Any, base_driver: str = "", residual_scale: float = 1.0) -> Act:
-    """A trained policy (a TensorDict module writing ``("vehicle", "action")``), deterministic,
-    its action times ``residual_scale`` added to ``base_driver``'s when it is a residual
-    learner (as :class:`~sharedspace.train.envs.ResidualAction` sends it)."""
-    base = SCRIPTED[base_driver]() if base_driver else None
+    """A trained policy (a TensorDict module writing ``("vehicle", "action")``), deterministic;
+    a residual learner's action goes to the env through the one residual transform
+    (:class:`~sharedspace.train.envs.ResidualAction`), as in training."""
+    residual = ResidualAction(base_driver, "vehicle", residual_scale) if base_driver else None
 
     def act(td: TensorDictBase, step: int) -> torch.Tensor:
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            out = policy(td.clone(False))["vehicle", "action"]
-        if base is not None:
-            script = base(td["vehicle", "features"], td["vehicle", "mask"])
-            out = (script + residual_scale * out).clamp(-1.0, 1.0)
-        return out
+            out = policy(td.clone(False))
+        if residual is not None:
+            out = residual.inv(out)
+        return out["vehicle", "action"]
 
     return act
 
@@ -139,21 +140,17 @@ def paired_difference(
     seed: int = 0,
 ) -> dict[str, float]:
     """Success of ``rows`` minus ``baseline``'s on the same (scene, car) cells: the mean
-    difference and a 95 % bootstrap interval over scenes (the cars of one scene share its
-    crowd, so scenes are the resampled unit). ``rows`` may hold several seeds' plays of the
-    cells: each is paired with the baseline's one play."""
-    base = {(r["scene"], r["car"]): r["status"] == "success" for r in baseline}
-    by_scene: dict[str, list[float]] = {}
+    difference and a 95 % interval resampling scenes (the cars of one scene share its crowd;
+    :func:`sharedspace.stats.paired_clustered`, the one paired difference). ``rows`` may hold
+    several seeds' plays of the cells: a cell's outcome is their mean. A cell the baseline did
+    not play is a ``KeyError``."""
+    plays: dict[tuple[str, str], list[float]] = {}
     for r in rows:
-        diff = float(r["status"] == "success") - float(base[(r["scene"], r["car"])])
-        by_scene.setdefault(r["scene"], []).append(diff)
-    scenes = sorted(by_scene)
-    sums = np.array([sum(by_scene[s]) for s in scenes])
-    counts = np.array([len(by_scene[s]) for s in scenes])
-    rng = np.random.default_rng(seed)
-    pick = rng.integers(0, len(scenes), size=(resamples, len(scenes)))
-    boot = sums[pick].sum(1) / counts[pick].sum(1)
-    return {
-        "mean": float(sums.sum() / counts.sum()),
-        "ci95": [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))],
-    }
+        plays.setdefault((r["scene"], r["car"]), []).append(float(r["status"] == "success"))
+    base = {(r["scene"], r["car"]): float(r["status"] == "success") for r in baseline}
+    missing = sorted(set(plays) - set(base))
+    if missing:
+        raise KeyError(f"cells the baseline did not play: {missing[:3]}")
+    mine = {cell: float(np.mean(v)) for cell, v in plays.items()}
+    out = paired_clustered(mine, base, resamples, seed)
+    return {"mean": out["diff"], "ci95": [out["lo"], out["hi"]]}

@@ -35,7 +35,7 @@ def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
     """The state value per car (centralised for MAPPO)."""
     mlp = agents_mlp(cfg, task, extra_inputs=0, outputs=1, centralized=cfg.algorithm == "mappo")
     value = ValueOperator(module=mlp, in_keys=[OBS], out_keys=[(GROUP, "state_value")])
-    return TensorDictSequential(observation(), value)
+    return TensorDictSequential(observation(cfg, task), value)
 
 
 def make_loss(cfg: MarlConfig, actor, critic) -> ClipPPOLoss:

@@ -41,7 +41,7 @@ def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
     value = ValueOperator(
         module=mlp, in_keys=[OBS, ACTION], out_keys=[(GROUP, "state_action_value")]
     )
-    return TensorDictSequential(observation(), value)
+    return TensorDictSequential(observation(cfg, task), value)
 
 
 def make_loss(cfg: MarlConfig, actor, critic) -> SACLoss:

@@ -1,6 +1,10 @@
-"""The multi-car learners' networks (TorchRL's ``MultiAgentMLP``): each car's observation (its
-node features, flattened), the tanh-normal policy every algorithm shares, and the MLP its critics
-are made of."""
+"""The multi-car learners' networks (TorchRL's ``MultiAgentMLP``): each car's observation, the
+tanh-normal policy every algorithm shares, and the MLP its critics are made of.
+
+A car's observation enters either flattened (its node features and mask, :class:`CarObservation`;
+``network=""``, the default, what the shipped crossing policies were trained with) or through
+a registered network's encoder (:mod:`sharedspace.train.networks`; ``network=gcn_risk`` puts the
+GCN over each car's own risk graph in front of every car's MLP), one encoder per module."""
 
 from __future__ import annotations
 
@@ -12,19 +16,59 @@ from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal
 from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.task import CarObservation, CrossingTask
 from sharedspace.names import NODE_FEATURES
+from sharedspace.train.networks import get_network
 
 __all__ = ["ACTION", "GROUP", "OBS", "agents_mlp", "make_actor", "observation"]
 
 GROUP = "vehicle"
 OBS = (GROUP, "observation")
 ACTION = (GROUP, "action")
+#: Each car's observation keys (ENV_CONTRACT.md, grouped).
+CAR_KEYS = [(GROUP, "features"), (GROUP, "adjacency"), (GROUP, "mask")]
 
 
-def observation() -> TensorDictModule:
-    """Each car's flat observation (:class:`~sharedspace.marl.task.CarObservation`)."""
-    return TensorDictModule(
-        CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
+class EncodedCars(nn.Module):
+    """A registered network's encoder applied to every car's observation ``[*, A, M, F]``:
+    ``[*, A, out_features]``."""
+
+    def __init__(self, encoder: nn.Module):
+        super().__init__()
+        self.encoder = encoder
+
+    def forward(self, features, adjacency, mask):
+        return self.encoder(features, adjacency, mask)
+
+
+def observation(cfg: MarlConfig | None = None, task: CrossingTask | None = None):
+    """Each car's observation as one vector at :data:`OBS`: flattened
+    (:class:`~sharedspace.marl.task.CarObservation`), or ``cfg.network``'s encoding."""
+    if cfg is None or not cfg.network:
+        return TensorDictModule(
+            CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
+        )
+    encoder = get_network(cfg.network).make_encoder(_encoder_options(cfg, task), None)
+    return TensorDictModule(EncodedCars(encoder), in_keys=CAR_KEYS, out_keys=[OBS])
+
+
+def _encoder_options(cfg: MarlConfig, task: CrossingTask):
+    """What a registered network's ``make_encoder`` reads, for one car of ``task``."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(
+        max_agents=task.max_agents,
+        gcn_hidden=cfg.gcn_hidden,
+        gcn_layers=cfg.gcn_layers,
+        readout=cfg.readout,
+        device="cpu",
     )
+
+
+def observation_size(cfg: MarlConfig, task: CrossingTask) -> int:
+    """The length of one car's :func:`observation` vector."""
+    if not cfg.network:
+        return task.max_agents * (NODE_FEATURES + 1)
+    encoder = get_network(cfg.network).make_encoder(_encoder_options(cfg, task), None)
+    return int(encoder.out_features)
 
 
 def agents_mlp(
@@ -33,7 +77,7 @@ def agents_mlp(
     """An MLP per car over its observation (plus ``extra_inputs``), or over every car's
     (``centralized``); one set of weights for every car with ``share_params``."""
     return MultiAgentMLP(
-        n_agent_inputs=task.max_agents * (NODE_FEATURES + 1) + extra_inputs,
+        n_agent_inputs=observation_size(cfg, task) + extra_inputs,
         n_agent_outputs=outputs,
         n_agents=task.cars,
         centralized=centralized,
@@ -57,7 +101,7 @@ def make_actor(cfg: MarlConfig, task: CrossingTask) -> ProbabilisticActor:
         out_keys=[(GROUP, "loc"), (GROUP, "scale")],
     )
     return ProbabilisticActor(
-        module=TensorDictSequential(observation(), head),
+        module=TensorDictSequential(observation(cfg, task), head),
         in_keys=[(GROUP, "loc"), (GROUP, "scale")],
         out_keys=[ACTION],
         distribution_class=TanhNormal,

@@ -1,7 +1,8 @@
 """MAPPO, IPPO and MASAC on the crossing task: the loop, top to bottom (each algorithm's pieces are
 in its own file: :mod:`.mappo` for MAPPO and IPPO, :mod:`.masac`).
 
-    python -m sharedspace.marl --set algorithm=mappo --set seed=0 [--resume]
+    python -m sharedspace.train --set algorithm=mappo seed=0 [--resume [CKPT]]
+    python -m sharedspace.marl --set seed=0        # the same, algorithm=mappo by default
 
 TorchRL's ``sota-implementations/multiagent`` scripts (mappo_ippo.py, sac.py) over a live server:
 the cars of :class:`~sharedspace.marl.task.CrossingTask` are one agent group of
@@ -17,7 +18,6 @@ test scenes) into ``log_dir``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -37,7 +37,6 @@ from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
 from sharedspace.marl.networks import GROUP, make_actor
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
-from sharedspace.train.config import apply_overrides
 from sharedspace.train.envs import ResidualAction
 from sharedspace.train.metrics import MetricLogger
 
@@ -161,7 +160,10 @@ def _task_dict(task: CrossingTask) -> dict[str, Any]:
 
 
 def network(cfg: MarlConfig) -> str:
-    """What a checkpoint names the multi-car learners' network."""
+    """What a checkpoint names the multi-car learners' network: the registered network, or
+    the flat observation's MLP."""
+    if cfg.network:
+        return cfg.network
     return f"MultiAgentMLP {cfg.depth}x{cfg.hidden} (shared: {cfg.share_params})"
 
 
@@ -190,19 +192,28 @@ class LossAndOptimizer:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sharedspace.marl", description=__doc__)
-    ap.add_argument("--set", action="append", default=[], help="key=value (MarlConfig field)")
-    ap.add_argument("--resume", action="store_true", help="continue from log_dir's checkpoint")
-    args = ap.parse_args(argv)
-    cfg = apply_overrides(MarlConfig(), args.set)
-    summary = train(cfg, resume=args.resume)
+    """``python -m sharedspace.marl``: ``python -m sharedspace.train`` for the multi-car
+    algorithms (``algorithm=mappo`` unless the overrides say otherwise)."""
+    from sharedspace.train.train import main as train_main
+
+    return train_main(argv, default_algorithm="mappo")
+
+
+def run_command(cfg: MarlConfig, resume: str | bool | None = None) -> dict[str, Any]:
+    """One run from the command line (:func:`sharedspace.train.train.main`): trains, prints the
+    per-car outcome, returns the summary."""
+    summary = train(cfg, resume=bool(resume))
     print(
         f"{cfg.algorithm} seed {cfg.seed}: per-car success {summary['success']['rate']:.3f}, "
         f"collision {summary['collision']['rate']:.3f}, "
         f"car-car {summary['car_collision']['rate']:.3f} on the test scenes; "
         f"{summary.get('wall_s', 0):.0f} s"
     )
-    return 0
+    return summary
+
+
+#: The config of this module's algorithms (:func:`sharedspace.train.train.main` builds it).
+CONFIG = MarlConfig
 
 
 if __name__ == "__main__":

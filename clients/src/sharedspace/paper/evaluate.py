@@ -47,6 +47,7 @@ from sharedspace.train.evaluation import (
     summarize,
 )
 from sharedspace.train.learners import load_checkpoint_actor
+from sharedspace.train.networks import network_label
 
 __all__ = [
     "COLUMNS",
@@ -205,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if args.checkpoint:
         cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
-        name = cfg.network
+        name = network_label(cfg.network, cfg.algorithm)
     else:
         cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
         actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver

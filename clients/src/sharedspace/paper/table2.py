@@ -52,7 +52,7 @@ from sharedspace.paper.evaluate import (
 )
 from sharedspace.paper.planner import open_loop_search, unavoidable_first_step
 from sharedspace.pool import load_pool, split_indices
-from sharedspace.stats import paired_bootstrap, sign_test, wilson
+from sharedspace.stats import paired_clustered, sign_test, wilson
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.checkpoint import ship as ship_checkpoint
 from sharedspace.train.config import (
@@ -151,14 +151,18 @@ def per_scenario_success(per_seed: dict[int, dict[str, Any]]) -> dict[int, float
 
 
 def paired(a: dict[int, float], b: dict[int, float]) -> dict[str, Any]:
+    """Per scenario ``a - b`` (success averaged over seeds): the mean and its 95 % interval
+    resampling scenarios (:func:`sharedspace.stats.paired_clustered`, each scenario its own
+    cluster), and the sign test over the scenarios."""
     common = sorted(set(a) & set(b))
     diffs = [a[i] - b[i] for i in common]
     wins = sum(d > 0 for d in diffs)
     losses = sum(d < 0 for d in diffs)
+    interval = paired_clustered({(i, 0): a[i] for i in common}, {(i, 0): b[i] for i in common})
     return {
         "scenarios": len(common),
-        "mean_diff": float(np.mean(diffs)) if diffs else 0.0,
-        "bootstrap95": paired_bootstrap(diffs),
+        "mean_diff": interval["diff"],
+        "bootstrap95": (interval["lo"], interval["hi"]),
         "better": wins,
         "worse": losses,
         "tied": len(common) - wins - losses,

@@ -3,6 +3,8 @@ what a benchmark needs to know what it is scoring.
 
 A checkpoint is a ``torch.save`` dict with:
 
+- ``modules``: the plug-in modules (outside this package) that registered its algorithm and
+  network, imported by :func:`read_checkpoint` before anything else;
 - ``format`` (:data:`FORMAT`), ``algorithm`` (``sac``, ``ppo``, ``mappo``, ``ippo``,
   ``masac``), ``network`` (the variant, or the multi-car learner's MLP) and ``world`` (pool,
   world parameters, M, crowd, cars, variations and the reward it was trained under);
@@ -17,6 +19,7 @@ Checkpoints written before ``format`` existed (SAC only) load as ``algorithm`` `
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 from typing import Any
@@ -58,6 +61,7 @@ def save_checkpoint(
     state = {
         "format": FORMAT,
         "algorithm": cfg.algorithm,
+        "modules": plugin_modules(cfg.algorithm, network or getattr(cfg, "network", "")),
         "network": network or getattr(cfg, "network", ""),
         "world": world if world is not None else cfg.world(),
         "config": cfg.to_dict(),
@@ -74,6 +78,22 @@ def save_checkpoint(
     tmp = path.with_suffix(".tmp")
     torch.save(state, tmp)
     tmp.replace(path)
+
+
+def plugin_modules(algorithm: str, network: str) -> list[str]:
+    """The modules from outside this package that registered ``algorithm`` and ``network``:
+    what a reader imports first, so that a plug-in's checkpoint loads with no other step."""
+    from sharedspace.train.networks import NETWORKS
+    from sharedspace.train.registry import ALGORITHMS
+
+    found = []
+    algo = ALGORITHMS.get(algorithm)
+    if algo is not None:
+        found.append(algo.module if isinstance(algo.module, str) else algo.module.__name__)
+    net = NETWORKS.get(network)
+    if net is not None:
+        found.append(net.make_encoder.__module__)
+    return sorted({m for m in found if m and not m.startswith("sharedspace.")})
 
 
 class NotACheckpoint(ValueError):
@@ -102,6 +122,14 @@ def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
             ckpt = {"actor": ckpt, "config": run["config"], "world": {"task": run["task"]}}
     if not isinstance(ckpt, dict) or "config" not in ckpt or "actor" not in ckpt:
         raise NotACheckpoint(f"{path} is not a sharedspace checkpoint (no config and actor)")
+    for module in ckpt.get("modules", []):  # plug-ins register their algorithm and network
+        try:
+            importlib.import_module(module)
+        except ImportError as err:
+            raise NotACheckpoint(
+                f"{path} was written by a plug-in learner ({module}) that cannot be imported "
+                f"here: {err}"
+            ) from None
     config = ckpt["config"]
     world = ckpt.get("world") or {}
     multi_car = isinstance(world.get("task"), dict)  # the crossing task's fields

@@ -155,10 +155,10 @@ class TrainConfig:
         # Fields left to the algorithm, the task or the machine are filled in; `_auto`
         # remembers which, so that an override of the algorithm fills them in again.
         auto = {"num_envs": 0, "reward": "", "device": "auto", "eval_interval": -1}
+        auto = {k: v for k, v in auto.items() if getattr(self, k) == v}
         if task is not None:
-            self._take_task(task)
-            auto |= {k: TrainConfig.__dataclass_fields__[k].default for k in TASK_FIELDS}
-        self._auto = {k: v for k, v in auto.items() if getattr(self, k) == v or k in TASK_FIELDS}
+            auto |= self._take_task(task)
+        self._auto = auto
         self.num_envs = self.num_envs or algo.num_envs
         if self.eval_interval < 0:
             self.eval_interval = algo.eval_interval
@@ -169,9 +169,10 @@ class TrainConfig:
         self.reward = self.reward or algo.reward
         self._check_values()
 
-    def _take_task(self, task) -> None:
-        """The task's training world into the fields it sets; a field given another value than
-        the task's is a :class:`ConfigError` naming it."""
+    def _take_task(self, task) -> dict[str, Any]:
+        """The task's training world into the fields it sets (a world field given another
+        value than the task's is a :class:`ConfigError` naming it; the validation split's size
+        may be set); returns the fields it filled in, with their defaults."""
         if task.cars != 1:
             raise ConfigError(
                 f"task {task.name} has {task.cars} learning cars per scene: train it with "
@@ -185,6 +186,7 @@ class TrainConfig:
             "validation_scenes": task.validation_scenes,
             "validation_variations": task.validation_variations,
         }
+        filled = {}
         for name, value in values.items():
             default = TrainConfig.__dataclass_fields__[name]
             unset = (
@@ -193,11 +195,14 @@ class TrainConfig:
                 else (default.default)
             )
             given = getattr(self, name)
-            if given != unset and given != value:
+            if given == unset or given == value:
+                setattr(self, name, value)
+                filled[name] = unset
+            elif name not in ("validation_scenes", "validation_variations"):  # the world's
                 raise ConfigError(
                     f"{name} is set by task={task.name} ({value!r}); this config gives {given!r}"
                 )
-            setattr(self, name, value)
+        return filled
 
     def _check_values(self) -> None:
         if self.reward not in REWARDS:
@@ -312,12 +317,13 @@ class TrainConfig:
 
 
 def check_algorithm_options(cfg) -> None:
-    """An option that only other algorithms than ``cfg.algorithm`` read (their registered
-    ``options``), set away from its default, is a :class:`ConfigError` naming it: it would
-    silently do nothing."""
+    """An option that only other algorithms than ``cfg.algorithm`` (of its kind: one car or
+    several) read (their registered ``options``), set away from its default, is a
+    :class:`ConfigError` naming it: it would silently do nothing."""
     defaults = {f.name: f for f in dataclasses.fields(cfg)}
     mine = get_algorithm(cfg.algorithm)
-    for algo in ALGORITHMS.values():
+    kin = [a for a in ALGORITHMS.values() if a.cars == mine.cars]  # those of its config
+    for algo in kin:
         for name in algo.options:
             if name in mine.options or name not in defaults:
                 continue
@@ -326,7 +332,7 @@ def check_algorithm_options(cfg) -> None:
                 f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
             )
             if getattr(cfg, name) != unset:
-                owners = [a.name for a in ALGORITHMS.values() if name in a.options]
+                owners = [a.name for a in kin if name in a.options]
                 raise ConfigError(
                     f"{name} is an option of algorithm={'|'.join(owners)}, and this config's "
                     f"algorithm is {cfg.algorithm}"

@@ -1,13 +1,20 @@
-"""The single-car learner's command: one config, the algorithm it names.
+"""Every learner's command: one config, the algorithm it names, for one car or several.
 
-    python -m sharedspace.train [--config cfg.toml] [--set key=value ...] [--resume CKPT]
+    python -m sharedspace.train [--config cfg.toml] [--set key=value ...] [--resume [CKPT]]
 
-``algorithm=sac`` (the default) is the paper's SAC-GCN (:mod:`sharedspace.train.sac`);
-``algorithm=ppo`` is PPO on wide batches of envs (:mod:`sharedspace.train.ppo`). ``variant``
-names the network either way (``g_sac_cog`` = ``gcn_cog``, ``g_sac_nocog`` = ``gcn_nocog``,
-``s_sac`` = ``mlp``). Both write into ``log_dir``: ``config.json``, ``metrics.csv`` (long format:
-frames, wall_s, metric, value; metrics namespaced ``train/`` and ``eval/``), TensorBoard events,
-and ``checkpoints/{step_<frames>,last}.pt`` (:mod:`sharedspace.train.checkpoint`).
+``algorithm`` names a registered algorithm (:mod:`sharedspace.train.registry`): ``sac`` (the
+default, the paper's SAC-GCN) and ``ppo`` drive one car per env (:class:`TrainConfig`);
+``mappo``, ``ippo`` and ``masac`` drive the crossing task's cars
+(:class:`~sharedspace.marl.config.MarlConfig`). ``network`` names a registered network
+(``gcn_risk``, ``gcn_uniform``, ``mlp``; the old names ``g_sac_cog``, ``g_sac_nocog``,
+``s_sac`` still work). ``task=paper`` (or ``crowd``) trains in a benchmark task's world, and
+``python -m sharedspace.bench TASK --policy LOG_DIR/checkpoints/last.pt`` scores the result.
+
+A one-car run writes into ``log_dir``: ``config.json``, ``metrics.csv`` (long format: frames,
+wall_s, metric, value; ``train/`` per iteration, ``eval/`` on the validation split),
+TensorBoard events, and ``checkpoints/{step_<frames>,last}.pt``
+(:mod:`sharedspace.train.checkpoint`); a multi-car run writes ``checkpoint.pt`` and
+``eval.json`` instead (:mod:`sharedspace.marl.train`).
 """
 
 from __future__ import annotations
@@ -15,18 +22,20 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
-from sharedspace.train.checkpoint import load_checkpoint
+from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.config import (
+    ConfigError,
     TrainConfig,
     _read_table,
     add_overrides_argument,
     apply_overrides,
     command_parser,
-    load_config,
 )
 from sharedspace.train.learners import learner
+from sharedspace.train.registry import UnknownAlgorithm, get_algorithm
 
 __all__ = ["train", "main"]
 
@@ -37,22 +46,55 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     return learner(cfg.algorithm).train(cfg, resume=resume)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     ap = command_parser("python -m sharedspace.train", __doc__)
-    ap.add_argument("--config", default=None, help="TOML or JSON file of TrainConfig fields")
-    add_overrides_argument(ap, "overrides")
-    ap.add_argument("--resume", default=None, help="checkpoint to continue from")
+    ap.add_argument("--config", default=None, help="TOML or JSON file of config fields")
+    add_overrides_argument(ap, "config overrides: KEY=VALUE (every key: docs/USAGE.md)")
+    ap.add_argument(
+        "--resume",
+        nargs="?",
+        const=True,
+        default=None,
+        metavar="CKPT",
+        help="continue from this checkpoint (its config, then --config and --set over it); "
+        "bare: the run directory's last checkpoint",
+    )
     args = ap.parse_args(argv)
-    if args.resume:  # the checkpoint's config, then the file and the overrides over it
-        cfg = TrainConfig.from_dict(load_checkpoint(args.resume)["config"])
-        if args.config:
-            cfg = apply_overrides(cfg, _read_table(args.config))
-        cfg = apply_overrides(cfg, args.set)
+    table = _read_table(args.config) if args.config else {}
+    resume = args.resume
+    saved = read_checkpoint(resume) if isinstance(resume, str) else None
+    algorithm = _named_algorithm(args.set, table, saved, default_algorithm)
+    try:
+        module = get_algorithm(algorithm).load()
+    except UnknownAlgorithm as err:
+        raise ConfigError(str(err)) from None
+    config_class = getattr(module, "CONFIG", TrainConfig)
+    if saved is not None:  # the checkpoint's config, then the file and the overrides over it
+        cfg = getattr(config_class, "from_saved", config_class.from_dict)(saved["config"])
     else:
-        cfg = load_config(args.config, args.set)
-    out = train(cfg, resume=args.resume)
-    print(json.dumps({k: v for k, v in out.items()}, default=float))
+        cfg = config_class.from_dict({"algorithm": algorithm})
+    cfg = apply_overrides(apply_overrides(cfg, table), args.set)
+    if resume is True and config_class is TrainConfig:
+        resume = str(Path(cfg.log_dir) / "checkpoints" / "last.pt")
+    run = getattr(module, "run_command", None)
+    out = run(cfg, resume) if run is not None else module.train(cfg, resume=resume)
+    print(json.dumps(dict(out), default=float))
     return 0
+
+
+def _named_algorithm(
+    overrides: Sequence[str], table: dict[str, Any], saved: dict[str, Any] | None, default: str
+) -> str:
+    """The algorithm a command names: its last ``algorithm=`` override, else the config
+    file's, else the checkpoint's, else ``default``, else the one-car default."""
+    named = [o.split("=", 1)[1].strip() for o in overrides if o.split("=", 1)[0] == "algorithm"]
+    if named:
+        return named[-1]
+    if "algorithm" in table:
+        return str(table["algorithm"])
+    if saved is not None:
+        return str(saved["algorithm"])
+    return default or TrainConfig.algorithm
 
 
 if __name__ == "__main__":

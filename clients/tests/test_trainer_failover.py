@@ -1,0 +1,108 @@
+"""A training run outlives its server: behind one `sim-server router`, two servers; the one
+holding a PPO run's envs is SIGKILLed mid-run. The trainer (its default config: failover on)
+re-creates the envs on the survivor, completes its frames, and counts the episodes the kill cut
+short as lost (truncated with no outcome)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+from conftest import free_port, sim_server_binary, unique_prefix, validation_pools_cfg, wait_until
+from test_scale_out import WAIT, Procs, _wait_listening
+
+import pytest
+
+from sharedspace.client import SimClient
+
+NUM_ENVS = 4
+ITERATION = NUM_ENVS * 8  # frames per PPO iteration (rollout_steps 8)
+TOTAL = ITERATION * 20
+KILL_AFTER = ITERATION * 6
+
+
+@pytest.fixture
+def procs(tmp_path):
+    ps = Procs(tmp_path)
+    try:
+        yield ps
+    finally:
+        ps.kill_all()
+
+
+def _frames_logged(path) -> int:
+    if not path.exists():
+        return 0
+    lines = [ln.split(",") for ln in path.read_text().splitlines()[1:]]
+    return max((int(ln[0]) for ln in lines if len(ln) == 4 and ln[0].isdigit()), default=0)
+
+
+def test_a_ppo_run_survives_the_sigkill_of_its_server(procs, tmp_path):
+    binary = sim_server_binary()
+    if binary is None:
+        pytest.skip("sim-server binary not found: set SHAREDSPACE_SIM_SERVER or build it")
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router_cfg = ["--cfg", f'listen/endpoints:["{endpoint}"]']
+    router_cfg += ["--cfg", "scouting/multicast/enabled:false"]
+    procs.start("router", [str(binary), "router", *router_cfg], RUST_LOG="warn")
+    _wait_listening(procs, "router", port)
+    prefix = unique_prefix()
+    for sid in ("s1", "s2"):
+        serve = ["--cfg", 'zenoh/mode:"client"', "--cfg", f'zenoh/connect/endpoints:["{endpoint}"]']
+        serve += ["--cfg", "zenoh/scouting/multicast/enabled:false", "--cfg", f"prefix:{prefix}"]
+        serve += ["--cfg", f"server_id:{sid}", "--cfg", validation_pools_cfg()]
+        procs.start(sid, [str(binary), "serve", *serve], RUST_LOG="warn")
+    session = tmp_path / "trainer.json5"
+    session.write_text(
+        json.dumps(
+            {
+                "mode": "client",
+                "connect": {"endpoints": [endpoint]},
+                "scouting": {"multicast": {"enabled": False}},
+            }
+        )
+    )
+    log_dir = tmp_path / "run"
+    with SimClient(endpoint, prefix, mode="client", timeout=3.0) as watcher:
+        assert wait_until(lambda: len(watcher.servers(timeout=1.0)) == 2, WAIT)
+        overrides = [
+            "algorithm=ppo",
+            f"num_envs={NUM_ENVS}",
+            "max_agents=5",
+            "rollout_steps=8",
+            "minibatch_size=16",
+            "ppo_epochs=1",
+            "hidden_sizes=16,16",
+            "gcn_hidden=8",
+            f"total_frames={TOTAL}",
+            "eval_interval=0",
+            "checkpoint_interval=0",
+            "progress=false",
+            f"zenoh_config={session}",
+            f"server_prefix={prefix}",
+            f"log_dir={log_dir}",
+        ]
+        trainer = procs.start(
+            "trainer", [sys.executable, "-m", "sharedspace.train", "--set", *overrides]
+        )
+        metrics = log_dir / "metrics.csv"
+        deadline = time.monotonic() + 4 * WAIT
+        while _frames_logged(metrics) < KILL_AFTER:
+            assert trainer.poll() is None, procs.log("trainer")
+            assert time.monotonic() < deadline, "the run did not start"
+            time.sleep(0.05)
+        hosts = [i["server_id"] for i in watcher.servers(timeout=2.0) if i.get("envs")]
+        assert len(hosts) == 1, hosts
+        procs.kill(hosts[0])
+        killed_at = _frames_logged(metrics)
+        assert killed_at < TOTAL, "the run ended before the kill"
+        rc = trainer.wait(timeout=8 * WAIT)
+    assert rc == 0, procs.log("trainer")
+    out = json.loads(procs.log("trainer").strip().splitlines()[-1])
+    assert out["counters"]["frames"] == TOTAL
+    assert out["counters"]["lost_episodes"] == NUM_ENVS  # every sub-env's episode, once
+    rows = [ln.split(",") for ln in metrics.read_text().splitlines()[1:]]
+    lost = [float(r[3]) for r in rows if r[2] == "train/lost" and float(r[3]) > 0]
+    assert len(lost) == 1 and int(rows[-1][0]) == TOTAL
