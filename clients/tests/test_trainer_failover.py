@@ -9,10 +9,9 @@ import json
 import sys
 import time
 
+import pytest
 from conftest import free_port, sim_server_binary, unique_prefix, validation_pools_cfg, wait_until
 from test_scale_out import WAIT, Procs, _wait_listening
-
-import pytest
 
 from sharedspace.client import SimClient
 
