@@ -32,7 +32,6 @@ from pathlib import Path
 import torch
 
 from sharedspace.local_server import LocalServer
-from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.train import train as train_marl
 from sharedspace.train.config import TrainConfig, apply_overrides
 from sharedspace.train.envs import make_env
@@ -102,7 +101,7 @@ def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
         for k in ("scenario_pool", "server_endpoint", "server_prefix")
     }
     cfg = apply_overrides(
-        TrainConfig(device="cpu", **world, **WORLD),
+        TrainConfig(device="cpu", eval_split="test", **world, **WORLD),
         [
             "algorithm=sac",
             "network=gcn_risk",
@@ -129,13 +128,13 @@ def sac_rate(base: TrainConfig, frames: int, log_dir: Path) -> dict:
 
 def mappo_rate(endpoint: str, prefix: str, frames: int, log_dir: Path) -> dict:
     """MAPPO on the crossing task (its defaults), timed after its first batch."""
-    cfg = MarlConfig(
+    cfg = TrainConfig(
         algorithm="mappo",
         total_frames=frames,
         log_dir=str(log_dir),
         server_endpoint=endpoint,
         server_prefix=prefix,
-        eval_every=10**9,
+        eval_interval=0,
     )
     train_marl(cfg)
     walls = [
@@ -194,6 +193,7 @@ def main() -> None:
         base = TrainConfig(
             algorithm="ppo",
             scenario_pool=args.pool,
+            eval_split="test",  # no evaluation here: the pool's train split as it is
             server_endpoint=server.endpoint,
             server_prefix="throughput",
             num_envs=args.envs,

@@ -18,11 +18,10 @@ torch = pytest.importorskip("torch")
 
 import toy_plugin  # noqa: E402,F401 - registers toy_pg and toy_mean, as a user's import would
 
-from sharedspace.marl.config import MarlConfig  # noqa: E402
 from sharedspace.marl.task import CrossingTask  # noqa: E402
 from sharedspace.marl.train import train as marl_train  # noqa: E402
 from sharedspace.train.checkpoint import read_checkpoint  # noqa: E402
-from sharedspace.train.config import ConfigError, load_config  # noqa: E402
+from sharedspace.train.config import ConfigError, TrainConfig, load_config  # noqa: E402
 from sharedspace.train.learners import load_checkpoint_actor, observation_example  # noqa: E402
 from sharedspace.train.registry import ALGORITHMS  # noqa: E402
 from sharedspace.train.train import main as train_main  # noqa: E402
@@ -98,20 +97,21 @@ def test_a_plugin_algorithm_and_network_train_one_car_and_the_bench_scores_them(
 
 def test_a_plugin_network_trains_the_crossing_cars_and_the_bench_scores_them(tmp_path, sim_server):
     """MAPPO over each car's toy_mean encoding, a few iterations on the crossing task."""
-    cfg = MarlConfig(
+    cfg = TrainConfig(
         algorithm="mappo",
         network="toy_mean",
         total_frames=128,
         num_envs=4,
-        frames_per_batch=64,
+        rollout_steps=16,
         minibatch_size=32,
-        eval_every=10_000,
+        eval_interval=10_000,
+        validation_scenes=3,
         server_endpoint=sim_server.endpoint,
         server_prefix=sim_server.prefix,
         log_dir=str(tmp_path),
     )
     summary = marl_train(cfg, SMALL_CROSSING)
-    assert summary["car_episodes"] == 3 * 4
+    assert summary["car_episodes"] == 3 * 4  # 3 validation scenes x 4 cars
     ckpt_path = tmp_path / "checkpoint.pt"
     ckpt = read_checkpoint(ckpt_path)
     assert (ckpt["algorithm"], ckpt["network"], ckpt["modules"]) == (
@@ -229,6 +229,7 @@ def test_one_command_line_runs_every_registered_algorithm_and_names_bad_ones(tmp
         (["algorithm=dqn"], "algorithm"),
         (["algorithm=ppo", "utd_ratio=2"], "utd_ratio"),
         (["algorithm=mappo", "task=paper"], "task"),
+        (["algorithm=ppo", "task=crossing"], "task"),
         (["algorithm=mappo", "network=transformer"], "network"),
         (["algorithm=masac", "ppo_epochs=3"], "ppo_epochs"),
     ]:

@@ -13,12 +13,12 @@ import torch
 from sharedspace.client import Connection
 from sharedspace.marl import masac
 from sharedspace.marl.bound import per_car_bound
-from sharedspace.marl.config import MarlConfig, apply_overrides
 from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
 from sharedspace.marl.networks import make_actor
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.marl.train import train
 from sharedspace.train.checkpoint import FORMAT, load_checkpoint
+from sharedspace.train.config import TrainConfig, apply_overrides
 from sharedspace.train.envs import ResidualAction
 
 #: Two cars through the crossing, two test scenes: a few seconds per run.
@@ -29,19 +29,19 @@ def _connection(sim_server) -> Connection:
     return Connection(endpoint=sim_server.endpoint, prefix=sim_server.prefix)
 
 
-def _tiny(algorithm: str, sim_server, log_dir, total_frames: int) -> MarlConfig:
+def _tiny(algorithm: str, sim_server, log_dir, total_frames: int) -> TrainConfig:
     own = (
-        {"batch_size": 32, "utd_ratio": 0.25, "actor_warmup_frames": 128}
+        {"batch_size": 32, "utd_ratio": 0.25, "actor_warmup_frames": 128, "frames_per_batch": 64}
         if algorithm == "masac"
-        else {"minibatch_size": 32}
+        else {"minibatch_size": 32, "rollout_steps": 16}
     )
-    return MarlConfig(
+    return TrainConfig(
         algorithm=algorithm,
         total_frames=total_frames,
         num_envs=4,
-        frames_per_batch=64,
-        hidden=16,
-        eval_every=128,
+        hidden_sizes=[16, 16],
+        eval_interval=128,
+        validation_scenes=2,
         log_dir=str(log_dir),
         server_endpoint=sim_server.endpoint,
         server_prefix=sim_server.prefix,
@@ -61,7 +61,7 @@ def test_each_algorithm_trains_against_a_live_server_and_resumes(algorithm, sim_
     assert summary["car_episodes"] == 2 * 2  # every (test scene, car)
     rows = json.loads((tmp_path / "eval.json").read_text())["rows"]
     assert {(r["scene"], r["car"]) for r in rows} == {
-        (s, c) for s in TINY_TASK.scene_names("test") for c in TINY_TASK.agents
+        (s, c) for s in TINY_TASK.scene_names("validation", 2) for c in TINY_TASK.agents
     }
     metrics = (tmp_path / "metrics.csv").read_text()
     losses = {"mappo": "loss_objective", "ippo": "loss_critic", "masac": "loss_qvalue"}
@@ -163,24 +163,37 @@ def test_paired_difference_resamples_scenes_and_pairs_cells():
 
 
 def test_bad_configs_name_what_was_wrong():
+    mappo = TrainConfig(algorithm="mappo")
     with pytest.raises(ValueError, match="algorithm"):
-        MarlConfig(algorithm="qmix")
+        TrainConfig(algorithm="qmix")
     with pytest.raises(ValueError, match="total_frames"):
-        apply_overrides(MarlConfig(), ["total_frames=lots"])
+        apply_overrides(mappo, ["total_frames=lots"])
     with pytest.raises(ValueError, match="key one of"):
-        apply_overrides(MarlConfig(), ["frames=3"])
-    assert apply_overrides(MarlConfig(), ['reward_weights={"danger": 2}']).reward_weights == {
+        apply_overrides(mappo, ["frames=3"])
+    assert apply_overrides(mappo, ['reward_weights={"danger": 2}']).reward_weights == {
         "danger": 2
     }
-    assert np.isclose(apply_overrides(MarlConfig(), ["lr=1"]).lr, 1.0)
-    with pytest.raises(ValueError, match="utd_ratio is an option of algorithm=masac"):
-        apply_overrides(MarlConfig(), ["utd_ratio=1"])
-    # a run saved before the options were checked holds all of them, and retired fields
-    saved = MarlConfig.from_saved({"algorithm": "mappo", "utd_ratio": 5, "retired_knob": 1})
-    assert saved.algorithm == "mappo" and saved.utd_ratio == MarlConfig().utd_ratio
-    with pytest.raises(ValueError, match="ppo_epochs is an option of algorithm=mappo"):
-        MarlConfig(algorithm="masac", ppo_epochs=2)
+    assert np.isclose(apply_overrides(mappo, ["lr=1"]).lr, 1.0)
+    with pytest.raises(ValueError, match="utd_ratio is an option of algorithm=sac|masac"):
+        apply_overrides(mappo, ["utd_ratio=1"])
+    # a multi-car run saved in its own config: every option, its own names, retired fields
+    saved = TrainConfig.from_dict(
+        {"algorithm": "mappo", "utd_ratio": 5, "eval_every": 7, "hidden": 16, "depth": 3}
+    )
+    assert (saved.algorithm, saved.utd_ratio) == ("mappo", mappo.utd_ratio)
+    assert (saved.eval_interval, saved.hidden_sizes) == (7, [16, 16, 16])
+    with pytest.raises(ValueError, match="ppo_epochs is an option of algorithm=ppo|mappo|ippo"):
+        TrainConfig(algorithm="masac", ppo_epochs=2)
     with pytest.raises(ValueError, match="a residual without a script"):
-        apply_overrides(MarlConfig(), ["base_driver=", "residual_scale=1"])
+        apply_overrides(mappo, ["base_driver=", "residual_scale=1"])
     with pytest.raises(ValueError, match="reward"):
-        apply_overrides(MarlConfig(), ["reward=sparse"])
+        apply_overrides(mappo, ["reward=sparse"])
+    with pytest.raises(ValueError, match="task paper has 1 learning car"):
+        apply_overrides(mappo, ["task=paper"])
+    # the multi-car defaults: a residual over the car-aware script, each car's nodes flattened
+    assert (mappo.task, mappo.base_driver, mappo.residual_scale, mappo.network) == (
+        "crossing",
+        "car_aware",
+        2.0,
+        "",
+    )

@@ -160,7 +160,7 @@ def test_feature_norm_tracks_present_nodes_by_role():
         (["algorithm=ppo", "minibatch_size=lots"], "minibatch_size"),
         (["network=transformer"], "network"),
         (["variant=transformer"], "network"),  # the old name of the field
-        (["algorithm=mappo"], "algorithm"),  # several cars per env
+        (["algorithm=mappo", "max_agents=12"], "max_agents"),  # the crossing task sets M
         (["task=nowhere"], "task"),
         (["task=crossing"], "task"),
         (["task=paper", "max_agents=12"], "max_agents"),

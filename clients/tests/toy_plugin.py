@@ -97,5 +97,7 @@ def train(cfg, resume: str | None = None) -> dict[str, Any]:
 
 
 register_algorithm(
-    Algorithm("toy_pg", __name__, family="on", num_envs=4, reward="learner", doc="a toy")
+    Algorithm(
+        "toy_pg", __name__, family="on", defaults={"num_envs": 4, "reward": "learner"}, doc="a toy"
+    )
 )

@@ -107,7 +107,11 @@ TRAINING_TASKS: dict[str, TrainingTask] = {
         validation_scenes=60,
         validation_variations=4,
     ),
-    "crossing": TrainingTask("crossing", "", "", {}, 8, variations={}, cars=4),
+    # generated scenes (sharedspace.marl.task.CrossingTask): its validation scenes are drawn
+    # from seeds of their own, apart from the train and the test scenes
+    "crossing": TrainingTask(
+        "crossing", "", "", {}, 10, variations={}, validation_scenes=50, cars=4
+    ),
 }
 
 

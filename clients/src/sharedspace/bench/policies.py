@@ -243,9 +243,9 @@ def _single_car_act(ckpt: dict[str, Any]) -> Callable:
 def _marl_act(ckpt: dict[str, Any], task: Task, path: Path) -> Callable:
     """A multi-car checkpoint's cars, as the multi-car trainer evaluates them
     (:func:`sharedspace.marl.evaluate.policy_act`)."""
-    from sharedspace.marl.config import MarlConfig
     from sharedspace.marl.evaluate import policy_act
     from sharedspace.marl.networks import make_actor
+    from sharedspace.train.config import TrainConfig
 
     recorded = (ckpt.get("world") or {}).get("task")
     mine = dict(vars(task.crossing))
@@ -254,7 +254,7 @@ def _marl_act(ckpt: dict[str, Any], task: Task, path: Path) -> Callable:
         raise BenchError(
             f"policy {path}: trained on another crossing task (differs in {', '.join(differing)})"
         )
-    cfg = MarlConfig.from_saved(ckpt["config"])
+    cfg = TrainConfig.from_dict(ckpt["config"] | {"device": "cpu"})
     actor = make_actor(cfg, task.crossing)
     actor.load_state_dict(ckpt["actor"])
     act = policy_act(actor, cfg.base_driver, cfg.residual_scale)

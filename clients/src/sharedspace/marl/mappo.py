@@ -17,9 +17,9 @@ from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
 from sharedspace.marl.task import CrossingTask
+from sharedspace.train.config import TrainConfig
 
 __all__ = [
     "learn",
@@ -31,14 +31,14 @@ __all__ = [
 ]
 
 
-def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
+def make_critic(cfg: TrainConfig, task: CrossingTask) -> TensorDictSequential:
     """The state value per car (centralised for MAPPO)."""
     mlp = agents_mlp(cfg, task, extra_inputs=0, outputs=1, centralized=cfg.algorithm == "mappo")
     value = ValueOperator(module=mlp, in_keys=[OBS], out_keys=[(GROUP, "state_value")])
     return TensorDictSequential(observation(cfg, task), value)
 
 
-def make_loss(cfg: MarlConfig, actor, critic) -> ClipPPOLoss:
+def make_loss(cfg: TrainConfig, actor, critic) -> ClipPPOLoss:
     """TorchRL's ``ClipPPOLoss`` with GAE on the group's keys; each car's advantages are
     normalised apart."""
     loss = ClipPPOLoss(
@@ -60,11 +60,11 @@ def make_loss(cfg: MarlConfig, actor, critic) -> ClipPPOLoss:
     return loss
 
 
-def make_optimizer(cfg: MarlConfig, loss: nn.Module) -> torch.optim.Optimizer:
+def make_optimizer(cfg: TrainConfig, loss: nn.Module) -> torch.optim.Optimizer:
     return torch.optim.Adam(loss.parameters(), cfg.lr)
 
 
-def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
+def make_buffer(cfg: TrainConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
     """The last batch, in minibatches without replacement."""
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(frames_per_batch),
@@ -73,13 +73,13 @@ def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffe
     )
 
 
-def make_target_update(cfg: MarlConfig, loss: nn.Module) -> None:
+def make_target_update(cfg: TrainConfig, loss: nn.Module) -> None:
     """PPO has no target networks."""
     return None
 
 
 def learn(
-    cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
+    cfg: TrainConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
 ) -> dict[str, float]:
     """One collected batch: advantages by GAE, then ``ppo_epochs`` passes of minibatches.
     Returns the last step's losses (``train/loss_*``)."""

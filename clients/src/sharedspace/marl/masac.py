@@ -21,9 +21,9 @@ from torchrl.data.replay_buffers.samplers import RandomSampler
 from torchrl.modules import ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
-from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
 from sharedspace.marl.task import CrossingTask
+from sharedspace.train.config import TrainConfig
 
 __all__ = [
     "learn",
@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 
-def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
+def make_critic(cfg: TrainConfig, task: CrossingTask) -> TensorDictSequential:
     """``Q(s, a)`` per car over every car's observation and action."""
     mlp = agents_mlp(cfg, task, extra_inputs=2, outputs=1, centralized=True)
     value = ValueOperator(
@@ -44,7 +44,7 @@ def make_critic(cfg: MarlConfig, task: CrossingTask) -> TensorDictSequential:
     return TensorDictSequential(observation(cfg, task), value)
 
 
-def make_loss(cfg: MarlConfig, actor, critic) -> SACLoss:
+def make_loss(cfg: TrainConfig, actor, critic) -> SACLoss:
     """TorchRL's ``SACLoss`` (two Q-critics, delayed targets) with TD(0) on the group's keys."""
     loss = SACLoss(
         actor_network=actor,
@@ -65,14 +65,14 @@ def make_loss(cfg: MarlConfig, actor, critic) -> SACLoss:
     return loss
 
 
-def make_optimizer(cfg: MarlConfig, loss: nn.Module) -> torch.optim.Optimizer:
+def make_optimizer(cfg: TrainConfig, loss: nn.Module) -> torch.optim.Optimizer:
     """Adam; the actor at ``actor_lr``, the critics and the temperature at ``lr``."""
     actor = list(loss.actor_network_params.values(True, True))
     others = [p for p in loss.parameters() if all(p is not a for a in actor)]
     return torch.optim.Adam([{"params": actor, "lr": cfg.actor_lr}, {"params": others}], cfg.lr)
 
 
-def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
+def make_buffer(cfg: TrainConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
     """A replay buffer of ``buffer_size`` sub-env steps, sampled at random."""
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(cfg.buffer_size),
@@ -81,12 +81,12 @@ def make_buffer(cfg: MarlConfig, frames_per_batch: int) -> TensorDictReplayBuffe
     )
 
 
-def make_target_update(cfg: MarlConfig, loss: nn.Module) -> SoftUpdate:
+def make_target_update(cfg: TrainConfig, loss: nn.Module) -> SoftUpdate:
     return SoftUpdate(loss, eps=1.0 - cfg.tau)
 
 
 def learn(
-    cfg: MarlConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
+    cfg: TrainConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
 ) -> dict[str, float]:
     """One collected batch into the buffer, then ``utd_ratio`` updates per frame; only the
     critics learn for the first ``actor_warmup_frames``. Returns the last step's losses."""

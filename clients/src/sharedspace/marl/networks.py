@@ -13,9 +13,9 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequ
 from torch import nn
 from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal
 
-from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.task import CarObservation, CrossingTask
 from sharedspace.names import NODE_FEATURES
+from sharedspace.train.config import TrainConfig
 from sharedspace.train.networks import get_network
 
 __all__ = ["ACTION", "GROUP", "OBS", "agents_mlp", "make_actor", "observation"]
@@ -39,7 +39,7 @@ class EncodedCars(nn.Module):
         return self.encoder(features, adjacency, mask)
 
 
-def observation(cfg: MarlConfig | None = None, task: CrossingTask | None = None):
+def observation(cfg: TrainConfig | None = None, task: CrossingTask | None = None):
     """Each car's observation as one vector at :data:`OBS`: flattened
     (:class:`~sharedspace.marl.task.CarObservation`), or ``cfg.network``'s encoding."""
     if cfg is None or not cfg.network:
@@ -50,7 +50,7 @@ def observation(cfg: MarlConfig | None = None, task: CrossingTask | None = None)
     return TensorDictModule(EncodedCars(encoder), in_keys=CAR_KEYS, out_keys=[OBS])
 
 
-def _encoder_options(cfg: MarlConfig, task: CrossingTask):
+def _encoder_options(cfg: TrainConfig, task: CrossingTask):
     """What a registered network's ``make_encoder`` reads, for one car of ``task``."""
     from types import SimpleNamespace
 
@@ -63,7 +63,7 @@ def _encoder_options(cfg: MarlConfig, task: CrossingTask):
     )
 
 
-def observation_size(cfg: MarlConfig, task: CrossingTask) -> int:
+def observation_size(cfg: TrainConfig, task: CrossingTask) -> int:
     """The length of one car's :func:`observation` vector."""
     if not cfg.network:
         return task.max_agents * (NODE_FEATURES + 1)
@@ -72,7 +72,7 @@ def observation_size(cfg: MarlConfig, task: CrossingTask) -> int:
 
 
 def agents_mlp(
-    cfg: MarlConfig, task: CrossingTask, extra_inputs: int, outputs: int, centralized: bool
+    cfg: TrainConfig, task: CrossingTask, extra_inputs: int, outputs: int, centralized: bool
 ) -> MultiAgentMLP:
     """An MLP per car over its observation (plus ``extra_inputs``), or over every car's
     (``centralized``); one set of weights for every car with ``share_params``."""
@@ -82,13 +82,12 @@ def agents_mlp(
         n_agents=task.cars,
         centralized=centralized,
         share_params=cfg.share_params,
-        depth=cfg.depth,
-        num_cells=cfg.hidden,
+        num_cells=list(cfg.hidden_sizes),
         activation_class=nn.Tanh,
     )
 
 
-def make_actor(cfg: MarlConfig, task: CrossingTask) -> ProbabilisticActor:
+def make_actor(cfg: TrainConfig, task: CrossingTask) -> ProbabilisticActor:
     """Tanh-normal policy per car; at initialisation its mean is ~0 (the script's action, for a
     residual learner) and its standard deviation ``init_scale``."""
     mlp = agents_mlp(cfg, task, extra_inputs=0, outputs=4, centralized=False)

@@ -22,9 +22,9 @@ from pathlib import Path
 
 from sharedspace.client import Connection
 from sharedspace.local_server import LocalServer
-from sharedspace.marl.config import ALGORITHMS
 from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
 from sharedspace.marl.task import CrossingTask
+from sharedspace.train.registry import algorithm_names
 
 __all__ = ["main"]
 
@@ -75,7 +75,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", default="results/marl")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--parallel", type=int, default=2)
-    ap.add_argument("--algorithms", default=",".join(ALGORITHMS))
+    ap.add_argument("--algorithms", default=",".join(algorithm_names("many")))
     ap.add_argument("--set", action="append", default=[], help="key=value for every run")
     args = ap.parse_args(argv)
     out = Path(args.out)

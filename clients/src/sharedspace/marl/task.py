@@ -53,6 +53,10 @@ CROSSING_CROWD: dict[str, float] = {
 }
 
 
+#: The first validation scene's seed: far from the train (0 ..) and test (1 000 000 ..) seeds.
+VALIDATION_SEED = 500_000
+
+
 @dataclass(frozen=True)
 class CrossingTask:
     """The frozen multi-car task; one field per choice, the defaults are the task."""
@@ -75,12 +79,16 @@ class CrossingTask:
     def agents(self) -> tuple[str, ...]:
         return tuple(f"vehicle_{k}" for k in range(self.cars))
 
-    def scenes(self, split: str) -> SyntheticScenes:
-        """The generated scenes of ``split`` (``train`` or ``test``)."""
-        seed, count = {
+    def scenes(self, split: str, count: int | None = None) -> SyntheticScenes:
+        """The generated scenes of ``split``: ``train``, ``test``, or ``validation`` (the first
+        ``count`` of the seeds from :data:`VALIDATION_SEED`, between the train and the test
+        seeds: never trained on, never tested on)."""
+        seed, default = {
             "train": (self.train_seed, self.train_scenes),
+            "validation": (VALIDATION_SEED, 50),
             "test": (self.test_seed, self.test_scenes),
         }[split]
+        count = count or default
         return SyntheticScenes(
             layout=self.layout,
             pedestrians=self.pedestrians,
@@ -91,13 +99,14 @@ class CrossingTask:
             scenes=count,
         )
 
-    def scene_names(self, split: str) -> list[str]:
-        return [name for name, _ in synthetic_names(self.scenes(split), split)]
+    def scene_names(self, split: str, count: int | None = None) -> list[str]:
+        return [name for name, _ in synthetic_names(self.scenes(split, count), split)]
 
-    def spec(self, split: str, seed: int = 0) -> EnvSpec:
-        """The envs of ``split``; ``seed`` seeds the server's draw of training scenes."""
+    def spec(self, split: str, seed: int = 0, count: int | None = None) -> EnvSpec:
+        """The envs of ``split`` (its first ``count`` scenes); ``seed`` seeds the server's
+        draw of training scenes."""
         return EnvSpec(
-            synthetic=self.scenes(split),
+            synthetic=self.scenes(split, count),
             external_agents=self.agents,
             max_agents=self.max_agents,
             pedestrian_params=dict(self.crowd),
@@ -119,7 +128,8 @@ def make_env(
     ``vehicle``); ``scenarios`` pins sub-env ``k`` to ``scenarios[k]`` (an evaluation);
     ``reward_weights`` overrides the world's (SPEC 8.2: a learner's shaping, not the task's
     measure, which is per-car success)."""
-    spec = task.spec(split, seed)
+    count = len(scenarios) if split == "validation" and scenarios else None
+    spec = task.spec(split, seed, count)
     if reward_weights:
         spec = spec.replace(reward_weights=dict(reward_weights))
     return RemoteMultiAgentEnv(spec, num_envs, client=client, scenarios=scenarios)

@@ -11,9 +11,10 @@ the cars of :class:`~sharedspace.marl.task.CrossingTask` are one agent group of
 for every car; its action is a residual over the car-aware script (``base_driver``). MAPPO's
 critic sees every car's observation (centralised), IPPO's only the car's own; MASAC's two
 Q-critics are centralised. Writes ``config.json``, ``metrics.csv`` (``train/*`` per collected
-batch, ``eval/*`` on the test scenes every ``eval_every`` frames: curves, never used to pick a
-policy), ``checkpoint.pt`` (resumable) and ``eval.json`` (the final policy's per-car rows on the
-test scenes) into ``log_dir``.
+batch, ``eval/*`` on the validation scenes every ``eval_interval`` frames: curves, never used to
+pick a policy), ``checkpoint.pt`` (resumable) and ``eval.json`` (the final policy's per-car rows
+on ``eval_split``: the validation scenes, or the test scenes where the table asks) into
+``log_dir``.
 """
 
 from __future__ import annotations
@@ -32,13 +33,15 @@ from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
 from sharedspace.marl import mappo, masac
-from sharedspace.marl.config import MarlConfig
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
 from sharedspace.marl.networks import GROUP, make_actor
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
+from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import ResidualAction
 from sharedspace.train.metrics import MetricLogger
+from sharedspace.train.registry import get_algorithm
+from sharedspace.train.run import next_multiple
 
 __all__ = ["ALGORITHM_MODULES", "batch_outcomes", "train", "main"]
 
@@ -59,12 +62,18 @@ def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
 
 
 def _evaluate(task, actor, cfg, client) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    rows = play(task, policy_act(actor, cfg.base_driver, cfg.residual_scale), client)
+    """The policy on ``cfg.eval_split``: the validation scenes (seeds of their own, never
+    trained on) or, asked for, the test scenes."""
+    split = cfg.eval_split
+    names = task.scene_names(split, cfg.validation_scenes if split == "validation" else None)
+    act = policy_act(actor, cfg.base_driver, cfg.residual_scale)
+    rows = play(task, act, client, split=split, scenes=names)
     return rows, summarize(rows)
 
 
-def train(cfg: MarlConfig, task: CrossingTask | None = None, resume: bool = False) -> dict:
-    """One run; returns the final evaluation's summary."""
+def train(cfg: TrainConfig, task: CrossingTask | None = None, resume: bool = False) -> dict:
+    """One run of ``cfg.task``'s cars (``task``: another crossing task); returns the final
+    evaluation's summary (on ``cfg.eval_split``)."""
     task = task or CrossingTask()
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(max(1, cfg.num_threads))
@@ -88,6 +97,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
     if cfg.base_driver:
         env = TransformedEnv(env, ResidualAction(cfg.base_driver, GROUP, cfg.residual_scale))
     algo = ALGORITHM_MODULES[cfg.algorithm]
+    on_policy = get_algorithm(cfg.algorithm).family == "on"
     actor = make_actor(cfg, task)
     critic = algo.make_critic(cfg, task)
     loss = algo.make_loss(cfg, actor, critic)
@@ -106,7 +116,8 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
         env.close()
         return json.loads((log_dir / "eval.json").read_text())["summary"]
 
-    frames_per_batch = cfg.frames_per_batch - cfg.frames_per_batch % cfg.num_envs
+    batch = cfg.num_envs * cfg.rollout_steps if on_policy else cfg.frames_per_batch
+    frames_per_batch = batch - batch % cfg.num_envs
     collector = Collector(
         env,
         actor,
@@ -115,7 +126,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
     )
     buffer = algo.make_buffer(cfg, frames_per_batch)
     logger = MetricLogger(log_dir, tensorboard=False)
-    next_eval = (frames // cfg.eval_every + 1) * cfg.eval_every
+    next_eval = next_multiple(frames, cfg.eval_interval)
     t0 = time.perf_counter() - wall
     for data in collector:
         frames += data.numel()
@@ -129,7 +140,7 @@ def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
             _, summary = _evaluate(task, actor, cfg, client)
             for key in (*STATUSES, "car_collision"):
                 metrics[f"eval/{key}"] = summary[key]["rate"]
-            next_eval += cfg.eval_every
+            next_eval = next_multiple(frames, cfg.eval_interval)
             counters = {"frames": frames, "iterations": iteration, "wall_s": wall}
             save_checkpoint(
                 ckpt_path,
@@ -159,15 +170,16 @@ def _task_dict(task: CrossingTask) -> dict[str, Any]:
     return {k: v for k, v in vars(task).items()}
 
 
-def network(cfg: MarlConfig) -> str:
+def network(cfg: TrainConfig) -> str:
     """What a checkpoint names the multi-car learners' network: the registered network, or
     the flat observation's MLP."""
     if cfg.network:
         return cfg.network
-    return f"MultiAgentMLP {cfg.depth}x{cfg.hidden} (shared: {cfg.share_params})"
+    widths = "x".join(str(h) for h in cfg.hidden_sizes)
+    return f"MultiAgentMLP {widths} (shared: {cfg.share_params})"
 
 
-def world(cfg: MarlConfig, task: CrossingTask) -> dict[str, Any]:
+def world(cfg: TrainConfig, task: CrossingTask) -> dict[str, Any]:
     """What a checkpoint records of the world: the task and the reward."""
     reward = {"name": cfg.reward, "weights": cfg.world_reward_weights}
     return {"task": _task_dict(task), "reward": reward}
@@ -199,21 +211,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     return train_main(argv, default_algorithm="mappo")
 
 
-def run_command(cfg: MarlConfig, resume: str | bool | None = None) -> dict[str, Any]:
+def run_command(cfg: TrainConfig, resume: str | bool | None = None) -> dict[str, Any]:
     """One run from the command line (:func:`sharedspace.train.train.main`): trains, prints the
     per-car outcome, returns the summary."""
     summary = train(cfg, resume=bool(resume))
     print(
         f"{cfg.algorithm} seed {cfg.seed}: per-car success {summary['success']['rate']:.3f}, "
         f"collision {summary['collision']['rate']:.3f}, "
-        f"car-car {summary['car_collision']['rate']:.3f} on the test scenes; "
+        f"car-car {summary['car_collision']['rate']:.3f} on the {cfg.eval_split} scenes; "
         f"{summary.get('wall_s', 0):.0f} s"
     )
     return summary
-
-
-#: The config of this module's algorithms (:func:`sharedspace.train.train.main` builds it).
-CONFIG = MarlConfig
 
 
 if __name__ == "__main__":

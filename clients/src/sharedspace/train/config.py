@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import tomllib
@@ -15,7 +16,12 @@ from sharedspace.models import DEFAULT_MODEL
 from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.scripted import SCRIPTED
 from sharedspace.train.networks import UnknownNetwork, canonical_network, get_network
-from sharedspace.train.registry import ALGORITHMS, UnknownAlgorithm, get_algorithm
+from sharedspace.train.registry import (
+    ALGORITHMS,
+    UnknownAlgorithm,
+    algorithm_names,
+    get_algorithm,
+)
 from sharedspace.train.reward import REWARDS
 from sharedspace.wire import EnvSpec
 from sharedspace.worlds import UnknownTask, training_task, validation_pool_file
@@ -44,8 +50,41 @@ class UnknownFieldError(ConfigError, KeyError):
 #: Fields of older configs, ignored when one is loaded (``env_backend``: the Rust server is
 #: the only backend).
 RETIRED_FIELDS = ("env_backend",)
-#: Fields of older configs under their new names (``variant``: the network is no SAC variant).
-RENAMED_FIELDS = {"variant": "network"}
+#: Fields of older configs under their new names (``variant``: the network is no SAC variant;
+#: ``eval_every``: the multi-car learners' own config).
+RENAMED_FIELDS = {"variant": "network", "eval_every": "eval_interval"}
+#: Fields left to the algorithm, with the value that says so: the registry's
+#: ``Algorithm.defaults`` fill them in, else :data:`BASE_DEFAULTS`.
+AUTO_FIELDS: dict[str, Any] = {
+    "network": "auto",
+    "num_envs": 0,
+    "reward": "",
+    "eval_interval": -1,
+    "base_driver": "auto",
+    "residual_scale": 0.0,
+    "minibatch_size": 0,
+    "max_grad_norm": 0.0,
+    "frames_per_batch": 0,
+    "utd_ratio": 0.0,
+    "buffer_size": 0,
+    "alpha_init": 0.0,
+    "hidden_sizes": [],
+}
+#: The values of :data:`AUTO_FIELDS` for an algorithm whose registry entry names none (SAC's).
+BASE_DEFAULTS: dict[str, Any] = {
+    "network": "gcn_risk",
+    "num_envs": 8,
+    "reward": "world",
+    "eval_interval": 20_000,
+    "base_driver": "",
+    "residual_scale": 1.0,
+    "minibatch_size": 2048,
+    "max_grad_norm": 0.5,
+    "utd_ratio": 0.5,
+    "buffer_size": 200_000,
+    "alpha_init": 1.0,
+    "hidden_sizes": [256, 256],
+}
 #: The fields ``task=`` sets (:class:`sharedspace.worlds.TrainingTask`).
 TASK_FIELDS = (
     "scenario_pool",
@@ -59,19 +98,24 @@ TASK_FIELDS = (
 
 @dataclass
 class TrainConfig:
-    """Every knob of a single-car run, SAC(-GCN) or PPO. One line of doc per field."""
+    """Every knob of a run, for any registered algorithm, one car or several. One line of doc
+    per field; a field marked "the algorithm's" is filled in from the registry
+    (:data:`AUTO_FIELDS`, :mod:`sharedspace.train.registry`)."""
 
     # --- run
-    algorithm: str = "sac"  # a registered one-car algorithm: sac (the paper's SAC-GCN) | ppo
-    task: str = ""  # train for a benchmark task (paper | crowd): its world, pool, M, variations
+    algorithm: str = "sac"  # a registered algorithm: sac | ppo (one car); mappo | ippo | masac
+    task: str = ""  # train for a benchmark task: paper | crowd (one car) | crossing (several)
     seed: int = 0  # seed of torch, numpy and the env's scenario sequence
-    network: str = "gcn_risk"  # a registered network: gcn_risk (GCN on the risk graph) |
-    #                            gcn_uniform (GCN, uniform graph) | mlp (no graph)
-    total_frames: int = 200_000  # env transitions to collect (summed over the K sub-envs)
+    network: str = "auto"  # a registered network: gcn_risk (GCN on the risk graph) |
+    #                        gcn_uniform (GCN, uniform graph) | mlp (no graph); "" = each
+    #                        car's nodes flattened into its MLP (several cars); auto = the
+    #                        algorithm's (gcn_risk; several cars "")
+    total_frames: int = 200_000  # env steps to collect (summed over the K sub-envs)
     device: str = "auto"  # torch device of the networks and updates; auto = cuda if torch sees one
     num_threads: int = 1  # torch CPU threads (0 = torch's default; 1 is fastest on shared cores)
     # --- env
-    num_envs: int = 0  # K, sub-envs stepped together; 0 = the algorithm's (sac 8, ppo 256)
+    num_envs: int = 0  # K, sub-envs stepped together; 0 = the algorithm's (sac 8, ppo 256,
+    #                    multi-car 64)
     failover: bool = True  # a lost server's envs are re-created on a survivor (its episodes end
     #                        truncated); with one server the run ends as without
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
@@ -85,40 +129,47 @@ class TrainConfig:
         default_factory=dict
     )  # scene variations of the training envs (SPEC 5.2.1; JSON on --set); {} = none
     vehicle_model: str = ""  # cars nobody controls: replay | idm (reactive); "" = the pool's
-    reward: str = ""  # named reward (sharedspace.train.reward): world | learner; "" = sac: world,
-    #                   ppo: learner
+    reward: str = ""  # named reward (sharedspace.train.reward): world | learner; "" = the
+    #                   algorithm's (sac world; ppo and multi-car learner)
     reward_weights: dict[str, float] = field(
         default_factory=dict
     )  # weights over the named reward's (SPEC 8.2 names; JSON on --set); {} = none
-    base_driver: str = ""  # scripted driver the policy's action adds to (residual); "" = none
-    residual_scale: float = 1.0  # env action = clip(script + residual_scale * policy's); needs
-    #                              base_driver
-    # --- PPO (algorithm=ppo; docs/ARCHITECTURE.md "Learners" says why these values)
+    base_driver: str = "auto"  # scripted driver the policy's action adds to (residual); "" =
+    #                            none; auto = the algorithm's ("" one car, car_aware several)
+    residual_scale: float = 0.0  # env action = clip(script + residual_scale * policy's); 0 =
+    #                              the algorithm's (1 one car, 2 several); needs base_driver
+    # --- on-policy: PPO, MAPPO, IPPO (docs/ARCHITECTURE.md "Learners" says why these values)
     rollout_steps: int = 32  # T, steps of every sub-env per iteration: batch = num_envs * T
     ppo_epochs: int = 4  # passes over each batch
-    minibatch_size: int = 2048  # frames per gradient step
+    minibatch_size: int = 0  # frames per gradient step; 0 = the algorithm's (ppo 2048, 512)
     clip_epsilon: float = 0.2  # PPO's ratio clip
     entropy_coeff: float = 0.0  # entropy bonus weight (the TanhNormal's entropy is estimated)
-    critic_coeff: float = 0.5  # the value loss's weight in the summed loss
+    critic_coeff: float = 0.5  # the value loss's weight in the summed loss (ppo)
     lmbda: float = 0.95  # GAE lambda
-    max_grad_norm: float = 0.5  # global gradient-norm clip
-    reward_scale: float = 0.1  # rewards are multiplied by this before GAE (value targets ~1)
-    normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm)
+    max_grad_norm: float = 0.0  # global gradient-norm clip; 0 = the algorithm's (ppo 0.5, 1)
+    reward_scale: float = 0.1  # rewards are multiplied by this before GAE (ppo: targets ~1)
+    normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm; ppo)
     update_threads: int = 0  # torch CPU threads while updating (0 = every core: the server idles)
     anneal_lr: bool = False  # lr falls linearly to 0 at total_frames (CleanRL, TorchRL sota PPO)
-    # --- SAC
-    frames_per_batch: int = 0  # frames per collector batch; 0 = num_envs * 8
-    init_random_frames: int = 5_000  # frames collected by a uniform random policy first
-    utd_ratio: float = 0.5  # gradient updates per collected frame
+    # --- off-policy: SAC, MASAC
+    frames_per_batch: int = 0  # frames per collector batch; 0 = the algorithm's (sac
+    #                            num_envs * 8, masac 2048)
+    init_random_frames: int = 5_000  # frames collected by a uniform random policy first (sac)
+    utd_ratio: float = 0.0  # gradient updates per collected frame; 0 = the algorithm's (sac
+    #                         0.5, masac 0.02)
     batch_size: int = 256  # replay minibatch size
-    buffer_size: int = 200_000  # replay buffer capacity (transitions)
+    buffer_size: int = 0  # replay capacity (transitions); 0 = the algorithm's (200 000, 100 000)
     lr: float = 3e-4  # Adam learning rate of actor, critics and temperature
     gamma: float = 0.99  # discount factor
     tau: float = 0.005  # soft target update coefficient (theta' <- tau theta + (1-tau) theta')
-    alpha_init: float = 1.0  # initial entropy temperature (learned, target entropy = -|A|)
-    loss_function: str = "l2"  # critic loss: l2 | smooth_l1
+    alpha_init: float = 0.0  # initial entropy temperature (learned, target entropy = -|A|); 0 =
+    #                          the algorithm's (sac 1, masac 0.01)
+    loss_function: str = "l2"  # critic loss: l2 | smooth_l1 (sac)
     critic_layer_norm: bool = False  # LayerNorm after each hidden layer of the critics (RLPD)
     critic_warmup: int = 0  # gradient updates of the critics alone before actor and alpha learn
+    actor_warmup_frames: int = 20_000  # masac: frames of critic-only updates first
+    actor_lr: float = 3e-5  # masac: the actor's Adam learning rate (critics and alpha use lr)
+    residual_penalty: float = 10.0  # masac: + this x mean(pre-tanh residual mean ^ 2), actor loss
     # --- prior data (RLPD, Ball et al. 2023; sharedspace.train.prior, `make demos`)
     prior_data: str = ""  # dataset directory of recorded transitions; "" = online data only
     prior_sources: str = ""  # comma-separated sources of it to use (e.g. car_aware); "" = all
@@ -129,13 +180,16 @@ class TrainConfig:
     )
     bc_steps: int = 0  # behaviour-cloning steps of the actor on the prior data before collecting
     # --- networks
-    hidden_sizes: list[int] = field(default_factory=lambda: [256, 256])  # MLP head widths
+    hidden_sizes: list[int] = field(default_factory=list)  # MLP head widths; [] = the
+    #                                                        algorithm's ([256, 256]; [128, 128])
     gcn_hidden: int = 64  # width of each GCN layer's output
-    gcn_layers: int = 2  # number of GCN layers (ignored by s_sac)
+    gcn_layers: int = 2  # number of GCN layers (ignored by mlp)
     readout: str = "ego_mean"  # graph readout: "ego" (node 0) | "ego_mean" (node 0 ++ mean)
+    share_params: bool = True  # several cars: one network for every car (they are alike)
+    init_scale: float = 0.4  # several cars: the policy's initial action standard deviation
     # --- evaluation, logging, checkpoints
     eval_interval: int = -1  # frames between scorings (0 = never; -1 = the algorithm's: sac
-    #                          20 000, ppo 524 288), and once at the end
+    #                          20 000, ppo 524 288, multi-car 60 000), and once at the end
     eval_split: str = "validation"  # validation (carved from the train scenes) | test
     validation_scenes: int = 12  # train scenes carved off as the validation split
     validation_variations: int = 8  # seeded variations of each validation scene per scoring
@@ -146,37 +200,54 @@ class TrainConfig:
 
     def __post_init__(self):
         try:
-            self.network = canonical_network(self.network)
-            algo = get_algorithm(self.algorithm, cars="one")
+            algo = get_algorithm(self.algorithm)
+            task_left = algo.multi_car and not self.task
+            if task_left:
+                self.task = "crossing"  # the one task of several learning cars
             task = training_task(self.task) if self.task else None
-        except (UnknownNetwork, UnknownAlgorithm, UnknownTask) as err:
+        except (UnknownAlgorithm, UnknownTask) as err:
             raise ConfigError(str(err)) from None
         check_algorithm_options(self)
         # Fields left to the algorithm, the task or the machine are filled in; `_auto`
-        # remembers which, so that an override of the algorithm fills them in again.
-        auto = {"num_envs": 0, "reward": "", "device": "auto", "eval_interval": -1}
-        auto = {k: v for k, v in auto.items() if getattr(self, k) == v}
+        # remembers which (with the value they were given), so that an override of the
+        # algorithm or the task fills them in again.
+        auto = {k: v for k, v in AUTO_FIELDS.items() if getattr(self, k) == v}
+        if self.device == "auto":
+            auto["device"] = "auto"
+        if task_left:
+            auto["task"] = ""
         if task is not None:
-            auto |= self._take_task(task)
+            auto |= self._take_task(task, algo)
         self._auto = auto
-        self.num_envs = self.num_envs or algo.num_envs
-        if self.eval_interval < 0:
-            self.eval_interval = algo.eval_interval
+        for name in AUTO_FIELDS:
+            if name in auto:
+                value = algo.defaults.get(name, BASE_DEFAULTS.get(name, AUTO_FIELDS[name]))
+                setattr(self, name, copy.deepcopy(value))
+        try:
+            if self.network or not algo.multi_car:  # "": the multi-car flat observation
+                self.network = canonical_network(self.network)
+        except UnknownNetwork as err:
+            raise ConfigError(str(err)) from None
         if self.device == "auto":
             import torch
 
             self.device = "cuda" if torch.cuda.is_available() else "cpu"
-        self.reward = self.reward or algo.reward
+        if "residual_scale" not in auto and not self.base_driver:
+            raise ConfigError(
+                "residual_scale scales a residual over a script: set base_driver (a residual "
+                "without a script)"
+            )
         self._check_values()
 
-    def _take_task(self, task) -> dict[str, Any]:
+    def _take_task(self, task, algo) -> dict[str, Any]:
         """The task's training world into the fields it sets (a world field given another
         value than the task's is a :class:`ConfigError` naming it; the validation split's size
         may be set); returns the fields it filled in, with their defaults."""
-        if task.cars != 1:
+        if (task.cars > 1) != algo.multi_car:
             raise ConfigError(
-                f"task {task.name} has {task.cars} learning cars per scene: train it with "
-                "python -m sharedspace.marl (mappo, ippo, masac)"
+                f"task {task.name} has {task.cars} learning car(s) per scene and algorithm "
+                f"{algo.name} learns {'several' if algo.multi_car else 'one'}: one of "
+                f"{', '.join(algorithm_names('many' if task.cars > 1 else 'one'))}"
             )
         values = {
             "scenario_pool": task.pool,
@@ -214,11 +285,6 @@ class TrainConfig:
             raise ConfigError(f"eval_split must be validation or test, not {self.eval_split!r}")
         if self.base_driver and self.base_driver not in SCRIPTED:
             raise ConfigError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
-        if self.residual_scale != 1.0 and not self.base_driver:
-            raise ConfigError(
-                "residual_scale scales a residual over a script: set base_driver (a residual "
-                "without a script)"
-            )
         if not 0.0 <= self.prior_ratio < 1.0:
             raise ConfigError(f"prior_ratio must be in [0, 1), not {self.prior_ratio}")
         if self.bc_steps > 0 and not self.prior_data:
@@ -226,7 +292,7 @@ class TrainConfig:
         if self.bc_weight > 0 and not (self.prior_data or self.base_driver):
             raise ConfigError("bc_weight imitates the prior data or the base driver: set one")
         if get_algorithm(self.algorithm).fused_networks_only:
-            if not get_network(self.network).fused_sac:
+            if not self.network or not get_network(self.network).fused_sac:
                 raise ConfigError(
                     f"network {self.network}: algorithm {self.algorithm}'s fused update knows "
                     "the built-in encoders only (gcn_risk, gcn_uniform, mlp)"
@@ -299,12 +365,31 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> TrainConfig:
-        """A config from a saved one (a checkpoint's, ``config.json``), without the fields
-        configs no longer have (:data:`RETIRED_FIELDS`)."""
+        """A config from a saved one (a checkpoint's, ``config.json``, a multi-car run's own
+        config of before the one config): renamed fields under their names, retired ones and
+        the options of other algorithms dropped (older configs held every option), and values
+        equal to the algorithm's defaults left to it again."""
         fields = {RENAMED_FIELDS.get(k, k): v for k, v in fields.items() if k not in RETIRED_FIELDS}
-        if "eval_envs" in fields:  # configs before the validation split
-            fields.pop("eval_envs")
-        return cls(**fields)
+        fields.pop("eval_envs", None)  # configs before the validation split
+        if "hidden" in fields or "depth" in fields:  # the multi-car config's MLP
+            hidden, depth = fields.pop("hidden", 128), fields.pop("depth", 2)
+            fields["hidden_sizes"] = [int(hidden)] * int(depth)
+        try:
+            algo = get_algorithm(fields.get("algorithm", cls.algorithm))
+        except UnknownAlgorithm as err:
+            raise ConfigError(str(err)) from None
+        old_batch = "rollout_steps" not in fields and fields.get("frames_per_batch")
+        if algo.family == "on" and algo.multi_car and old_batch:  # the multi-car config's
+            num_envs = int(fields.get("num_envs") or algo.defaults.get("num_envs", 64))
+            fields["rollout_steps"] = int(fields["frames_per_batch"]) // num_envs
+        known = {f.name for f in dataclasses.fields(cls)}
+        others = {n for a in ALGORITHMS.values() for n in a.options if n not in algo.options}
+        out = {k: v for k, v in fields.items() if k in known and k not in others}
+        for name, unset in AUTO_FIELDS.items():
+            default = algo.defaults.get(name, BASE_DEFAULTS.get(name, unset))
+            if name in out and out[name] == default:
+                out[name] = copy.deepcopy(unset)
+        return cls(**out)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -317,13 +402,12 @@ class TrainConfig:
 
 
 def check_algorithm_options(cfg) -> None:
-    """An option that only other algorithms than ``cfg.algorithm`` (of its kind: one car or
-    several) read (their registered ``options``), set away from its default, is a
+    """An option that only other algorithms than ``cfg.algorithm`` read (their registered
+    ``options``), set away from its default, is a
     :class:`ConfigError` naming it: it would silently do nothing."""
     defaults = {f.name: f for f in dataclasses.fields(cfg)}
     mine = get_algorithm(cfg.algorithm)
-    kin = [a for a in ALGORITHMS.values() if a.cars == mine.cars]  # those of its config
-    for algo in kin:
+    for algo in ALGORITHMS.values():
         for name in algo.options:
             if name in mine.options or name not in defaults:
                 continue
@@ -332,7 +416,7 @@ def check_algorithm_options(cfg) -> None:
                 f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
             )
             if getattr(cfg, name) != unset:
-                owners = [a.name for a in kin if name in a.options]
+                owners = [a.name for a in ALGORITHMS.values() if name in a.options]
                 raise ConfigError(
                     f"{name} is an option of algorithm={'|'.join(owners)}, and this config's "
                     f"algorithm is {cfg.algorithm}"
@@ -389,7 +473,7 @@ def apply_overrides(cfg, overrides: list[str] | dict[str, Any]):
                 f"unknown config key {key!r} (expected key one of {sorted(data)})"
             )
         data[key] = parse_value(key, value, data[key]) if isinstance(value, str) else value
-    return type(cfg).from_dict(data)
+    return type(cfg)(**data)  # strict: an option of another algorithm is named, not dropped
 
 
 def command_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:

@@ -19,8 +19,9 @@ after which ``python -m sharedspace.train --set algorithm=my_algo`` runs ``my_pa
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import ModuleType
+from typing import Any
 
 __all__ = [
     "ALGORITHMS",
@@ -36,7 +37,7 @@ class UnknownAlgorithm(ValueError):
     """An algorithm name that no registered algorithm has."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Algorithm:
     """One registered algorithm."""
 
@@ -45,9 +46,9 @@ class Algorithm:
     cars: str = "one"  # "one": a car per env (python -m sharedspace.train); "many": a group
     family: str = "off"  # "on" (fresh batches, PPO) or "off" (a replay buffer, SAC)
     options: tuple[str, ...] = ()  # config fields only it reads (another's is refused)
-    num_envs: int = 8  # K, sub-envs, where the config leaves it 0
-    reward: str = "world"  # the named reward (sharedspace.train.reward), where left ""
-    eval_interval: int = 20_000  # frames between validation scorings, where left -1
+    #: its values of the config fields left to the algorithm (TrainConfig's AUTO_FIELDS);
+    #: those it does not name take the one-car defaults (TrainConfig's BASE_DEFAULTS)
+    defaults: dict[str, Any] = field(default_factory=dict)
     fused_networks_only: bool = False  # its update is written for the built-in encoders
     doc: str = ""  # one line: what it is
 
@@ -123,9 +124,6 @@ register_algorithm(
             "bc_steps",
             "save_buffer",
         ),
-        num_envs=8,
-        reward="world",
-        eval_interval=20_000,
         fused_networks_only=True,
         doc="the paper's SAC-GCN (Algorithm 2): replay buffer, two critics, learned temperature",
     )
@@ -149,32 +147,58 @@ register_algorithm(
             "update_threads",
             "anneal_lr",
         ),
-        num_envs=256,
-        reward="learner",
         # a validation scoring costs about as much as 40 k frames of PPO-GCN: every 500 k
         # keeps it under a tenth of a run's wall time (docs/BENCHMARKS.md, "Learner")
-        eval_interval=524_288,
+        defaults={"num_envs": 256, "reward": "learner", "eval_interval": 524_288},
         doc="PPO on wide batches of envs (clipped ratio, GAE), TorchRL's ClipPPOLoss",
     )
 )
-# The multi-car learners (python -m sharedspace.marl, the crossing task).
-_MARL_PPO = ("ppo_epochs", "minibatch_size", "clip_epsilon", "entropy_coeff", "lmbda")
-for _name, _family, _options, _doc in (
-    ("mappo", "on", _MARL_PPO, "MAPPO: PPO per car, a centralised critic over every car"),
-    ("ippo", "on", _MARL_PPO, "IPPO: PPO per car, each critic over its own car"),
+# The multi-car learners (the crossing task, sharedspace.marl): a residual over the car-aware
+# script by default, each car's action at twice the script's weight.
+_MULTI_CAR = {
+    "network": "",
+    "num_envs": 64,
+    "reward": "learner",
+    "eval_interval": 60_000,
+    "base_driver": "car_aware",
+    "residual_scale": 2.0,
+    "minibatch_size": 512,
+    "max_grad_norm": 1.0,
+    "hidden_sizes": [128, 128],
+}
+_MARL_PPO = (
+    "rollout_steps",
+    "ppo_epochs",
+    "minibatch_size",
+    "clip_epsilon",
+    "entropy_coeff",
+    "lmbda",
+    "max_grad_norm",
+    "share_params",
+    "init_scale",
+)
+_MARL_SAC = (
+    "frames_per_batch",
+    "utd_ratio",
+    "batch_size",
+    "buffer_size",
+    "tau",
+    "alpha_init",
+    "max_grad_norm",
+    "actor_warmup_frames",
+    "actor_lr",
+    "residual_penalty",
+    "share_params",
+    "init_scale",
+)
+for _name, _family, _options, _more, _doc in (
+    ("mappo", "on", _MARL_PPO, {}, "MAPPO: PPO per car, a centralised critic over every car"),
+    ("ippo", "on", _MARL_PPO, {}, "IPPO: PPO per car, each critic over its own car"),
     (
         "masac",
         "off",
-        (
-            "utd_ratio",
-            "batch_size",
-            "buffer_size",
-            "tau",
-            "alpha_init",
-            "actor_warmup_frames",
-            "actor_lr",
-            "residual_penalty",
-        ),
+        _MARL_SAC,
+        {"utd_ratio": 0.02, "buffer_size": 100_000, "alpha_init": 0.01, "frames_per_batch": 2048},
         "MASAC: SAC per car, centralised Q-critics",
     ),
 ):
@@ -185,9 +209,7 @@ for _name, _family, _options, _doc in (
             cars="many",
             family=_family,
             options=_options,
-            num_envs=64,
-            reward="learner",
-            eval_interval=60_000,
+            defaults=_MULTI_CAR | _more,
             doc=_doc,
         )
     )

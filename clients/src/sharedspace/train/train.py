@@ -2,10 +2,10 @@
 
     python -m sharedspace.train [--config cfg.toml] [--set key=value ...] [--resume [CKPT]]
 
-``algorithm`` names a registered algorithm (:mod:`sharedspace.train.registry`): ``sac`` (the
-default, the paper's SAC-GCN) and ``ppo`` drive one car per env (:class:`TrainConfig`);
-``mappo``, ``ippo`` and ``masac`` drive the crossing task's cars
-(:class:`~sharedspace.marl.config.MarlConfig`). ``network`` names a registered network
+One config (:class:`~sharedspace.train.config.TrainConfig`) for every learner. ``algorithm``
+names a registered algorithm (:mod:`sharedspace.train.registry`): ``sac`` (the default, the
+paper's SAC-GCN) and ``ppo`` drive one car per env; ``mappo``, ``ippo`` and ``masac`` drive
+the crossing task's cars. ``network`` names a registered network
 (``gcn_risk``, ``gcn_uniform``, ``mlp``; the old names ``g_sac_cog``, ``g_sac_nocog``,
 ``s_sac`` still work). ``task=paper`` (or ``crowd``) trains in a benchmark task's world, and
 ``python -m sharedspace.bench TASK --policy LOG_DIR/checkpoints/last.pt`` scores the result.
@@ -27,7 +27,6 @@ from typing import Any
 
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.config import (
-    ConfigError,
     TrainConfig,
     _read_table,
     add_overrides_argument,
@@ -35,7 +34,7 @@ from sharedspace.train.config import (
     command_parser,
 )
 from sharedspace.train.learners import learner
-from sharedspace.train.registry import UnknownAlgorithm, get_algorithm
+from sharedspace.train.registry import get_algorithm
 
 __all__ = ["train", "main"]
 
@@ -57,44 +56,37 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
         default=None,
         metavar="CKPT",
         help="continue from this checkpoint (its config, then --config and --set over it); "
-        "bare: the run directory's last checkpoint",
+        "bare: from log_dir's last checkpoint, if there is one",
     )
     args = ap.parse_args(argv)
     table = _read_table(args.config) if args.config else {}
-    resume = args.resume
-    saved = read_checkpoint(resume) if isinstance(resume, str) else None
-    algorithm = _named_algorithm(args.set, table, saved, default_algorithm)
-    try:
-        module = get_algorithm(algorithm).load()
-    except UnknownAlgorithm as err:
-        raise ConfigError(str(err)) from None
-    config_class = getattr(module, "CONFIG", TrainConfig)
+    saved = read_checkpoint(args.resume) if isinstance(args.resume, str) else None
     if saved is not None:  # the checkpoint's config, then the file and the overrides over it
-        cfg = getattr(config_class, "from_saved", config_class.from_dict)(saved["config"])
+        cfg = TrainConfig.from_dict(saved["config"])
     else:
-        cfg = config_class.from_dict({"algorithm": algorithm})
+        first = _named_algorithm(args.set, table, default_algorithm)
+        cfg = TrainConfig.from_dict({"algorithm": first})
     cfg = apply_overrides(apply_overrides(cfg, table), args.set)
-    if resume is True and config_class is TrainConfig:
-        resume = str(Path(cfg.log_dir) / "checkpoints" / "last.pt")
+    algo = get_algorithm(cfg.algorithm)
+    module = algo.load()
+    resume = args.resume
+    if resume is True and not algo.multi_car:  # a multi-car run keeps one checkpoint.pt
+        last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
+        resume = str(last) if last.is_file() else None
     run = getattr(module, "run_command", None)
     out = run(cfg, resume) if run is not None else module.train(cfg, resume=resume)
     print(json.dumps(dict(out), default=float))
     return 0
 
 
-def _named_algorithm(
-    overrides: Sequence[str], table: dict[str, Any], saved: dict[str, Any] | None, default: str
-) -> str:
-    """The algorithm a command names: its last ``algorithm=`` override, else the config
-    file's, else the checkpoint's, else ``default``, else the one-car default."""
+def _named_algorithm(overrides: Sequence[str], table: dict[str, Any], default: str) -> str:
+    """The algorithm a new run's config starts from: the last ``algorithm=`` override, else
+    the config file's, else ``default`` (``python -m sharedspace.marl``: mappo), else the
+    config's default: so that the fields left to the algorithm are filled in for it."""
     named = [o.split("=", 1)[1].strip() for o in overrides if o.split("=", 1)[0] == "algorithm"]
     if named:
         return named[-1]
-    if "algorithm" in table:
-        return str(table["algorithm"])
-    if saved is not None:
-        return str(saved["algorithm"])
-    return default or TrainConfig.algorithm
+    return str(table.get("algorithm") or default or TrainConfig.algorithm)
 
 
 if __name__ == "__main__":
