@@ -112,7 +112,7 @@ def test_a_plugin_network_trains_the_crossing_cars_and_the_bench_scores_them(tmp
     )
     summary = marl_train(cfg, SMALL_CROSSING)
     assert summary["car_episodes"] == 3 * 4  # 3 validation scenes x 4 cars
-    ckpt_path = tmp_path / "checkpoint.pt"
+    ckpt_path = tmp_path / "checkpoints" / "last.pt"
     ckpt = read_checkpoint(ckpt_path)
     assert (ckpt["algorithm"], ckpt["network"], ckpt["modules"]) == (
         "mappo",
@@ -158,7 +158,6 @@ def _shipped() -> list[Path]:
         *REPO.glob("results/bench/policies/*.pt"),
         *REPO.glob("results/table2*/policies/*.pt"),
         *REPO.glob("results/marl/**/policy.pt"),
-        *REPO.glob("results/marl/**/checkpoint.pt"),
     ]
     return sorted(found)
 

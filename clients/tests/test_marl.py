@@ -67,7 +67,7 @@ def test_each_algorithm_trains_against_a_live_server_and_resumes(algorithm, sim_
     losses = {"mappo": "loss_objective", "ippo": "loss_critic", "masac": "loss_qvalue"}
     assert f"train/{losses[algorithm]}" in metrics and "eval/success" in metrics
     assert _frames_logged(tmp_path)[-1] == 192
-    ckpt = load_checkpoint(tmp_path / "checkpoint.pt")  # the learners' one checkpoint format
+    ckpt = load_checkpoint(tmp_path / "checkpoints" / "last.pt")  # every learner's format
     assert (ckpt["format"], ckpt["algorithm"]) == (FORMAT, algorithm)
     assert ckpt["world"]["reward"]["name"] == "learner" and "task" in ckpt["world"]
     # Resumed with a larger budget, the run goes on from its checkpoint's frames.
@@ -170,9 +170,7 @@ def test_bad_configs_name_what_was_wrong():
         apply_overrides(mappo, ["total_frames=lots"])
     with pytest.raises(ValueError, match="key one of"):
         apply_overrides(mappo, ["frames=3"])
-    assert apply_overrides(mappo, ['reward_weights={"danger": 2}']).reward_weights == {
-        "danger": 2
-    }
+    assert apply_overrides(mappo, ['reward_weights={"danger": 2}']).reward_weights == {"danger": 2}
     assert np.isclose(apply_overrides(mappo, ["lr=1"]).lr, 1.0)
     with pytest.raises(ValueError, match="utd_ratio is an option of algorithm=sac|masac"):
         apply_overrides(mappo, ["utd_ratio=1"])

@@ -27,7 +27,8 @@ def test_remote_train_and_evaluate(sim_server, tmp_path, capsys):
     cfg = load_config(None, [*TINY, *remote, "total_frames=96", f"log_dir={log_dir}"])
     out = train(cfg)
     assert out["counters"]["frames"] == 96 and out["counters"]["updates"] > 0
-    assert 0.0 < out["env_time_share"] < 1.0
+    timing = out["timing"]
+    assert 0.0 < timing["env_s"] < timing["collect_s"] + timing["update_s"]
     ckpt = log_dir / "checkpoints" / "last.pt"
     assert ckpt.exists()
     eval_json = tmp_path / "eval.json"

@@ -4,7 +4,7 @@ them (clients/tests/test_plugins.py trains and scores them).
 
 - ``toy_mean``: the masked mean of each observation's scaled node features, then one layer;
 - ``toy_pg``: a one-car policy gradient (REINFORCE with the batch's mean reward as baseline)
-  on the tanh-normal actor over any registered network.
+  on the tanh-normal actor over any registered network, a learner of the one training loop.
 """
 
 from __future__ import annotations
@@ -15,14 +15,10 @@ import torch
 from torch import nn
 
 from sharedspace.names import FEATURE_SCALE, NODE_FEATURES
-from sharedspace.train.checkpoint import read_checkpoint, save_checkpoint
-from sharedspace.train.envs import make_env
-from sharedspace.train.evaluation import evaluate_split
-from sharedspace.train.metrics import EpisodeTracker, MetricLogger
+from sharedspace.train.loop import OneCar
 from sharedspace.train.networks import Network, register_network
 from sharedspace.train.policy import make_encoder, make_gaussian_actor
 from sharedspace.train.registry import Algorithm, register_algorithm
-from sharedspace.train.run import seed_everything, start_run
 
 
 class MeanEncoder(nn.Module):
@@ -49,11 +45,28 @@ def make_actor(cfg, action_spec):
     return make_gaussian_actor(cfg, action_spec, make_encoder(cfg), return_log_prob=True)
 
 
-class _Learner:
-    """What a checkpoint keeps of the learner: its optimiser."""
+class ToyLearner:
+    """The training loop's learner (sharedspace.train.loop): one gradient step per batch of
+    ``num_envs`` x 8 steps."""
 
-    def __init__(self, optimizer: torch.optim.Optimizer):
-        self.optimizer = optimizer
+    def __init__(self, cfg, action_spec):
+        self.actor = make_actor(cfg, action_spec)
+        self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr)
+        self.batch_frames = cfg.num_envs * 8
+        self.random_frames = 0
+
+    def start(self, counters: dict[str, Any], logger) -> None:
+        """Nothing before the first batch."""
+
+    def step(self, data, counters: dict[str, Any]) -> dict[str, float]:
+        reward = data["next", "reward"].squeeze(-1)
+        log_prob = self.actor.get_dist(data).log_prob(data["action"])
+        loss = -(log_prob * (reward - reward.mean())).mean()
+        self.optimizer.zero_grad()
+        loss.backward()
+        self.optimizer.step()
+        counters["updates"] += 1
+        return {"loss_pg": float(loss)}
 
     def state_dict(self) -> dict[str, Any]:
         return {}
@@ -61,39 +74,17 @@ class _Learner:
     def optimizer_state(self) -> dict[str, Any]:
         return {"adam": self.optimizer.state_dict()}
 
+    def load(self, ckpt: dict[str, Any]) -> None:
+        self.actor.load_state_dict(ckpt["actor"])
+        self.optimizer.load_state_dict(ckpt["optimizers"]["adam"])
 
-def train(cfg, resume: str | None = None) -> dict[str, Any]:
-    """Collects ``num_envs`` x 8 steps, one gradient step, until ``total_frames``."""
-    log_dir = start_run(cfg)
-    seed_everything(cfg.seed)
-    env = make_env(cfg, split="train", variations=cfg.variations)
-    actor = make_actor(cfg, env.action_spec_unbatched)
-    optimizer = torch.optim.Adam(actor.parameters(), lr=cfg.lr)
-    counters = {"frames": 0, "iterations": 0, "episodes": 0}
-    if resume:
-        ckpt = read_checkpoint(resume)
-        actor.load_state_dict(ckpt["actor"])
-        counters |= ckpt["counters"]
-    logger, tracker = MetricLogger(log_dir, tensorboard=False), EpisodeTracker(cfg.num_envs)
-    while counters["frames"] < cfg.total_frames:
-        with torch.no_grad():
-            data = env.rollout(8, actor, break_when_any_done=False)
-        reward = data["next", "reward"].squeeze(-1)
-        log_prob = actor.get_dist(data).log_prob(data["action"])
-        loss = -(log_prob * (reward - reward.mean())).mean()
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        counters["frames"] += data.numel()
-        counters["iterations"] += 1
-        counters["episodes"] += len(tracker.update(data))
-        logger.log({"train/loss_pg": float(loss)}, counters["frames"])
-    path = log_dir / "checkpoints" / "last.pt"
-    save_checkpoint(path, cfg, actor, _Learner(optimizer), counters)
-    summary = evaluate_split(cfg, actor, cfg.eval_split)["summary"] if cfg.eval_interval else {}
-    env.close()
-    logger.close()
-    return {"counters": counters, "eval": summary}
+
+#: One car per env, as the built-in one-car algorithms.
+make_world = OneCar
+
+
+def make_learner(cfg, world, env) -> ToyLearner:
+    return ToyLearner(cfg, env.action_spec_unbatched)
 
 
 register_algorithm(

@@ -3,10 +3,13 @@ critic per car, over every car's observation (MAPPO, centralised) or its own (IP
 ``ClipPPOLoss`` with GAE; ``ppo_epochs`` passes of minibatches over each collected batch.
 
 Every multi-car algorithm's module has the same functions: ``make_critic``, ``make_loss``,
-``make_optimizer``, ``make_buffer``, ``make_target_update`` and ``learn``
-(:mod:`sharedspace.marl.train` is the loop over them)."""
+``make_optimizer``, ``make_buffer``, ``make_target_update`` and ``learn``, which
+:class:`~sharedspace.marl.train.CarsLearner` calls from the one training loop
+(:mod:`sharedspace.train.loop`), and ``make_world`` / ``make_learner`` for the loop."""
 
 from __future__ import annotations
+
+import sys
 
 import torch
 from tensordict import TensorDictBase
@@ -19,10 +22,13 @@ from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
 from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
 from sharedspace.marl.task import CrossingTask
+from sharedspace.marl.train import Cars, CarsLearner
 from sharedspace.train.config import TrainConfig
 
 __all__ = [
     "learn",
+    "make_learner",
+    "make_world",
     "make_buffer",
     "make_critic",
     "make_loss",
@@ -98,3 +104,12 @@ def learn(
         nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
         optim.step()
     return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+
+
+#: Its cars' world: the crossing task (:class:`~sharedspace.marl.train.Cars`).
+make_world = Cars
+
+
+def make_learner(cfg: TrainConfig, world: Cars, env) -> CarsLearner:
+    """The learner of the training loop, with this module's critic, loss and update."""
+    return CarsLearner(cfg, world, sys.modules[__name__])

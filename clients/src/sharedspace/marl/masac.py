@@ -12,6 +12,8 @@ within one batch)."""
 
 from __future__ import annotations
 
+import sys
+
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
@@ -23,10 +25,13 @@ from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
 from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
 from sharedspace.marl.task import CrossingTask
+from sharedspace.marl.train import Cars, CarsLearner
 from sharedspace.train.config import TrainConfig
 
 __all__ = [
     "learn",
+    "make_learner",
+    "make_world",
     "make_buffer",
     "make_critic",
     "make_loss",
@@ -108,3 +113,12 @@ def learn(
         if target_update is not None:
             target_update.step()
     return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+
+
+#: Its cars' world: the crossing task (:class:`~sharedspace.marl.train.Cars`).
+make_world = Cars
+
+
+def make_learner(cfg: TrainConfig, world: Cars, env) -> CarsLearner:
+    """The learner of the training loop, with this module's critic, loss and update."""
+    return CarsLearner(cfg, world, sys.modules[__name__])

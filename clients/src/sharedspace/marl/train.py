@@ -1,27 +1,30 @@
-"""MAPPO, IPPO and MASAC on the crossing task: the loop, top to bottom (each algorithm's pieces are
-in its own file: :mod:`.mappo` for MAPPO and IPPO, :mod:`.masac`).
+"""Several learning cars per env, as the one training loop (:mod:`sharedspace.train.loop`)
+drives them: the crossing task's world (:class:`Cars`) and the learner every multi-car
+algorithm shares (:class:`CarsLearner`), after TorchRL's ``sota-implementations/multiagent``
+scripts (mappo_ippo.py, sac.py).
 
     python -m sharedspace.train --set algorithm=mappo seed=0 [--resume [CKPT]]
     python -m sharedspace.marl --set seed=0        # the same, algorithm=mappo by default
 
-TorchRL's ``sota-implementations/multiagent`` scripts (mappo_ippo.py, sac.py) over a live server:
-the cars of :class:`~sharedspace.marl.task.CrossingTask` are one agent group of
+The cars of :class:`~sharedspace.marl.task.CrossingTask` are one agent group of
 :class:`~sharedspace.torchrl_multiagent.RemoteMultiAgentEnv`; each car's policy is a
-``MultiAgentMLP`` over its own observation (its node features, flattened), one set of weights
-for every car; its action is a residual over the car-aware script (``base_driver``). MAPPO's
-critic sees every car's observation (centralised), IPPO's only the car's own; MASAC's two
-Q-critics are centralised. Writes ``config.json``, ``metrics.csv`` (``train/*`` per collected
-batch, ``eval/*`` on the validation scenes every ``eval_interval`` frames: curves, never used to
-pick a policy), ``checkpoint.pt`` (resumable) and ``eval.json`` (the final policy's per-car rows
-on ``eval_split``: the validation scenes, or the test scenes where the table asks) into
-``log_dir``.
+``MultiAgentMLP`` over its own observation (its node features flattened, or a registered
+network's encoding, :mod:`sharedspace.marl.networks`), one set of weights for every car; its
+action is a residual over the car-aware script (``base_driver``). What differs between the
+algorithms is in their modules: :mod:`.mappo` (MAPPO's centralised critic, IPPO's own),
+:mod:`.masac` (centralised Q-critics, off-policy), each ``make_critic``, ``make_loss``,
+``make_optimizer``, ``make_buffer``, ``make_target_update`` and ``learn``.
+
+Besides what every run writes (:mod:`sharedspace.train.loop`; ``eval/*`` on the validation
+scenes, seeds of their own, never trained on), a run writes ``eval.json`` (the final policy's
+per-car rows on ``eval_split``: the validation scenes, or the test scenes where the table asks)
+and ``policy.pt`` (the actor's weights) into ``log_dir``.
 """
 
 from __future__ import annotations
 
 import json
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
@@ -29,25 +32,17 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.collectors import Collector
 from torchrl.envs import TransformedEnv
 
-from sharedspace.marl import mappo, masac
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
 from sharedspace.marl.networks import GROUP, make_actor
 from sharedspace.marl.task import CrossingTask, make_env
-from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import ResidualAction
-from sharedspace.train.metrics import MetricLogger
+from sharedspace.train.loop import train as train_loop
 from sharedspace.train.registry import get_algorithm
-from sharedspace.train.run import next_multiple
 
-__all__ = ["ALGORITHM_MODULES", "batch_outcomes", "train", "main"]
-
-#: Each algorithm's module (``make_critic``, ``make_loss``, ``make_optimizer``, ``make_buffer``,
-#: ``make_target_update``, ``learn``); MAPPO and IPPO differ only in their critic's input.
-ALGORITHM_MODULES: dict[str, ModuleType] = {"mappo": mappo, "ippo": mappo, "masac": masac}
+__all__ = ["Cars", "CarsLearner", "batch_outcomes", "train", "main"]
 
 
 def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
@@ -61,136 +56,105 @@ def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
     return out
 
 
-def _evaluate(task, actor, cfg, client) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """The policy on ``cfg.eval_split``: the validation scenes (seeds of their own, never
-    trained on) or, asked for, the test scenes."""
-    split = cfg.eval_split
-    names = task.scene_names(split, cfg.validation_scenes if split == "validation" else None)
-    act = policy_act(actor, cfg.base_driver, cfg.residual_scale)
-    rows = play(task, act, client, split=split, scenes=names)
-    return rows, summarize(rows)
+class Cars:
+    """The world of the crossing task's cars: its envs in TorchRL's multi-agent layout (the
+    residual transform over ``base_driver`` on the group's actions), the per-car outcomes of a
+    batch, the per-car scoring on ``eval_split``, and what a checkpoint records of it."""
+
+    def __init__(self, cfg: TrainConfig, task: CrossingTask | None = None):
+        self.cfg = cfg
+        self.task = task or CrossingTask()
+        self.client = cfg.connection().open()
+        self.rows: list[dict[str, Any]] = []
+        self.summary: dict[str, Any] = {}
+
+    def make_env(self, seed: int):
+        cfg = self.cfg
+        weights = cfg.world_reward_weights
+        env = make_env(
+            self.task, "train", cfg.num_envs, self.client, seed=seed, reward_weights=weights
+        )
+        if not cfg.base_driver:
+            return env
+        return TransformedEnv(env, ResidualAction(cfg.base_driver, GROUP, cfg.residual_scale))
+
+    def outcomes(self, data: TensorDictBase) -> dict[str, float]:
+        out = batch_outcomes(data)
+        nxt = data["next", GROUP]
+        # a sub-env cut short by a lost server: truncated, with none of the outcomes
+        outcome = sum(nxt[f"episode_{s}"] for s in STATUSES).bool()
+        lost = (nxt["truncated"].bool() & ~outcome).sum()
+        return out | {"ended": out["train/car_episodes"] + float(lost), "lost": float(lost)}
+
+    def recent(self) -> list[dict[str, float]]:
+        return []
+
+    def evaluate(self, actor) -> dict[str, float]:
+        """Every car of the ``eval_split`` scenes (``validation_scenes`` of the validation
+        seeds, or the test scenes): the per-car rates."""
+        cfg = self.cfg
+        split = cfg.eval_split
+        names = self.task.scene_names(
+            split, cfg.validation_scenes if split == "validation" else None
+        )
+        act = policy_act(actor, cfg.base_driver, cfg.residual_scale)
+        self.rows = play(self.task, act, self.client, split=split, scenes=names)
+        self.summary = summarize(self.rows)
+        rates = {k: self.summary[k]["rate"] for k in (*STATUSES, "car_collision")}
+        return rates | {"car_episodes": self.summary["car_episodes"]}
+
+    def network(self) -> str:
+        """The registered network, or the flat observation's MLP."""
+        cfg = self.cfg
+        if cfg.network:
+            return cfg.network
+        widths = "x".join(str(h) for h in cfg.hidden_sizes)
+        return f"MultiAgentMLP {widths} (shared: {cfg.share_params})"
+
+    def record(self) -> dict[str, Any]:
+        """The task (every field) and the reward."""
+        reward = {"name": self.cfg.reward, "weights": self.cfg.world_reward_weights}
+        return {"task": dict(vars(self.task)), "reward": reward}
+
+    def finish(self, actor, log_dir: Path, summary: dict[str, Any], timing: dict) -> None:
+        """``policy.pt`` and ``eval.json`` (the last scoring's rows), then the connection
+        closes."""
+        self.summary |= {"wall_s": sum(timing.values()) - timing["env_s"]}
+        self.summary["frames"] = summary.get("frames")
+        torch.save(actor.state_dict(), log_dir / "policy.pt")
+        doc = {"summary": self.summary, "rows": self.rows, "config": self.cfg.to_dict()}
+        (log_dir / "eval.json").write_text(json.dumps(doc, indent=1))
+        self.client.shutdown()
 
 
-def train(cfg: TrainConfig, task: CrossingTask | None = None, resume: bool = False) -> dict:
-    """One run of ``cfg.task``'s cars (``task``: another crossing task); returns the final
-    evaluation's summary (on ``cfg.eval_split``)."""
-    task = task or CrossingTask()
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(max(1, cfg.num_threads))
-    log_dir = Path(cfg.log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    (log_dir / "config.json").write_text(
-        json.dumps({"config": cfg.to_dict(), "task": _task_dict(task)}, indent=1)
-    )
+class CarsLearner:
+    """Every multi-car algorithm as the training loop drives it: the shared actor, its
+    module's critic, TorchRL loss, optimiser, buffer and target update, and its ``learn`` per
+    collected batch (on-policy: ``num_envs x rollout_steps`` frames; off-policy:
+    ``frames_per_batch``)."""
 
-    client = cfg.connection().open()
-    try:
-        return _train(cfg, task, client, log_dir, resume)
-    finally:
-        client.shutdown()
+    def __init__(self, cfg: TrainConfig, world: Cars, algo: ModuleType):
+        self.cfg, self.algo = cfg, algo
+        self.actor = make_actor(cfg, world.task)
+        critic = algo.make_critic(cfg, world.task)
+        self.loss = algo.make_loss(cfg, self.actor, critic)
+        self.optim = algo.make_optimizer(cfg, self.loss)
+        self.target_update = algo.make_target_update(cfg, self.loss)
+        on_policy = get_algorithm(cfg.algorithm).family == "on"
+        batch = cfg.num_envs * cfg.rollout_steps if on_policy else cfg.frames_per_batch
+        self.batch_frames = max(batch - batch % cfg.num_envs, cfg.num_envs)
+        self.random_frames = 0
+        self.buffer = algo.make_buffer(cfg, self.batch_frames)
 
+    def start(self, counters: dict[str, Any], logger) -> None:
+        """Nothing before the first batch."""
 
-def _train(cfg, task, client, log_dir: Path, resume: bool) -> dict:
-    env = make_env(
-        task, "train", cfg.num_envs, client, seed=cfg.seed, reward_weights=cfg.world_reward_weights
-    )
-    if cfg.base_driver:
-        env = TransformedEnv(env, ResidualAction(cfg.base_driver, GROUP, cfg.residual_scale))
-    algo = ALGORITHM_MODULES[cfg.algorithm]
-    on_policy = get_algorithm(cfg.algorithm).family == "on"
-    actor = make_actor(cfg, task)
-    critic = algo.make_critic(cfg, task)
-    loss = algo.make_loss(cfg, actor, critic)
-    optim = algo.make_optimizer(cfg, loss)
-    target_update = algo.make_target_update(cfg, loss)
-
-    frames, iteration, wall = 0, 0, 0.0
-    ckpt_path = log_dir / "checkpoint.pt"
-    learner = LossAndOptimizer(loss, optim)
-    if resume and ckpt_path.exists():
-        ckpt = load_checkpoint(ckpt_path)
-        learner.load(ckpt)
-        counters = ckpt["counters"]
-        frames, iteration, wall = counters["frames"], counters["iterations"], counters["wall_s"]
-    if frames >= cfg.total_frames:
-        env.close()
-        return json.loads((log_dir / "eval.json").read_text())["summary"]
-
-    batch = cfg.num_envs * cfg.rollout_steps if on_policy else cfg.frames_per_batch
-    frames_per_batch = batch - batch % cfg.num_envs
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=max(frames_per_batch, cfg.num_envs),
-        total_frames=cfg.total_frames - frames,
-    )
-    buffer = algo.make_buffer(cfg, frames_per_batch)
-    logger = MetricLogger(log_dir, tensorboard=False)
-    next_eval = next_multiple(frames, cfg.eval_interval)
-    t0 = time.perf_counter() - wall
-    for data in collector:
-        frames += data.numel()
-        iteration += 1
-        metrics = batch_outcomes(data)
-        metrics.update(algo.learn(cfg, loss, optim, buffer, data, target_update, frames))
-        collector.update_policy_weights_()
-        wall = time.perf_counter() - t0
-        metrics["train/wall_s"] = wall
-        if frames >= next_eval or frames >= cfg.total_frames:
-            _, summary = _evaluate(task, actor, cfg, client)
-            for key in (*STATUSES, "car_collision"):
-                metrics[f"eval/{key}"] = summary[key]["rate"]
-            next_eval = next_multiple(frames, cfg.eval_interval)
-            counters = {"frames": frames, "iterations": iteration, "wall_s": wall}
-            save_checkpoint(
-                ckpt_path,
-                cfg,
-                actor,
-                learner,
-                counters,
-                network=network(cfg),
-                world=world(cfg, task),
-            )
-        logger.log(metrics, frames)
-    collector.shutdown()
-    rows, summary = _evaluate(task, actor, cfg, client)
-    summary["wall_s"] = time.perf_counter() - t0
-    summary["frames"] = frames
-    torch.save(actor.state_dict(), log_dir / "policy.pt")
-    (log_dir / "eval.json").write_text(
-        json.dumps({"summary": summary, "rows": rows, "config": cfg.to_dict()}, indent=1)
-    )
-    logger.close()
-    if not env.is_closed:
-        env.close()
-    return summary
-
-
-def _task_dict(task: CrossingTask) -> dict[str, Any]:
-    return {k: v for k, v in vars(task).items()}
-
-
-def network(cfg: TrainConfig) -> str:
-    """What a checkpoint names the multi-car learners' network: the registered network, or
-    the flat observation's MLP."""
-    if cfg.network:
-        return cfg.network
-    widths = "x".join(str(h) for h in cfg.hidden_sizes)
-    return f"MultiAgentMLP {widths} (shared: {cfg.share_params})"
-
-
-def world(cfg: TrainConfig, task: CrossingTask) -> dict[str, Any]:
-    """What a checkpoint records of the world: the task and the reward."""
-    reward = {"name": cfg.reward, "weights": cfg.world_reward_weights}
-    return {"task": _task_dict(task), "reward": reward}
-
-
-class LossAndOptimizer:
-    """A TorchRL loss and its optimiser as :func:`~sharedspace.train.checkpoint.save_checkpoint`
-    keeps a learner."""
-
-    def __init__(self, loss: torch.nn.Module, optim: torch.optim.Optimizer):
-        self.loss, self.optim = loss, optim
+    def step(self, data: TensorDictBase, counters: dict[str, Any]) -> dict[str, float]:
+        cfg, algo = self.cfg, self.algo
+        stats = algo.learn(
+            cfg, self.loss, self.optim, self.buffer, data, self.target_update, counters["frames"]
+        )
+        return {k.removeprefix("train/"): v for k, v in stats.items()}
 
     def state_dict(self) -> dict[str, Any]:
         return self.loss.state_dict()
@@ -199,8 +163,28 @@ class LossAndOptimizer:
         return {"adam": self.optim.state_dict()}
 
     def load(self, ckpt: dict[str, Any]) -> None:
+        self.actor.load_state_dict(ckpt["actor"])
         self.loss.load_state_dict(ckpt["learner"])
         self.optim.load_state_dict(ckpt["optimizers"]["adam"])
+        if "torch_rng" in ckpt:
+            torch.set_rng_state(ckpt["torch_rng"])
+
+
+def train(
+    cfg: TrainConfig, task: CrossingTask | None = None, resume: str | bool | None = None
+) -> dict[str, Any]:
+    """One run of the crossing task's cars (``task``: another crossing task) through the one
+    training loop; ``resume``: a checkpoint, or True for ``log_dir``'s last one. Returns the
+    final scoring's per-car summary (on ``eval_split``)."""
+    if resume is True:
+        last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
+        resume = str(last) if last.is_file() else None
+    world = Cars(cfg, task)
+    out = train_loop(cfg, resume or None, world=world)
+    if not world.summary:  # nothing left to train: the last run's record
+        world.client.shutdown()
+        return json.loads((Path(cfg.log_dir) / "eval.json").read_text())["summary"]
+    return world.summary | {"counters": out["counters"]}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -209,19 +193,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     from sharedspace.train.train import main as train_main
 
     return train_main(argv, default_algorithm="mappo")
-
-
-def run_command(cfg: TrainConfig, resume: str | bool | None = None) -> dict[str, Any]:
-    """One run from the command line (:func:`sharedspace.train.train.main`): trains, prints the
-    per-car outcome, returns the summary."""
-    summary = train(cfg, resume=bool(resume))
-    print(
-        f"{cfg.algorithm} seed {cfg.seed}: per-car success {summary['success']['rate']:.3f}, "
-        f"collision {summary['collision']['rate']:.3f}, "
-        f"car-car {summary['car_collision']['rate']:.3f} on the {cfg.eval_split} scenes; "
-        f"{summary.get('wall_s', 0):.0f} s"
-    )
-    return summary
 
 
 if __name__ == "__main__":

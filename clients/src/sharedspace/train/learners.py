@@ -27,7 +27,7 @@ ACTION_SPEC = Bounded(low=-1.0, high=1.0, shape=(2,), dtype=torch.float32)
 
 
 def learner(algorithm: str) -> ModuleType:
-    """The module implementing the one-car ``algorithm`` (its ``train`` and ``make_actor``)."""
+    """The module implementing the one-car ``algorithm`` (its ``make_actor``)."""
     try:
         return get_algorithm(algorithm, cars="one").load()
     except UnknownAlgorithm as err:

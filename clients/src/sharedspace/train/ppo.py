@@ -1,5 +1,5 @@
-"""PPO on wide batches of envs: the ``make_*`` builders, TorchRL style, and the loop
-:func:`train`, top to bottom.
+"""PPO on wide batches of envs: the ``make_*`` builders, TorchRL style, and the learner the
+training loop (:mod:`sharedspace.train.loop`) drives.
 
     python -m sharedspace.train --set algorithm=ppo network=gcn_risk task=paper
 
@@ -18,53 +18,38 @@ frames per iteration, enough that 4 epochs of minibatches of 2 048 (16 gradient 
 starve the update nor spend most of the wall time in it on a 2-core CPU; rewards are scaled by
 0.1 so that value targets are of order 1.
 
-Writes into ``log_dir`` what the SAC loop writes: ``config.json``, ``metrics.csv``, TensorBoard
-events and ``checkpoints/{step_<frames>,last}.pt``.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import time
 from typing import Any
 
 import torch
-import tqdm
 from tensordict import TensorDictBase
 from torch import nn
-from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from sharedspace.train.checkpoint import load_checkpoint, save_checkpoint
 from sharedspace.train.config import TrainConfig
-from sharedspace.train.envs import make_env
-from sharedspace.train.evaluation import evaluate_split
 from sharedspace.train.gcn import FeatureNorm, mlp
-from sharedspace.train.metrics import (
-    EpisodeTracker,
-    MetricLogger,
-    episode_metrics,
-    progress_postfix,
-)
+from sharedspace.train.loop import OneCar, torch_threads
 from sharedspace.train.policy import (
     OBS_KEYS,
     RESIDUAL_INIT_SCALE,
     make_encoder,
     make_gaussian_actor,
 )
-from sharedspace.train.run import next_multiple, seed_everything, start_run
 
 __all__ = [
+    "PPOLearner",
     "PPOUpdate",
     "make_actor",
-    "make_collector",
     "make_critic",
+    "make_learner",
     "make_update",
-    "train",
+    "make_world",
 ]
 
 #: The spread of a from-scratch actor's Gaussian (before the tanh) at initialisation.
@@ -210,169 +195,46 @@ def make_update(cfg: TrainConfig, actor: ProbabilisticActor) -> PPOUpdate:
     return PPOUpdate(cfg, actor, make_critic(cfg, feature_norm_of(actor))).to(cfg.device)
 
 
-def batch_frames(cfg: TrainConfig) -> int:
-    """Frames per iteration: ``num_envs * rollout_steps``."""
-    return cfg.num_envs * cfg.rollout_steps
+class PPOLearner:
+    """PPO as the training loop (:mod:`sharedspace.train.loop`) drives it: the actor, and one
+    iteration's update per collected batch ``[K, T]`` (the server waits meanwhile, so every
+    core may serve the update: ``update_threads``)."""
 
+    def __init__(self, cfg: TrainConfig, action_spec):
+        self.cfg = cfg
+        self.actor = make_actor(cfg, action_spec)
+        self.update = make_update(cfg, self.actor)
+        self.batch_frames = cfg.num_envs * cfg.rollout_steps
+        self.random_frames = 0
 
-def make_collector(cfg: TrainConfig, env: EnvBase, actor, total_frames: int) -> Collector:
-    """``Collector`` over the batched env: batches ``[K, T]`` of the current policy; done
-    sub-envs are reset by the server's autoreset (``step_and_maybe_reset``)."""
-    return Collector(
-        env,
-        actor,
-        frames_per_batch=batch_frames(cfg),
-        total_frames=total_frames,
-        device=cfg.device,
-        env_device="cpu",
-        auto_register_policy_transforms=False,  # the policy is not recurrent
-    )
+    def start(self, counters: dict[str, Any], logger) -> None:
+        """Nothing before the first batch."""
 
-
-def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
-    """Runs PPO on ``cfg``; returns the final counters, the last evaluation's summary and
-    where the time went (``timing``: collection, of it the env's round trips, updates,
-    evaluations; seconds)."""
-    log_dir = start_run(cfg)
-
-    # ---- counters, env, networks and learner, possibly from a checkpoint
-    ckpt = load_checkpoint(resume, cfg.device) if resume else None
-    counters = {"frames": 0, "updates": 0, "episodes": 0, "iterations": 0, "lost_episodes": 0}
-    counters |= ckpt["counters"] if ckpt is not None else {}
-    seed_everything(cfg.seed + counters["frames"])
-    env = make_env(
-        cfg, split="train", seed=cfg.seed + counters["frames"], variations=cfg.variations
-    )
-    actor = make_actor(cfg, env.action_spec_unbatched)
-    update = make_update(cfg, actor)
-    if ckpt is not None:
-        _restore(ckpt, actor, update)
-    remaining = max(cfg.total_frames - counters["frames"], 0)
-    logger = MetricLogger(log_dir)
-    clock = Clock(env)
-    last_eval: dict[str, float] = {}
-    if remaining == 0:
-        env.close()
-        logger.close()
-        return {"counters": counters, "eval": last_eval, "timing": clock.timing}
-    collector = make_collector(cfg, env, actor, remaining)
-    tracker = EpisodeTracker(cfg.num_envs)
-    next_eval = next_multiple(counters["frames"], cfg.eval_interval)
-    next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
-    pbar = tqdm.tqdm(
-        total=cfg.total_frames,
-        initial=counters["frames"],
-        disable=not cfg.progress,
-        unit="fr",
-        dynamic_ncols=True,
-    )
-    for data in collector:
-        clock.collected()  # ---- collected: the outcomes of the episodes that ended
-        counters["frames"] += data.numel()
-        counters["iterations"] += 1
-        ended = tracker.update(data)
-        counters["episodes"] += len(ended)
-        counters["lost_episodes"] += int(sum(e["lost"] for e in ended))
-        reward_mean = float(data["next", "reward"].mean())
-        action_scale = float(data["scale"].mean())  # the policy's spread (before the tanh)
-
-        # ---- learn (the server waits meanwhile: every core may serve the update)
-        torch.set_num_threads(cfg.update_threads or os.cpu_count() or 1)
-        stats = update.step(data, counters["frames"] - data.numel())
-        torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
+    def step(self, data: TensorDictBase, counters: dict[str, Any]) -> dict[str, float]:
+        torch_threads(self.cfg.update_threads)
+        stats = self.update.step(data, counters["frames"] - data.numel())
+        torch_threads(self.cfg.num_threads)
         counters["updates"] += int(stats.pop("gradient_steps"))
-        collector.update_policy_weights_()
-        clock.updated()
+        stats["action_scale"] = float(data["scale"].mean())  # the spread, before the tanh
+        return stats
 
-        # ---- log
-        metrics = clock.metrics(data.numel()) | {f"train/{k}": v for k, v in stats.items()}
-        metrics |= {"train/reward_mean": reward_mean, "train/action_scale": action_scale}
-        metrics["train/episodes"] = counters["episodes"]
-        metrics |= episode_metrics(ended)
-        logger.log(metrics, counters["frames"])
-        pbar.update(data.numel())
-        pbar.set_postfix(progress_postfix(metrics, tracker.recent))
+    def state_dict(self) -> dict[str, Any]:
+        return self.update.state_dict()
 
-        # ---- evaluate (curves only: nothing is chosen on them), checkpoint
-        if cfg.eval_interval and counters["frames"] >= next_eval:
-            next_eval = next_multiple(counters["frames"], cfg.eval_interval)
-            last_eval = _evaluate(cfg, actor, clock, logger, counters["frames"])
-        if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
-            next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
-            _checkpoint(log_dir, cfg, actor, update, counters)
-        clock.collecting()
+    def optimizer_state(self) -> dict[str, Any]:
+        return self.update.optimizer_state()
 
-    pbar.close()
-    collector.shutdown()
-    _checkpoint(log_dir, cfg, actor, update, counters)
-    if cfg.eval_interval and last_eval.get("frames") != counters["frames"]:  # the run's policy
-        last_eval = _evaluate(cfg, actor, clock, logger, counters["frames"])
-    logger.close()
-    return {"counters": counters, "eval": last_eval, "timing": clock.timing}
+    def load(self, ckpt: dict[str, Any]) -> None:
+        self.actor.load_state_dict(ckpt["actor"])
+        self.update.load_state_dict(ckpt["learner"])
+        self.update.load_optimizer_state(ckpt["optimizers"])
+        torch.set_rng_state(ckpt["torch_rng"])
 
 
-def _evaluate(cfg, actor, clock: Clock, logger: MetricLogger, frames: int) -> dict[str, float]:
-    """Every scene of ``eval_split`` once, deterministic; logged as ``eval/*`` with the
-    training wall time so far. A curve: nothing is chosen on it."""
-    with clock.evaluating():
-        summary = evaluate_split(cfg, actor, cfg.eval_split)["summary"] | {"frames": frames}
-    row = {f"eval/{k}": v for k, v in summary.items() if k != "frames"}
-    logger.log(row | {"eval/train_wall_s": clock.train_s}, frames)
-    return summary
+#: PPO plays one car per env (:class:`~sharedspace.train.loop.OneCar`).
+make_world = OneCar
 
 
-def _restore(ckpt: dict[str, Any], actor, update: PPOUpdate) -> None:
-    actor.load_state_dict(ckpt["actor"])
-    update.load_state_dict(ckpt["learner"])
-    update.load_optimizer_state(ckpt["optimizers"])
-    torch.set_rng_state(ckpt["torch_rng"])
-
-
-class Clock:
-    """Where a run's wall time goes: collection (of it, the env's round trips), updates and
-    evaluations, in seconds (``timing``), and each iteration's ``train/*`` rates."""
-
-    def __init__(self, env):
-        self.env = env
-        self.env0 = env.env_time_s
-        self.timing = {"collect_s": 0.0, "env_s": 0.0, "update_s": 0.0, "eval_s": 0.0}
-        self.t_collect = self.t_update = time.perf_counter()
-
-    @property
-    def train_s(self) -> float:
-        """Collection plus updates: the run's wall time without its evaluations."""
-        return self.timing["collect_s"] + self.timing["update_s"]
-
-    def collecting(self) -> None:
-        self.t_collect = time.perf_counter()
-
-    def collected(self) -> None:
-        self.t_update = time.perf_counter()
-        self.timing["collect_s"] += self.t_update - self.t_collect
-        self.timing["env_s"] = self.env.env_time_s - self.env0
-
-    def updated(self) -> None:
-        self.t_done = time.perf_counter()
-        self.timing["update_s"] += self.t_done - self.t_update
-
-    def metrics(self, frames: int) -> dict[str, float]:
-        collect_s, update_s = self.t_update - self.t_collect, self.t_done - self.t_update
-        return {
-            "train/fps": frames / max(collect_s + update_s, 1e-9),
-            "train/collect_s": collect_s,
-            "train/update_s": update_s,
-            "train/env_time_share_cum": self.timing["env_s"] / max(self.train_s, 1e-9),
-            "train/wall_s": self.train_s,
-        }
-
-    @contextlib.contextmanager
-    def evaluating(self):
-        t0 = time.perf_counter()
-        yield
-        self.timing["eval_s"] += time.perf_counter() - t0
-
-
-def _checkpoint(log_dir, cfg, actor, update, counters) -> None:
-    d = log_dir / "checkpoints"
-    save_checkpoint(d / f"step_{counters['frames']}.pt", cfg, actor, update, counters)
-    save_checkpoint(d / "last.pt", cfg, actor, update, counters)
+def make_learner(cfg: TrainConfig, world: OneCar, env: EnvBase) -> PPOLearner:
+    """The learner of the training loop."""
+    return PPOLearner(cfg, env.action_spec_unbatched)

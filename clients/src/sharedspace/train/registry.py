@@ -1,8 +1,11 @@
 """Every learning algorithm, registered once by name: what it is (one car or several, on- or
 off-policy), the options only it reads, its defaults, and the module that implements it.
 
-An algorithm's module has ``train(cfg, resume=None) -> dict`` (its loop, top to bottom) and
-``make_actor(cfg, action_spec)`` (the policy a checkpoint's ``actor`` weights load into). The
+An algorithm's module has what the one training loop (:mod:`sharedspace.train.loop`) asks of
+it: ``make_world(cfg)`` (one car per env, :class:`~sharedspace.train.loop.OneCar`, or the
+crossing task's cars, :class:`~sharedspace.marl.train.Cars`) and ``make_learner(cfg, world,
+env)`` (its actor and its update per collected batch); a one-car algorithm also has
+``make_actor(cfg, action_spec)``, the policy a checkpoint's ``actor`` weights load into. The
 module is named by its import path and imported when first used, so that the registry (and the
 config that checks names against it) sits below every implementation.
 
@@ -205,7 +208,7 @@ for _name, _family, _options, _more, _doc in (
     register_algorithm(
         Algorithm(
             _name,
-            "sharedspace.marl.train",
+            "sharedspace.marl.masac" if _family == "off" else "sharedspace.marl.mappo",
             cars="many",
             family=_family,
             options=_options,

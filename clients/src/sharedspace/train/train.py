@@ -10,11 +10,11 @@ the crossing task's cars. ``network`` names a registered network
 ``s_sac`` still work). ``task=paper`` (or ``crowd``) trains in a benchmark task's world, and
 ``python -m sharedspace.bench TASK --policy LOG_DIR/checkpoints/last.pt`` scores the result.
 
-A one-car run writes into ``log_dir``: ``config.json``, ``metrics.csv`` (long format: frames,
+Every run writes into ``log_dir``: ``config.json``, ``metrics.csv`` (long format: frames,
 wall_s, metric, value; ``train/`` per iteration, ``eval/`` on the validation split),
 TensorBoard events, and ``checkpoints/{step_<frames>,last}.pt``
-(:mod:`sharedspace.train.checkpoint`); a multi-car run writes ``checkpoint.pt`` and
-``eval.json`` instead (:mod:`sharedspace.marl.train`).
+(:mod:`sharedspace.train.checkpoint`); a multi-car run also ``eval.json`` and ``policy.pt``
+(:mod:`sharedspace.marl.train`).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedspace.train import loop
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.config import (
     TrainConfig,
@@ -33,16 +34,15 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
-from sharedspace.train.learners import learner
-from sharedspace.train.registry import get_algorithm
 
 __all__ = ["train", "main"]
 
 
 def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
-    """Runs ``cfg.algorithm`` on ``cfg`` (from the checkpoint ``resume`` if given); returns
-    the final counters and the last evaluation summary."""
-    return learner(cfg.algorithm).train(cfg, resume=resume)
+    """Runs ``cfg.algorithm`` on ``cfg`` (from the checkpoint ``resume`` if given) through the
+    one training loop (:mod:`sharedspace.train.loop`); returns the final counters, the last
+    scoring and where the time went."""
+    return loop.train(cfg, resume)
 
 
 def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
@@ -67,14 +67,11 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
         first = _named_algorithm(args.set, table, default_algorithm)
         cfg = TrainConfig.from_dict({"algorithm": first})
     cfg = apply_overrides(apply_overrides(cfg, table), args.set)
-    algo = get_algorithm(cfg.algorithm)
-    module = algo.load()
     resume = args.resume
-    if resume is True and not algo.multi_car:  # a multi-car run keeps one checkpoint.pt
+    if resume is True:  # bare: log_dir's last checkpoint, where there is one
         last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
         resume = str(last) if last.is_file() else None
-    run = getattr(module, "run_command", None)
-    out = run(cfg, resume) if run is not None else module.train(cfg, resume=resume)
+    out = loop.train(cfg, resume)
     print(json.dumps(dict(out), default=float))
     return 0
 
