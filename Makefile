@@ -73,6 +73,9 @@ WHEEL_MAX_GLIBC := 2.17
 # The Python wheel carries the viewer's built page (sharedspace/viewer_page), so that an installed
 # `python -m sharedspace.viewer` needs no checkout.
 PAGE_IN_PACKAGE := clients/src/sharedspace/viewer_page
+# ... and the paper's scenario pool (what the server embeds as hbs-paper), so that an installed
+# trainer carves its validation split from it (sharedspace.worlds.validation_pool_file).
+POOL_IN_PACKAGE := clients/src/sharedspace/pool_data
 wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel (manylinux2014) and sdist, and the Python package's wheel (with the viewer's page), in dist/
 	rm -f $(DIST)/sharedspace*.whl $(DIST)/sharedspace_server-*.tar.gz
 	PATH="$(WHEEL_PATH)" $(MATURIN) build $(WHEEL_PROFILE) $(WHEEL_LINK) --locked --manifest-path sim-server/Cargo.toml --out $(DIST)
@@ -80,7 +83,8 @@ wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel (manylinux2014) and s
 	@# with cargo (README, "Install from wheels")
 	$(MATURIN) sdist --manifest-path sim-server/Cargo.toml --out $(DIST)
 	rm -rf $(PAGE_IN_PACKAGE) && cp -r viewer/dist $(PAGE_IN_PACKAGE)
-	$(UV) build --quiet --wheel --out-dir $(DIST) clients; status=$$?; rm -rf $(PAGE_IN_PACKAGE); exit $$status
+	rm -rf $(POOL_IN_PACKAGE) && mkdir -p $(POOL_IN_PACKAGE) && cp scenarios/data/hbs-paper.json $(POOL_IN_PACKAGE)/
+	$(UV) build --quiet --wheel --out-dir $(DIST) clients; status=$$?; rm -rf $(PAGE_IN_PACKAGE) $(POOL_IN_PACKAGE); exit $$status
 	@ls -l $(DIST)/*.whl $(DIST)/*.tar.gz
 
 wheel-check: wheel ## the server wheel's platform tags and its binary's highest glibc symbol, at most WHEEL_MAX_GLIBC (2.17)
@@ -177,10 +181,10 @@ table1: $(SERVER) $(VENV)/.installed ## paper Table I on the test split (calibra
 	$(PY) -m calibration.crossval --server $(SERVER) --folds 5 --table docs/table1_crossval.json $(CROSSVAL_ARGS)
 	$(PY) -m calibration.paired --table docs/table1_crossval.json
 
-TRAIN_ARGS ?= --set variant=g_sac_cog total_frames=200000 log_dir=runs/g_sac_cog
-CKPT ?= runs/g_sac_cog/checkpoints/last.pt
+TRAIN_ARGS ?= --set network=gcn_risk total_frames=200000 log_dir=runs/gcn_risk
+CKPT ?= runs/gcn_risk/checkpoints/last.pt
 
-train: $(SERVER) $(VENV)/.installed ## train against a fresh local server (TRAIN_ARGS='--set variant=s_sac ...')
+train: $(SERVER) $(VENV)/.installed ## train against a fresh local server (TRAIN_ARGS='--set network=mlp ...')
 	./scripts/with_server.sh sh -c '$(PY) -m sharedspace.train $(TRAIN_ARGS) --set server_endpoint=$$SHAREDSPACE_ENDPOINT'
 
 eval: $(SERVER) $(VENV)/.installed ## evaluate CKPT on the test split (Table II columns and the human driver)
@@ -215,19 +219,17 @@ marl: $(SERVER) $(VENV)/.installed ## several learning cars: MAPPO, IPPO, MASAC 
 benchmarl: $(SERVER) $(BENCHMARL_VENV)/.installed ## one BenchMARL MAPPO experiment on the crossing task (its own venv; results/marl/benchmarl/)
 	SHAREDSPACE_SIM_SERVER=$(SERVER) $(BENCHMARL_VENV)/bin/python -m sharedspace.marl.benchmarl_task --out results/marl/benchmarl
 
-# PPO from scratch on Table II-G's world (docs/RESULTS.md, "PPO from scratch"): PPO_VARIANT
-# (g_sac_cog, g_sac_nocog, s_sac), PPO_SEEDS, PPO_FRAMES; curves on the test scenes (never used to
-# choose anything), the last checkpoint is the run's policy.
-PPO_VARIANT ?= g_sac_cog
+# PPO from scratch for the `crowd` task, Table II-G's world (docs/RESULTS.md, "PPO from scratch"):
+# PPO_NETWORK (gcn_risk, gcn_uniform, mlp), PPO_SEEDS, PPO_FRAMES; curves on the validation split
+# carved from the train scenes, the last checkpoint is the run's policy.
+PPO_NETWORK ?= gcn_risk
 PPO_SEEDS ?= 0 1 2
 PPO_FRAMES ?= 6000000
-ppo: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## PPO from scratch on Table II-G's world, 3 seeds (results/ppo/runs/)
+ppo: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## PPO from scratch for the crowd task, 3 seeds (results/ppo/runs/)
 	for seed in $(PPO_SEEDS); do \
-		$(PY) -m sharedspace.train --set algorithm=ppo variant=$(PPO_VARIANT) seed=$$seed \
-			total_frames=$(PPO_FRAMES) scenario_pool=$(GENERAL_POOL) max_agents=10 \
-			server_params=params/table2g.json5 '$(TABLE2G_VARIATIONS)' \
-			eval_interval=524288 checkpoint_interval=2097152 \
-			log_dir=results/ppo/runs/crowd-scratch-$(PPO_VARIANT)-s$$seed || exit 1; \
+		$(PY) -m sharedspace.train --set algorithm=ppo task=crowd network=$(PPO_NETWORK) \
+			seed=$$seed total_frames=$(PPO_FRAMES) checkpoint_interval=2097152 \
+			log_dir=results/ppo/runs/crowd-scratch-$(PPO_NETWORK)-s$$seed || exit 1; \
 	done
 
 demos: $(SERVER) $(VENV)/.installed $(GENERAL_POOL) ## prior data: demonstrations on the train scenes of Table II-G's and Table II's worlds (out/demos/)

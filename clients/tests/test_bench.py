@@ -202,7 +202,7 @@ def test_every_policy_the_bench_cannot_play_is_named_before_a_server_starts(tmp_
         ([], "no policy to score"),
         ("no_such_module_x:act", "cannot import it"),
         (str(tmp_path / "gone.pt"), "no such checkpoint"),
-        (_checkpoint(tmp_path, "junk"), "not a checkpoint of sharedspace.train or .marl"),
+        (_checkpoint(tmp_path, "junk"), "is not a sharedspace checkpoint"),
         (
             _checkpoint(tmp_path, "cars", algorithm="mappo", config={"algorithm": "mappo"}),
             "a multi-car checkpoint \\(mappo\\), task paper-small@1 has one car",

@@ -181,9 +181,11 @@ def test_the_trainer_learns_from_recorded_demonstrations(sim_server, tmp_path):
     cfg = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
     transitions, sources = record_demos(cfg, TINY_RECIPE, log=lambda *_: None)
     assert list(sources) == list(TINY_RECIPE)
-    assert sources["car_aware"]["episodes"] == 59  # every train scene of the paper pool
+    train_scenes = 59 - cfg.validation_scenes  # the paper pool's, the validation ones left out
+    assert sources["car_aware"]["episodes"] == train_scenes
     assert set(transitions["source"].tolist()) <= {0, 1, 2}
-    assert sources["planner"]["cells"] == round(59 * (1 - sources["car_aware"]["success"]))
+    failed = round(train_scenes * (1 - sources["car_aware"]["success"]))
+    assert sources["planner"]["cells"] == failed
     write_prior(tmp_path / "demos", transitions, world_of(cfg), sources)
 
     log_dir = tmp_path / "run"

@@ -87,7 +87,7 @@ def test_encoder_shapes_and_padding_invariance(graph):
         assert torch.allclose(enc(f, adj * 0.1, mask), out, atol=1e-6)
 
 
-@pytest.mark.parametrize("network", list(NETWORKS))
+@pytest.mark.parametrize("network", [n for n, net in NETWORKS.items() if net.sac_label])
 def test_actor_critic_loss_shapes(network):
     cfg = apply_overrides(
         TrainConfig(),

@@ -20,8 +20,11 @@ __all__ = [
     "split_indices",
 ]
 
-#: The paper's scenario pool (HBS shared space, 59 train + 18 test scenarios).
+#: The paper's scenario pool (HBS shared space, 59 train + 18 test scenarios): the checkout's
+#: file, or in an installed wheel the copy it carries (``make wheel``).
 DEFAULT_POOL_PATH = Path(__file__).resolve().parents[3] / "scenarios" / "data" / "hbs-paper.json"
+if not DEFAULT_POOL_PATH.is_file():
+    DEFAULT_POOL_PATH = Path(__file__).resolve().parent / "pool_data" / "hbs-paper.json"
 
 
 def load_pool(path: str | Path | None = None) -> list[dict[str, Any]]:

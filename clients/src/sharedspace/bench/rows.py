@@ -24,6 +24,7 @@ test scenes. The residual arm's shipped runs (2026-12-06) name their networks by
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import subprocess
 import sys
@@ -36,13 +37,14 @@ from sharedspace.bench.score import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.checkpoint import ship as ship_checkpoint
+from sharedspace.train.networks import NETWORKS as REGISTERED_NETWORKS
 from sharedspace.train.networks import UnknownNetwork, canonical_network
 from sharedspace.worlds import TRAINING_TASKS
 
 __all__ = ["ARMS", "NETWORKS", "main"]
 
-#: The paper's three networks (:mod:`sharedspace.train.networks`), risk graph first.
-NETWORKS = ("gcn_risk", "gcn_uniform", "mlp")
+#: The paper's three networks (those the registry gives a paper label), risk graph first.
+NETWORKS = tuple(name for name, net in REGISTERED_NETWORKS.items() if net.sac_label)
 #: How a row's learner starts: from scratch, or as a residual over the car-aware script.
 ARMS: dict[str, list[str]] = {"scratch": [], "residual": ["base_driver=car_aware"]}
 #: The single-car tasks a row trains for.
@@ -145,9 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(rows[network].markdown(), flush=True)
     question = {}
     by_network = {canonical_network(n): row for n, row in rows.items()}
-    for a, b in (("gcn_risk", "gcn_uniform"), ("gcn_risk", "mlp"), ("gcn_uniform", "mlp")):
-        if a in by_network and b in by_network:
-            question[f"{a} - {b}"] = compare(by_network[a], by_network[b])
+    for a, b in itertools.combinations([n for n in NETWORKS if n in by_network], 2):
+        question[f"{a} - {b}"] = compare(by_network[a], by_network[b])
     if question:
         (folder / f"{args.arm}-question.json").write_text(json.dumps(question, indent=1))
         for key, c in question.items():

@@ -24,6 +24,7 @@ from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observatio
 from sharedspace.marl.task import CrossingTask
 from sharedspace.marl.train import Cars, CarsLearner
 from sharedspace.train.config import TrainConfig
+from sharedspace.train.registry import get_algorithm
 
 __all__ = [
     "learn",
@@ -39,7 +40,8 @@ __all__ = [
 
 def make_critic(cfg: TrainConfig, task: CrossingTask) -> TensorDictSequential:
     """The state value per car (centralised for MAPPO)."""
-    mlp = agents_mlp(cfg, task, extra_inputs=0, outputs=1, centralized=cfg.algorithm == "mappo")
+    central = get_algorithm(cfg.algorithm).centralized_critic  # MAPPO's; IPPO's is each car's
+    mlp = agents_mlp(cfg, task, extra_inputs=0, outputs=1, centralized=central)
     value = ValueOperator(module=mlp, in_keys=[OBS], out_keys=[(GROUP, "state_value")])
     return TensorDictSequential(observation(cfg, task), value)
 
@@ -88,7 +90,7 @@ def learn(
     cfg: TrainConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
 ) -> dict[str, float]:
     """One collected batch: advantages by GAE, then ``ppo_epochs`` passes of minibatches.
-    Returns the last step's losses (``train/loss_*``)."""
+    Returns the last step's losses (``train/loss_*``) and the steps taken."""
     with torch.no_grad():
         loss.value_estimator(
             data,
@@ -96,14 +98,18 @@ def learn(
             target_params=loss.target_critic_network_params,
         )
     buffer.extend(data.reshape(-1))
-    for _ in range(cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)):
+    steps = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
+    for _ in range(steps):
         out = loss(buffer.sample())
         total = sum(v for k, v in out.items() if k.startswith("loss_"))
         optim.zero_grad()
         total.backward()
         nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
         optim.step()
-    return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+    losses = {
+        f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")
+    }
+    return losses | {"train/gradient_steps": steps}
 
 
 #: Its cars' world: the crossing task (:class:`~sharedspace.marl.train.Cars`).

@@ -94,10 +94,12 @@ def learn(
     cfg: TrainConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
 ) -> dict[str, float]:
     """One collected batch into the buffer, then ``utd_ratio`` updates per frame; only the
-    critics learn for the first ``actor_warmup_frames``. Returns the last step's losses."""
+    critics learn for the first ``actor_warmup_frames``. Returns the last step's losses and the
+    steps taken."""
     warmup = frames < cfg.actor_warmup_frames
     buffer.extend(data.reshape(-1))
-    for _ in range(max(1, round(cfg.utd_ratio * data.numel()))):
+    steps = max(1, round(cfg.utd_ratio * data.numel()))
+    for _ in range(steps):
         sample = buffer.sample()
         out = loss(sample)
         if cfg.residual_penalty and not warmup:
@@ -112,7 +114,10 @@ def learn(
         optim.step()
         if target_update is not None:
             target_update.step()
-    return {f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+    losses = {
+        f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")
+    }
+    return losses | {"train/gradient_steps": steps}
 
 
 #: Its cars' world: the crossing task (:class:`~sharedspace.marl.train.Cars`).

@@ -154,6 +154,7 @@ class CarsLearner:
         stats = algo.learn(
             cfg, self.loss, self.optim, self.buffer, data, self.target_update, counters["frames"]
         )
+        counters["updates"] += int(stats.pop("train/gradient_steps"))
         return {k.removeprefix("train/"): v for k, v in stats.items()}
 
     def state_dict(self) -> dict[str, Any]:

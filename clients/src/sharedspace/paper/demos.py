@@ -173,10 +173,11 @@ def record_demos(
     spec: dict[str, Any] = TRAINING_VARIATIONS,
     log=print,
 ) -> tuple[TensorDict, dict[str, dict[str, Any]]]:
-    """Every source of ``recipe`` on the train split of ``cfg``'s world; returns the
+    """Every source of ``recipe`` on the train split of ``cfg``'s world (without the scenes
+    carved off as its validation split, :meth:`TrainConfig.training_pool`); returns the
     transitions (labelled with their ``source`` code, episodes numbered across sources) and
     the per-source summary of the header."""
-    pool = load_pool(cfg.scenario_pool or None)
+    pool = load_pool(cfg.pool_of("train") or None)  # the validation scenes left out
     names = [pool[i]["name"] for i in split_indices(pool, "train")]
     parts: list[TensorDict] = []
     sources: dict[str, dict[str, Any]] = {}

@@ -139,7 +139,7 @@ def play_variations(
     (scenario, variation), each record with its ``variation`` seed. Envs of whole variations
     (:func:`sharedspace.episodes.variation_batches`). ``fresh_policy()``, if given, makes the
     policy anew for each env (a driver that counts its steps)."""
-    pool = load_pool(cfg.scenario_pool or None)
+    pool = load_pool(cfg.pool_of(split) or None)
     n = len(split_indices(pool, split))
     episodes: list[dict[str, Any]] = []
     for seeds in variation_batches(n, variations, first):
@@ -211,7 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
         actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver
     result = evaluate_policy(cfg, actor, args.split, args.variations, args.variation_spec)
-    pool = load_pool(cfg.scenario_pool or None)
+    pool = load_pool(cfg.pool_of(args.split) or None)
     human = human_episodes(pool, split_indices(pool, args.split))
     rows = {name: result["summary"]}
     if args.variations <= 0:  # the record is the recorded scene's, not a variation's

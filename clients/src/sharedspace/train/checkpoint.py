@@ -26,7 +26,8 @@ from typing import Any
 
 import torch
 
-from sharedspace.train.networks import UnknownNetwork, canonical_network
+from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_network
+from sharedspace.train.registry import ALGORITHMS, get_algorithm
 
 __all__ = [
     "FORMAT",
@@ -80,11 +81,14 @@ def save_checkpoint(
     tmp.replace(path)
 
 
+#: What a checkpoint that names no algorithm was written by: the SAC trainer (format 1) or, with a
+#: crossing task's world, the multi-car MAPPO trainer of its first version.
+LEGACY_ALGORITHMS = {False: "sac", True: "mappo"}
+
+
 def plugin_modules(algorithm: str, network: str) -> list[str]:
     """The modules from outside this package that registered ``algorithm`` and ``network``:
     what a reader imports first, so that a plug-in's checkpoint loads with no other step."""
-    from sharedspace.train.networks import NETWORKS
-    from sharedspace.train.registry import ALGORITHMS
 
     found = []
     algo = ALGORITHMS.get(algorithm)
@@ -133,9 +137,9 @@ def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
     config = ckpt["config"]
     world = ckpt.get("world") or {}
     multi_car = isinstance(world.get("task"), dict)  # the crossing task's fields
-    algorithm = ckpt.get("algorithm") or config.get("algorithm") or "sac"
-    if multi_car and algorithm in ("sac", "ppo"):  # marl configs before algorithm was kept
-        algorithm = "mappo"
+    algorithm = ckpt.get("algorithm") or config.get("algorithm") or LEGACY_ALGORITHMS[multi_car]
+    if multi_car and not get_algorithm(algorithm).multi_car:
+        algorithm = LEGACY_ALGORITHMS[True]  # a multi-car config from before it kept its own
     ckpt["format"] = ckpt.get("format", 1)
     ckpt["algorithm"] = algorithm
     ckpt["world"] = world

@@ -329,10 +329,15 @@ class TrainConfig:
             return self.scenario_pool
         return str(validation_pool_file(self.scenario_pool, self.validation_scenes))
 
+    def pool_of(self, split: str) -> str:
+        """The pool file an env of ``split`` plays (its scenes' indices are that file's): the
+        training pool for ``train`` and ``validation``, ``scenario_pool`` for ``test``."""
+        return self.training_pool() if split in ("train", "validation") else self.scenario_pool
+
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split`` (``validation`` is the
         validation pool's ``test``), ``seed`` and scene ``variations``."""
-        pool = self.training_pool() if split in ("train", "validation") else self.scenario_pool
+        pool = self.pool_of(split)
         return EnvSpec(
             pool=pool or None,
             split="test" if split == "validation" else split,

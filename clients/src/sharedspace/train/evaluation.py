@@ -41,7 +41,7 @@ def evaluate_split(cfg: TrainConfig, actor, split: str = "test") -> dict[str, An
     per-episode records and the summary."""
     if split == "validation":
         return _evaluate_validation(cfg, actor)
-    pool = load_pool(cfg.scenario_pool or None)
+    pool = load_pool(cfg.pool_of(split) or None)
     n = len(split_indices(pool, split))
     env = make_env(cfg, split=split, num_envs=n, seed=cfg.seed, scenario_order="sequential")
     try:

@@ -34,6 +34,7 @@ from typing import Any
 from torch import nn
 
 from sharedspace.train.gcn import FeatureNorm, GraphEncoder
+from sharedspace.train.registry import ALGORITHMS
 
 __all__ = [
     "NETWORKS",
@@ -99,13 +100,15 @@ def get_network(name: str) -> Network:
 
 
 def network_label(name: str, algorithm: str = "") -> str:
-    """A row label: the paper's SAC label for ``algorithm`` ``sac`` (S-SAC, ...), else the
-    network's; a name no network has is returned as given."""
+    """A row label: the paper's label (S-SAC, ...) for an algorithm whose rows take them (SAC's,
+    the registry's ``paper_labels``), else the network's; a name no network has is returned as
+    given."""
     try:
         net = get_network(name)
     except UnknownNetwork:
         return name
-    return net.sac_label if algorithm == "sac" and net.sac_label else net.label
+    paper = algorithm in ALGORITHMS and ALGORITHMS[algorithm].paper_labels
+    return net.sac_label if paper and net.sac_label else net.label
 
 
 def _graph_encoder(graph: str | None) -> Callable[[Any, FeatureNorm | None], nn.Module]:

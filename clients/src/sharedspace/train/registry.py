@@ -53,6 +53,8 @@ class Algorithm:
     #: those it does not name take the one-car defaults (TrainConfig's BASE_DEFAULTS)
     defaults: dict[str, Any] = field(default_factory=dict)
     fused_networks_only: bool = False  # its update is written for the built-in encoders
+    centralized_critic: bool = False  # several cars: each car's critic sees every car (MAPPO)
+    paper_labels: bool = False  # its rows take the paper's labels (S-SAC, G-SAC-NoCog, ...)
     doc: str = ""  # one line: what it is
 
     def load(self) -> ModuleType:
@@ -128,6 +130,7 @@ register_algorithm(
             "save_buffer",
         ),
         fused_networks_only=True,
+        paper_labels=True,
         doc="the paper's SAC-GCN (Algorithm 2): replay buffer, two critics, learned temperature",
     )
 )
@@ -194,14 +197,15 @@ _MARL_SAC = (
     "share_params",
     "init_scale",
 )
-for _name, _family, _options, _more, _doc in (
-    ("mappo", "on", _MARL_PPO, {}, "MAPPO: PPO per car, a centralised critic over every car"),
-    ("ippo", "on", _MARL_PPO, {}, "IPPO: PPO per car, each critic over its own car"),
+for _name, _family, _options, _more, _central, _doc in (
+    ("mappo", "on", _MARL_PPO, {}, True, "MAPPO: PPO per car, a critic over every car"),
+    ("ippo", "on", _MARL_PPO, {}, False, "IPPO: PPO per car, each critic over its own car"),
     (
         "masac",
         "off",
         _MARL_SAC,
         {"utd_ratio": 0.02, "buffer_size": 100_000, "alpha_init": 0.01, "frames_per_batch": 2048},
+        True,
         "MASAC: SAC per car, centralised Q-critics",
     ),
 ):
@@ -213,6 +217,7 @@ for _name, _family, _options, _more, _doc in (
             family=_family,
             options=_options,
             defaults=_MULTI_CAR | _more,
+            centralized_critic=_central,
             doc=_doc,
         )
     )
