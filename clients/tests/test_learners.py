@@ -19,10 +19,11 @@ torch = pytest.importorskip("torch")
 import toy_plugin  # noqa: E402,F401 - registers toy_pg and toy_mean, as a user's import would
 
 from sharedspace.marl.task import CrossingTask  # noqa: E402
-from sharedspace.marl.train import train as marl_train  # noqa: E402
+from sharedspace.marl.train import Cars  # noqa: E402
 from sharedspace.train.checkpoint import read_checkpoint  # noqa: E402
 from sharedspace.train.config import ConfigError, TrainConfig, load_config  # noqa: E402
 from sharedspace.train.learners import load_checkpoint_actor, observation_example  # noqa: E402
+from sharedspace.train.loop import train as loop_train  # noqa: E402
 from sharedspace.train.registry import ALGORITHMS  # noqa: E402
 from sharedspace.train.train import main as train_main  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
@@ -95,27 +96,33 @@ def test_a_plugin_algorithm_and_network_train_one_car_and_the_bench_scores_them(
     assert got["sources"][0]["network"] == "toy_mean"
 
 
-def test_a_plugin_network_trains_the_crossing_cars_and_the_bench_scores_them(tmp_path, sim_server):
-    """MAPPO over each car's toy_mean encoding, a few iterations on the crossing task."""
+@pytest.mark.parametrize("algorithm", ["toy_pg", "mappo"])
+def test_a_plugin_trains_the_crossing_cars_and_the_bench_scores_them(
+    algorithm, tmp_path, sim_server
+):
+    """The toy network encodes each car, under the toy algorithm (``cars="any"``: the task
+    says how many) and under the built-in MAPPO; a few iterations on the crossing task."""
     cfg = TrainConfig(
-        algorithm="mappo",
+        algorithm=algorithm,
+        task="crossing",
         network="toy_mean",
         total_frames=128,
         num_envs=4,
-        rollout_steps=16,
-        minibatch_size=32,
         eval_interval=10_000,
         validation_scenes=3,
         server_endpoint=sim_server.endpoint,
         server_prefix=sim_server.prefix,
         log_dir=str(tmp_path),
+        **({"rollout_steps": 16, "minibatch_size": 32} if algorithm == "mappo" else {}),
     )
-    summary = marl_train(cfg, SMALL_CROSSING)
-    assert summary["car_episodes"] == 3 * 4  # 3 validation scenes x 4 cars
+    world = Cars(cfg, SMALL_CROSSING)
+    out = loop_train(cfg, world=world)
+    assert out["counters"]["frames"] == 128
+    assert world.summary["car_episodes"] == 3 * 4  # 3 validation scenes x 4 cars
     ckpt_path = tmp_path / "checkpoints" / "last.pt"
     ckpt = read_checkpoint(ckpt_path)
     assert (ckpt["algorithm"], ckpt["network"], ckpt["modules"]) == (
-        "mappo",
+        algorithm,
         "toy_mean",
         ["toy_plugin"],
     )
@@ -223,7 +230,7 @@ def test_one_command_line_runs_every_registered_algorithm_and_names_bad_ones(tmp
     """Every algorithm is registered once; the train command refuses an unknown one, a
     multi-car one on a one-car world and an option of another, naming what was wrong."""
     assert {"sac", "ppo", "mappo", "ippo", "masac", "toy_pg"} <= set(ALGORITHMS)
-    assert {a.cars for a in ALGORITHMS.values()} == {"one", "many"}
+    assert {a.cars for a in ALGORITHMS.values()} == {"one", "many", "any"}
     for args, field in [
         (["algorithm=dqn"], "algorithm"),
         (["algorithm=ppo", "utd_ratio=2"], "utd_ratio"),

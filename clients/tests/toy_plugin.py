@@ -3,8 +3,9 @@ algorithm, each registered once by importing this module. Nothing in ``sharedspa
 them (clients/tests/test_plugins.py trains and scores them).
 
 - ``toy_mean``: the masked mean of each observation's scaled node features, then one layer;
-- ``toy_pg``: a one-car policy gradient (REINFORCE with the batch's mean reward as baseline)
-  on the tanh-normal actor over any registered network, a learner of the one training loop.
+- ``toy_pg``: a policy gradient (REINFORCE with the batch's mean reward as baseline) on the
+  tanh-normal actor over any registered network, for one car per env or the crossing task's
+  cars (``cars="any"``), a learner of the one training loop.
 """
 
 from __future__ import annotations
@@ -14,11 +15,15 @@ from typing import Any
 import torch
 from torch import nn
 
+from sharedspace.marl.networks import GROUP
+from sharedspace.marl.networks import make_actor as make_car_actor
+from sharedspace.marl.train import Cars
 from sharedspace.names import FEATURE_SCALE, NODE_FEATURES
 from sharedspace.train.loop import OneCar
 from sharedspace.train.networks import Network, register_network
 from sharedspace.train.policy import make_encoder, make_gaussian_actor
 from sharedspace.train.registry import Algorithm, register_algorithm
+from sharedspace.worlds import training_task
 
 
 class MeanEncoder(nn.Module):
@@ -46,11 +51,16 @@ def make_actor(cfg, action_spec):
 
 
 class ToyLearner:
-    """The training loop's learner (sharedspace.train.loop): one gradient step per batch of
-    ``num_envs`` x 8 steps."""
+    """The training loop's learner (sharedspace.train.loop), one car per env or the crossing
+    task's cars: one gradient step of REINFORCE per batch of ``num_envs`` x 8 steps."""
 
-    def __init__(self, cfg, action_spec):
-        self.actor = make_actor(cfg, action_spec)
+    def __init__(self, cfg, world, env):
+        if isinstance(world, Cars):  # each car's policy, one set of weights for every car
+            self.actor = make_car_actor(cfg, world.task)
+            self.keys = (GROUP, "action"), ("next", GROUP, "reward")
+        else:
+            self.actor = make_actor(cfg, env.action_spec_unbatched)
+            self.keys = "action", ("next", "reward")
         self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr)
         self.batch_frames = cfg.num_envs * 8
         self.random_frames = 0
@@ -59,8 +69,9 @@ class ToyLearner:
         """Nothing before the first batch."""
 
     def step(self, data, counters: dict[str, Any]) -> dict[str, float]:
-        reward = data["next", "reward"].squeeze(-1)
-        log_prob = self.actor.get_dist(data).log_prob(data["action"])
+        action, reward = (data[k] for k in self.keys)
+        log_prob = self.actor.get_dist(data).log_prob(action)
+        reward = reward.reshape(log_prob.shape)
         loss = -(log_prob * (reward - reward.mean())).mean()
         self.optimizer.zero_grad()
         loss.backward()
@@ -79,16 +90,22 @@ class ToyLearner:
         self.optimizer.load_state_dict(ckpt["optimizers"]["adam"])
 
 
-#: One car per env, as the built-in one-car algorithms.
-make_world = OneCar
+def make_world(cfg):
+    """One car per env, or the crossing task's cars, as the task says."""
+    return Cars(cfg) if training_task(cfg.task or "paper").cars > 1 else OneCar(cfg)
 
 
 def make_learner(cfg, world, env) -> ToyLearner:
-    return ToyLearner(cfg, env.action_spec_unbatched)
+    return ToyLearner(cfg, world, env)
 
 
 register_algorithm(
     Algorithm(
-        "toy_pg", __name__, family="on", defaults={"num_envs": 4, "reward": "learner"}, doc="a toy"
+        "toy_pg",
+        __name__,
+        cars="any",
+        family="on",
+        defaults={"num_envs": 4, "reward": "learner"},
+        doc="a toy",
     )
 )

@@ -155,9 +155,10 @@ def _checkpoint(path: Path, task: Task, name: str) -> Policy:
         raise BenchError(f"policy {err}") from None
     algorithm = ckpt["algorithm"]
     try:
-        multi_car = get_algorithm(algorithm).multi_car
+        get_algorithm(algorithm)
     except UnknownAlgorithm as err:
         raise BenchError(f"policy {path}: {err} (register it before scoring)") from None
+    multi_car = isinstance(ckpt["world"].get("task"), dict)  # the crossing task's fields
     source = {"kind": "checkpoint", "path": str(path), "algorithm": algorithm}
     source["network"] = ckpt["network"]
     if multi_car:

@@ -138,7 +138,7 @@ def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
     world = ckpt.get("world") or {}
     multi_car = isinstance(world.get("task"), dict)  # the crossing task's fields
     algorithm = ckpt.get("algorithm") or config.get("algorithm") or LEGACY_ALGORITHMS[multi_car]
-    if multi_car and not get_algorithm(algorithm).multi_car:
+    if multi_car and not get_algorithm(algorithm).drives(cars=2):
         algorithm = LEGACY_ALGORITHMS[True]  # a multi-car config from before it kept its own
     ckpt["format"] = ckpt.get("format", 1)
     ckpt["algorithm"] = algorithm

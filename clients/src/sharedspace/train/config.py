@@ -224,7 +224,8 @@ class TrainConfig:
                 value = algo.defaults.get(name, BASE_DEFAULTS.get(name, AUTO_FIELDS[name]))
                 setattr(self, name, copy.deepcopy(value))
         try:
-            if self.network or not algo.multi_car:  # "": the multi-car flat observation
+            several = task is not None and task.cars > 1
+            if self.network or not several:  # "": the multi-car flat observation
                 self.network = canonical_network(self.network)
         except UnknownNetwork as err:
             raise ConfigError(str(err)) from None
@@ -243,7 +244,7 @@ class TrainConfig:
         """The task's training world into the fields it sets (a world field given another
         value than the task's is a :class:`ConfigError` naming it; the validation split's size
         may be set); returns the fields it filled in, with their defaults."""
-        if (task.cars > 1) != algo.multi_car:
+        if not algo.drives(task.cars):
             raise ConfigError(
                 f"task {task.name} has {task.cars} learning car(s) per scene and algorithm "
                 f"{algo.name} learns {'several' if algo.multi_car else 'one'}: one of "

@@ -46,7 +46,8 @@ class Algorithm:
 
     name: str  # what ``--set algorithm=...`` and a checkpoint call it
     module: str | ModuleType  # its implementation (import path, or the module itself)
-    cars: str = "one"  # "one": a car per env (python -m sharedspace.train); "many": a group
+    cars: str = "one"  # "one": a car per env; "many": the crossing task's cars; "any": either,
+    #                    as the task says
     family: str = "off"  # "on" (fresh batches, PPO) or "off" (a replay buffer, SAC)
     options: tuple[str, ...] = ()  # config fields only it reads (another's is refused)
     #: its values of the config fields left to the algorithm (TrainConfig's AUTO_FIELDS);
@@ -65,7 +66,12 @@ class Algorithm:
 
     @property
     def multi_car(self) -> bool:
+        """Several cars only (an algorithm of ``cars="any"`` goes by its task)."""
         return self.cars == "many"
+
+    def drives(self, cars: int) -> bool:
+        """Whether it learns in a world of ``cars`` learning cars per scene."""
+        return self.cars == "any" or (cars > 1) == (self.cars == "many")
 
 
 #: Every registered algorithm by name.
@@ -74,8 +80,8 @@ ALGORITHMS: dict[str, Algorithm] = {}
 
 def register_algorithm(algorithm: Algorithm) -> Algorithm:
     """Registers ``algorithm``; a name taken by another module is refused."""
-    if algorithm.cars not in ("one", "many"):
-        raise ValueError(f"algorithm {algorithm.name}: cars must be 'one' or 'many'")
+    if algorithm.cars not in ("one", "many", "any"):
+        raise ValueError(f"algorithm {algorithm.name}: cars must be 'one', 'many' or 'any'")
     if algorithm.family not in ("on", "off"):
         raise ValueError(f"algorithm {algorithm.name}: family must be 'on' or 'off'")
     old = ALGORITHMS.get(algorithm.name)
@@ -87,7 +93,7 @@ def register_algorithm(algorithm: Algorithm) -> Algorithm:
 
 def algorithm_names(cars: str | None = None) -> tuple[str, ...]:
     """The registered names (of ``cars`` "one" or "many" only, if given)."""
-    return tuple(n for n, a in ALGORITHMS.items() if cars is None or a.cars == cars)
+    return tuple(n for n, a in ALGORITHMS.items() if cars is None or a.cars in (cars, "any"))
 
 
 def get_algorithm(name: str, cars: str | None = None) -> Algorithm:
@@ -96,7 +102,7 @@ def get_algorithm(name: str, cars: str | None = None) -> Algorithm:
     if name not in ALGORITHMS:
         raise UnknownAlgorithm(f"algorithm must be one of {', '.join(ALGORITHMS)}; not {name!r}")
     algo = ALGORITHMS[name]
-    if cars is not None and algo.cars != cars:
+    if cars is not None and algo.cars not in (cars, "any"):
         where = "several cars" if algo.multi_car else "one car"
         raise UnknownAlgorithm(
             f"algorithm {name} learns {where} per env; this world needs one of "
