@@ -48,7 +48,9 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
 def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     ap = command_parser("python -m sharedspace.train", __doc__)
     ap.add_argument("--config", default=None, help="TOML or JSON file of config fields")
-    add_overrides_argument(ap, "config overrides: KEY=VALUE (every key: docs/USAGE.md)")
+    add_overrides_argument(
+        ap, "config overrides: KEY=VALUE (every key, a doc line each: train/config.py)"
+    )
     ap.add_argument(
         "--resume",
         nargs="?",
