@@ -49,16 +49,22 @@ def _score_in_a_fresh_process(task_expr: str, ckpt: Path) -> dict:
             "    'plugin': 'toy_plugin' in sys.modules}))",
         ]
     )
-    env = os.environ | {"PYTHONPATH": str(TESTS)}
+    return _python(script, env=os.environ | {"PYTHONPATH": str(TESTS)})
+
+
+def _python(script: str, *args: str, env: dict[str, str]) -> dict:
+    """Runs ``script`` in a fresh interpreter (from the repository's root); its last line of
+    output, as JSON."""
     out = subprocess.run(
-        [sys.executable, "-c", script],
+        [sys.executable, "-c", script, *args],
         capture_output=True,
         text=True,
         timeout=600,
         env=env,
-        check=True,
+        check=False,
         cwd=REPO,
     )
+    assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -198,17 +204,7 @@ def test_every_shipped_checkpoint_reads_and_its_actor_loads_with_no_server(tmp_p
     )
     env = os.environ | {"SHAREDSPACE_SIM_SERVER": str(tmp_path / "no-such-binary")}
     env["PATH"] = "/usr/bin:/bin"
-    out = subprocess.run(
-        [sys.executable, "-c", script, *map(str, shipped)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env=env,
-        cwd=REPO,
-        check=False,
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    got = json.loads(out.stdout.strip().splitlines()[-1])
+    got = _python(script, *map(str, shipped), env=env)
     assert got["servers"] == 0
     assert len(got["kinds"]) == len(shipped)
     assert "one" in got["kinds"].values() and "many" in got["kinds"].values()

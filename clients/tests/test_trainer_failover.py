@@ -11,7 +11,11 @@ import time
 
 import pytest
 from conftest import free_port, sim_server_binary, unique_prefix, validation_pools_cfg, wait_until
-from test_scale_out import WAIT, Procs, _wait_listening
+from test_scale_out import (
+    WAIT,
+    _wait_listening,
+    procs,  # noqa: F401 - the child processes, killed at teardown
+)
 
 from sharedspace.client import SimClient
 
@@ -21,15 +25,6 @@ TOTAL = ITERATION * 20
 KILL_AFTER = ITERATION * 6
 
 
-@pytest.fixture
-def procs(tmp_path):
-    ps = Procs(tmp_path)
-    try:
-        yield ps
-    finally:
-        ps.kill_all()
-
-
 def _frames_logged(path) -> int:
     if not path.exists():
         return 0
@@ -37,7 +32,7 @@ def _frames_logged(path) -> int:
     return max((int(ln[0]) for ln in lines if len(ln) == 4 and ln[0].isdigit()), default=0)
 
 
-def test_a_ppo_run_survives_the_sigkill_of_its_server(procs, tmp_path):
+def test_a_ppo_run_survives_the_sigkill_of_its_server(procs, tmp_path):  # noqa: F811
     binary = sim_server_binary()
     if binary is None:
         pytest.skip("sim-server binary not found: set SHAREDSPACE_SIM_SERVER or build it")

@@ -9,8 +9,6 @@ Every multi-car algorithm's module has the same functions: ``make_critic``, ``ma
 
 from __future__ import annotations
 
-import sys
-
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
@@ -22,7 +20,7 @@ from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
 from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
 from sharedspace.marl.task import CrossingTask
-from sharedspace.marl.train import Cars, CarsLearner
+from sharedspace.marl.train import Cars, learner_of
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.registry import get_algorithm
 
@@ -112,10 +110,5 @@ def learn(
     return losses | {"train/gradient_steps": steps}
 
 
-#: Its cars' world: the crossing task (:class:`~sharedspace.marl.train.Cars`).
-make_world = Cars
-
-
-def make_learner(cfg: TrainConfig, world: Cars, env) -> CarsLearner:
-    """The learner of the training loop, with this module's critic, loss and update."""
-    return CarsLearner(cfg, world, sys.modules[__name__])
+#: The training loop's world and learner: the crossing task's cars, this module's update.
+make_world, make_learner = Cars, learner_of(__name__)

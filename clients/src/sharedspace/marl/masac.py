@@ -12,8 +12,6 @@ within one batch)."""
 
 from __future__ import annotations
 
-import sys
-
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
@@ -25,7 +23,7 @@ from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
 from sharedspace.marl.networks import ACTION, GROUP, OBS, agents_mlp, observation
 from sharedspace.marl.task import CrossingTask
-from sharedspace.marl.train import Cars, CarsLearner
+from sharedspace.marl.train import Cars, learner_of
 from sharedspace.train.config import TrainConfig
 
 __all__ = [
@@ -120,10 +118,5 @@ def learn(
     return losses | {"train/gradient_steps": steps}
 
 
-#: Its cars' world: the crossing task (:class:`~sharedspace.marl.train.Cars`).
-make_world = Cars
-
-
-def make_learner(cfg: TrainConfig, world: Cars, env) -> CarsLearner:
-    """The learner of the training loop, with this module's critic, loss and update."""
-    return CarsLearner(cfg, world, sys.modules[__name__])
+#: The training loop's world and learner: the crossing task's cars, this module's update.
+make_world, make_learner = Cars, learner_of(__name__)

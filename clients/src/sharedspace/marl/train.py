@@ -42,7 +42,7 @@ from sharedspace.train.envs import ResidualAction
 from sharedspace.train.loop import train as train_loop
 from sharedspace.train.registry import get_algorithm
 
-__all__ = ["Cars", "CarsLearner", "batch_outcomes", "train", "main"]
+__all__ = ["Cars", "CarsLearner", "batch_outcomes", "learner_of", "train", "main"]
 
 
 def batch_outcomes(data: TensorDictBase) -> dict[str, float]:
@@ -169,6 +169,16 @@ class CarsLearner:
         self.optim.load_state_dict(ckpt["optimizers"]["adam"])
         if "torch_rng" in ckpt:
             torch.set_rng_state(ckpt["torch_rng"])
+
+
+def learner_of(module_name: str):
+    """``make_learner`` of a multi-car algorithm's module: a :class:`CarsLearner` over that
+    module's critic, loss and update."""
+
+    def make_learner(cfg: TrainConfig, world: Cars, env) -> CarsLearner:
+        return CarsLearner(cfg, world, sys.modules[module_name])
+
+    return make_learner
 
 
 def train(

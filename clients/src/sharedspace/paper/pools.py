@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import random
 from pathlib import Path
 from typing import Any
 
+from sharedspace import worlds
 from sharedspace.pool import DEFAULT_POOL_PATH
 
 __all__ = ["paper_plus_general", "record_ids", "validation_pool"]
@@ -66,26 +66,10 @@ def paper_plus_general(
 def validation_pool(
     paper: dict[str, Any], n: int, seed: int = 0, name: str | None = None
 ) -> dict[str, Any]:
-    """A pool file: ``paper``'s train scenes, of which ``n`` (chosen by ``seed``, in pool order)
-    are in the ``test`` split as validation scenes; ``paper``'s test scenes are left out. It keeps
-    ``paper``'s vehicle model and is named ``<paper's name>-validation`` unless ``name``."""
-    train = [s for s in paper["scenarios"] if s["split"] == "train"]
-    if not 0 < n < len(train):
-        raise ValueError(f"--validation: between 1 and {len(train) - 1} scenes, not {n}")
-    held = {s["name"] for s in random.Random(seed).sample(train, n)}
-    scenes = [{**s, "split": "test" if s["name"] in held else "train"} for s in train]
-    kept = {k: paper[k] for k in ("vehicle_model",) if k in paper}  # the world's cars react alike
-    return {
-        **kept,
-        "version": paper["version"],
-        "name": name or f"{paper['name']}-validation",
-        "provenance": (
-            f"{paper['name']}'s {len(train)} train scenes, {n} of them (random.Random({seed})"
-            ".sample) as the validation split `test`; its test scenes left out "
-            "(sharedspace.paper.pools.validation_pool)"
-        ),
-        "scenarios": scenes,
-    }
+    """The trainer's validation pool (:func:`sharedspace.worlds.validation_pool`: ``n`` of
+    ``paper``'s train scenes, chosen by ``seed``, as the ``test`` split; its test scenes left
+    out; its vehicle model kept), named ``<paper's name>-validation`` unless ``name``."""
+    return worlds.validation_pool(paper, n, seed) | {"name": name or f"{paper['name']}-validation"}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -125,36 +125,20 @@ def _graph_encoder(graph: str | None) -> Callable[[Any, FeatureNorm | None], nn.
     return make
 
 
-register_network(
-    Network(
-        "gcn_risk",
-        "GCN-Cog",
-        _graph_encoder("risk"),
-        aliases=("g_sac_cog", "gcn_cog"),
-        sac_label="G-SAC-Cog",
-        fused_sac=True,
-        doc="GCN over the risk graph psi (1 + lambda u): cognition and physical risk",
+#: The paper's three (Section V.B): name, label, graph, old names, the paper's SAC label, doc.
+for _name, _label, _graph, _aliases, _paper, _doc in (
+    ("gcn_risk", "GCN-Cog", "risk", ("g_sac_cog", "gcn_cog"), "G-SAC-Cog", "GCN, risk graph"),
+    ("gcn_uniform", "GCN-NoCog", "uniform", ("g_sac_nocog", "gcn_nocog"), "G-SAC-NoCog", "GCN"),
+    ("mlp", "MLP", None, ("s_sac",), "S-SAC", "no graph: the nodes flattened into an MLP"),
+):
+    register_network(
+        Network(
+            _name,
+            _label,
+            _graph_encoder(_graph),
+            aliases=_aliases,
+            sac_label=_paper,
+            fused_sac=True,
+            doc=_doc,
+        )
     )
-)
-register_network(
-    Network(
-        "gcn_uniform",
-        "GCN-NoCog",
-        _graph_encoder("uniform"),
-        aliases=("g_sac_nocog", "gcn_nocog"),
-        sac_label="G-SAC-NoCog",
-        fused_sac=True,
-        doc="the same GCN over the uniform graph of present nodes",
-    )
-)
-register_network(
-    Network(
-        "mlp",
-        "MLP",
-        _graph_encoder(None),
-        aliases=("s_sac",),
-        sac_label="S-SAC",
-        fused_sac=True,
-        doc="no graph: an MLP over the padded, masked node features flattened",
-    )
-)
