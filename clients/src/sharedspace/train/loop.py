@@ -43,7 +43,7 @@ from sharedspace.train.metrics import (
 from sharedspace.train.registry import get_algorithm
 from sharedspace.train.run import next_multiple, seed_everything, start_run
 
-__all__ = ["Clock", "OneCar", "train"]
+__all__ = ["Clock", "OneCar", "make_collector", "train"]
 
 
 def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, Any]:
@@ -73,16 +73,7 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
         return {"counters": counters, "eval": last_eval, "timing": clock.timing}
 
     # ---- collect, learn, log, score, checkpoint
-    collector = Collector(
-        env,
-        learner.actor,
-        frames_per_batch=learner.batch_frames,
-        total_frames=remaining,
-        init_random_frames=max(learner.random_frames - counters["frames"], 0),
-        device=cfg.device,
-        env_device="cpu",
-        auto_register_policy_transforms=False,  # the policy is not recurrent
-    )
+    collector = make_collector(cfg, env, learner, remaining, counters["frames"])
     next_eval = next_multiple(counters["frames"], cfg.eval_interval)
     next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
     pbar = tqdm.tqdm(
@@ -128,6 +119,22 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
     if not env.is_closed:
         env.close()
     return {"counters": counters, "eval": last_eval, "timing": clock.timing}
+
+
+def make_collector(cfg: TrainConfig, env, learner, remaining: int, frames: int) -> Collector:
+    """TorchRL's ``Collector`` of the learner's batches over the ``remaining`` frames (uniform
+    random actions first for an off-policy learner's warm-up, ``frames`` into the run);
+    done sub-envs are reset through ``step_and_maybe_reset``."""
+    return Collector(
+        env,
+        learner.actor,
+        frames_per_batch=learner.batch_frames,
+        total_frames=remaining,
+        init_random_frames=max(learner.random_frames - frames, 0),
+        device=cfg.device,
+        env_device="cpu",
+        auto_register_policy_transforms=False,  # the policy is not recurrent
+    )
 
 
 def _evaluate(world, actor, clock: Clock, logger: MetricLogger, frames: int) -> dict[str, Any]:
