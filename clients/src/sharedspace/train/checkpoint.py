@@ -3,6 +3,8 @@ what a benchmark needs to know what it is scoring.
 
 A checkpoint is a ``torch.save`` dict with:
 
+- ``specs``: what an actor is built from with no env (nodes, features, the action's shape and
+  bounds);
 - ``modules``: the plug-in modules (outside this package) that registered its algorithm and
   network, imported by :func:`read_checkpoint` before anything else;
 - ``format`` (:data:`FORMAT`), ``algorithm`` (``sac``, ``ppo``, ``mappo``, ``ippo``,
@@ -26,6 +28,7 @@ from typing import Any
 
 import torch
 
+from sharedspace.names import NODE_FEATURES
 from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_network
 from sharedspace.train.registry import ALGORITHMS, get_algorithm
 
@@ -63,6 +66,7 @@ def save_checkpoint(
         "format": FORMAT,
         "algorithm": cfg.algorithm,
         "modules": plugin_modules(cfg.algorithm, network or getattr(cfg, "network", "")),
+        "specs": actor_specs(cfg),
         "network": network or getattr(cfg, "network", ""),
         "world": world if world is not None else cfg.world(),
         "config": cfg.to_dict(),
@@ -84,6 +88,16 @@ def save_checkpoint(
 #: What a checkpoint that names no algorithm was written by: the SAC trainer (format 1) or, with a
 #: crossing task's world, the multi-car MAPPO trainer of its first version.
 LEGACY_ALGORITHMS = {False: "sac", True: "mappo"}
+
+
+def actor_specs(cfg) -> dict[str, Any]:
+    """What an actor needs to be built with no env at hand: each car's observation (nodes,
+    features per node) and action (its shape and bounds, ENV_CONTRACT.md)."""
+    return {
+        "max_agents": int(cfg.max_agents),
+        "node_features": NODE_FEATURES,
+        "action": {"shape": [2], "low": -1.0, "high": 1.0},
+    }
 
 
 def plugin_modules(algorithm: str, network: str) -> list[str]:

@@ -57,7 +57,9 @@ def load_checkpoint_actor(
     ckpt = path if isinstance(path, dict) else read_checkpoint(path, device)
     cfg = apply_overrides(TrainConfig.from_dict(ckpt["config"]), list(overrides))
     cfg = apply_overrides(cfg, {"device": device})
-    actor = learner(cfg.algorithm).make_actor(cfg, ACTION_SPEC)
+    action = ckpt.get("specs", {}).get("action")  # checkpoints before the specs: the contract's
+    spec = ACTION_SPEC if action is None else Bounded(**action, dtype=torch.float32)
+    actor = learner(cfg.algorithm).make_actor(cfg, spec)
     with torch.no_grad():
         actor(observation_example(cfg.max_agents).to(device))  # materialise lazy shapes, if any
     actor.load_state_dict(ckpt["actor"])
