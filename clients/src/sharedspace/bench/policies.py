@@ -155,10 +155,11 @@ def _checkpoint(path: Path, task: Task, name: str) -> Policy:
         raise BenchError(f"policy {err}") from None
     algorithm = ckpt["algorithm"]
     try:
-        get_algorithm(algorithm)
+        algo = get_algorithm(algorithm)
     except UnknownAlgorithm as err:
         raise BenchError(f"policy {path}: {err} (register it before scoring)") from None
-    multi_car = isinstance(ckpt["world"].get("task"), dict)  # the crossing task's fields
+    # several cars: an algorithm of several only, or one of any whose world is the crossing task
+    multi_car = algo.multi_car or isinstance(ckpt["world"].get("task"), dict)
     source = {"kind": "checkpoint", "path": str(path), "algorithm": algorithm}
     source["network"] = ckpt["network"]
     if multi_car:
