@@ -17,6 +17,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import toy_plugin  # noqa: E402,F401 - registers toy_pg and toy_mean, as a user's import would
+from conftest import unique_prefix  # noqa: E402
 
 from sharedspace.marl.task import CrossingTask  # noqa: E402
 from sharedspace.marl.train import Cars  # noqa: E402
@@ -248,3 +249,22 @@ def test_a_shipped_multi_car_checkpoint_scores_as_published():
     assert found
     policy = make_policy(found[0], dataclasses.replace(TASKS["crossing"]))
     assert policy.source["algorithm"] in ("mappo", "ippo", "masac")
+
+
+def test_a_remote_server_without_the_validation_pool_is_named(server_factory, tmp_path):
+    """The validation split is a pool file of its own: a server that does not serve it is a
+    ConfigError that says which file to serve, or to score on the test split instead."""
+    server = server_factory(unique_prefix(), "noval")  # the embedded pools only
+    cfg = load_config(
+        None,
+        [
+            "algorithm=ppo",
+            "num_envs=2",
+            "total_frames=32",
+            f"server_endpoint={server.endpoint}",
+            f"server_prefix={server.prefix}",
+            f"log_dir={tmp_path}",
+        ],
+    )
+    with pytest.raises(ConfigError, match="does not serve the validation pool .*eval_split=test"):
+        train(cfg)

@@ -10,6 +10,8 @@ from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from sharedspace.scripted import SCRIPTED
+from sharedspace.train.config import ConfigError
+from sharedspace.wire.errors import BadRequest
 
 __all__ = ["ResidualAction", "make_env"]
 
@@ -33,14 +35,25 @@ def make_env(
     policy's action is a residual over that script (:class:`ResidualAction`)."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
-    env = RemoteBatchedEnv(
-        cfg.env_spec(split, cfg.seed if seed is None else seed, variations),
-        num_envs or cfg.num_envs,
-        scenario_order=scenario_order,
-        scenarios=scenarios,
-        variation_seeds=variation_seeds,
-        client=cfg.connection(),
-    )
+    spec = cfg.env_spec(split, cfg.seed if seed is None else seed, variations)
+    try:
+        env = RemoteBatchedEnv(
+            spec,
+            num_envs or cfg.num_envs,
+            scenario_order=scenario_order,
+            scenarios=scenarios,
+            variation_seeds=variation_seeds,
+            client=cfg.connection(),
+        )
+    except BadRequest as err:
+        if "unknown pool" in str(err) and spec.pool == cfg.training_pool() != cfg.scenario_pool:
+            raise ConfigError(
+                f"eval_split=validation: the server does not serve the validation pool carved "
+                f"from the train scenes ({spec.pool}); serve it beside the others (`sim-server "
+                f"serve --cfg 'pools:[..., \"{spec.pool}\"]'`, docs/ARCHITECTURE.md "
+                '"Validation, not test"), or set eval_split=test'
+            ) from err
+        raise
     if not cfg.base_driver:
         return env
     return TransformedEnv(env, ResidualAction(cfg.base_driver, scale=cfg.residual_scale))
