@@ -27,18 +27,6 @@ ACTION = (GROUP, "action")
 CAR_KEYS = [(GROUP, "features"), (GROUP, "adjacency"), (GROUP, "mask")]
 
 
-class EncodedCars(nn.Module):
-    """A registered network's encoder applied to every car's observation ``[*, A, M, F]``:
-    ``[*, A, out_features]``."""
-
-    def __init__(self, encoder: nn.Module):
-        super().__init__()
-        self.encoder = encoder
-
-    def forward(self, features, adjacency, mask):
-        return self.encoder(features, adjacency, mask)
-
-
 def observation(cfg: TrainConfig | None = None, task: CrossingTask | None = None):
     """Each car's observation as one vector at :data:`OBS`: flattened
     (:class:`~sharedspace.marl.task.CarObservation`), or ``cfg.network``'s encoding."""
@@ -47,7 +35,8 @@ def observation(cfg: TrainConfig | None = None, task: CrossingTask | None = None
             CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
         )
     encoder = get_network(cfg.network).make_encoder(_encoder_options(cfg, task), None)
-    return TensorDictModule(EncodedCars(encoder), in_keys=CAR_KEYS, out_keys=[OBS])
+    # an encoder maps [*, M, F] to [*, D]: over the group, every car's [*, A, M, F] at once
+    return TensorDictModule(encoder, in_keys=CAR_KEYS, out_keys=[OBS])
 
 
 def _encoder_options(cfg: TrainConfig, task: CrossingTask):

@@ -62,12 +62,13 @@ def save_checkpoint(
     ``learner`` has ``state_dict()`` and ``optimizer_state()``; ``buffer`` (a replay buffer) is
     written beside the checkpoint if given."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    network = network or getattr(cfg, "network", "")
     state = {
         "format": FORMAT,
         "algorithm": cfg.algorithm,
-        "modules": plugin_modules(cfg.algorithm, network or getattr(cfg, "network", "")),
+        "modules": plugin_modules(cfg.algorithm, network),
         "specs": actor_specs(cfg),
-        "network": network or getattr(cfg, "network", ""),
+        "network": network,
         "world": world if world is not None else cfg.world(),
         "config": cfg.to_dict(),
         "actor": actor.state_dict(),
@@ -103,7 +104,6 @@ def actor_specs(cfg) -> dict[str, Any]:
 def plugin_modules(algorithm: str, network: str) -> list[str]:
     """The modules from outside this package that registered ``algorithm`` and ``network``:
     what a reader imports first, so that a plug-in's checkpoint loads with no other step."""
-
     found = []
     algo = ALGORITHMS.get(algorithm)
     if algo is not None:

@@ -85,15 +85,6 @@ BASE_DEFAULTS: dict[str, Any] = {
     "alpha_init": 1.0,
     "hidden_sizes": [256, 256],
 }
-#: The fields ``task=`` sets (:class:`sharedspace.worlds.TrainingTask`).
-TASK_FIELDS = (
-    "scenario_pool",
-    "server_params",
-    "max_agents",
-    "variations",
-    "validation_scenes",
-    "validation_variations",
-)
 
 
 @dataclass
@@ -260,13 +251,7 @@ class TrainConfig:
         }
         filled = {}
         for name, value in values.items():
-            default = TrainConfig.__dataclass_fields__[name]
-            unset = (
-                default.default_factory()
-                if callable(default.default_factory)
-                else (default.default)
-            )
-            given = getattr(self, name)
+            unset, given = declared_default(self, name), getattr(self, name)
             if given == unset or given == value:
                 setattr(self, name, value)
                 filled[name] = unset
@@ -407,21 +392,23 @@ class TrainConfig:
         return self.to_dict() | getattr(self, "_auto", {})
 
 
+def declared_default(cfg, name: str) -> Any:
+    """The default a config dataclass declares for its field ``name`` (a fresh copy)."""
+    f = type(cfg).__dataclass_fields__[name]
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
 def check_algorithm_options(cfg) -> None:
     """An option that only other algorithms than ``cfg.algorithm`` read (their registered
     ``options``), set away from its default, is a
     :class:`ConfigError` naming it: it would silently do nothing."""
-    defaults = {f.name: f for f in dataclasses.fields(cfg)}
+    fields = {f.name for f in dataclasses.fields(cfg)}
     mine = get_algorithm(cfg.algorithm)
     for algo in ALGORITHMS.values():
         for name in algo.options:
-            if name in mine.options or name not in defaults:
+            if name in mine.options or name not in fields:
                 continue
-            f = defaults[name]
-            unset = (
-                f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-            )
-            if getattr(cfg, name) != unset:
+            if getattr(cfg, name) != declared_default(cfg, name):
                 owners = [a.name for a in ALGORITHMS.values() if name in a.options]
                 raise ConfigError(
                     f"{name} is an option of algorithm={'|'.join(owners)}, and this config's "

@@ -22,6 +22,7 @@ returns the counters, the last scoring and where the wall time went (``timing``)
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -142,8 +143,8 @@ def _evaluate(world, actor, clock: Clock, logger: MetricLogger, frames: int) -> 
     with the training wall time so far."""
     with clock.evaluating():
         summary = world.evaluate(actor) | {"frames": frames}
-    row = {f"eval/{k}": v for k, v in summary.items() if isinstance(v, int | float)}
-    row.pop("eval/frames", None)
+    numbers = {k: v for k, v in summary.items() if isinstance(v, int | float) and k != "frames"}
+    row = {f"eval/{k}": v for k, v in numbers.items()}
     logger.log(row | {"eval/train_wall_s": clock.train_s}, frames)
     return summary
 
@@ -239,6 +240,4 @@ class Clock:
 
 def torch_threads(n: int) -> None:
     """Sets torch's CPU threads (0: every core)."""
-    import os
-
     torch.set_num_threads(n or os.cpu_count() or 1)
