@@ -268,3 +268,39 @@ def test_a_remote_server_without_the_validation_pool_is_named(server_factory, tm
     )
     with pytest.raises(ConfigError, match="does not serve the validation pool .*eval_split=test"):
         train(cfg)
+
+
+def test_every_refusal_of_the_registries_and_the_reader_names_what_was_wrong(tmp_path):
+    """Registering a taken name or an unknown kind, SAC over an encoder its fused update does
+    not know, a checkpoint whose plug-in is gone or whose algorithm nobody registered, a
+    validation carve of a missing pool file: each refused, naming it."""
+    from sharedspace.bench import BenchError, get_task
+    from sharedspace.bench.policies import make_policy
+    from sharedspace.train.checkpoint import NotACheckpoint
+    from sharedspace.train.networks import Network, register_network
+    from sharedspace.train.registry import Algorithm, register_algorithm
+    from sharedspace.worlds import validation_pool_file
+
+    with pytest.raises(ValueError, match="'s_sac' is taken by network 'mlp'"):
+        register_network(Network("other", "Other", lambda cfg, norm: None, aliases=("s_sac",)))
+    with pytest.raises(ValueError, match="algorithm name 'ppo' is taken"):
+        register_algorithm(Algorithm("ppo", "somewhere.else"))
+    with pytest.raises(ValueError, match="cars must be 'one', 'many' or 'any'"):
+        register_algorithm(Algorithm("toy_bad", "toy_plugin", cars="some"))
+    with pytest.raises(ValueError, match="family must be 'on' or 'off'"):
+        register_algorithm(Algorithm("toy_bad", "toy_plugin", family="both"))
+    with pytest.raises(ConfigError, match="network toy_mean: algorithm sac's fused update"):
+        TrainConfig(algorithm="sac", network="toy_mean")
+
+    saved = read_checkpoint(REPO / "results" / "bench" / "policies" / "crowd-residual-s_sac-s0.pt")
+    gone = tmp_path / "gone.pt"
+    torch.save(saved | {"modules": ["no_such_plugin_module"]}, gone)
+    with pytest.raises(NotACheckpoint, match="plug-in learner \\(no_such_plugin_module\\)"):
+        read_checkpoint(gone)
+    nobody = tmp_path / "nobody.pt"
+    torch.save(saved | {"algorithm": "nobodys"}, nobody)
+    with pytest.raises(BenchError, match="not 'nobodys' \\(register it before scoring\\)"):
+        make_policy(nobody, get_task("crowd"))
+
+    with pytest.raises(FileNotFoundError, match="carved from a pool file"):
+        validation_pool_file(str(tmp_path / "no-pool.json"), 12)
