@@ -366,3 +366,43 @@ def test_the_viewers_router_dies_with_it(sig):
     finally:
         if viewer.poll() is None:
             viewer.kill()
+
+
+def test_the_camera_follows_the_ego_to_the_end_of_its_episode(server_factory, browser):
+    """The car, driven off its route at full throttle and full turn until the horizon (a test
+    scene where that hits nobody: 39 steps), ends its episode far outside the picture the
+    episode opened with; the page, following it, shows it inside the canvas at the last step."""
+    server = server_factory(unique_prefix(), "view1")
+    client = SimClient(server.endpoint, server.prefix, timeout=5.0)
+    env_id = client.create(1, max_agents=8, split="test")["env_ids"][0]
+    client.reset(env_id, seed=0, scenario="hbs-car1387")
+    where = """
+        const v = window.viewer, c = document.getElementById('scene');
+        if (!v.frame || !v.view) return null;
+        const a = v.frame.agents.find((a) => a.external);
+        if (!a) return null;
+        return {step: v.frame.step, x: a.x, y: a.y, scale: v.view.scale, w: c.width, h: c.height,
+                px: c.width / 2 + (a.x - v.view.cx) * v.view.scale,
+                py: c.height / 2 - (a.y - v.view.cy) * v.view.scale};
+        """
+    try:
+        with Viewer(server.endpoint, server.prefix) as viewer:
+            browser.get(f"http://127.0.0.1:{viewer.http_port}/index.html")
+            _wait(browser, lambda s: s["env"] == env_id, 30, f"env {env_id}")
+            client.step(env_id, np.zeros((1, 2), np.float32))
+            _wait(browser, lambda s: s["step"] == "1", 20, "step 1")
+            start = browser.execute_script(where)
+            done, step = False, 1
+            while not done:
+                reply = client.step(env_id, np.array([[1.0, 1.0]], np.float32))
+                done = bool(reply["terminated"][0] or reply["truncated"][0])
+                step += 1
+                time.sleep(0.3)  # slower than the page's frame rate: it gets every state
+            last = _wait(browser, lambda s: s["step"] == str(step), 20, f"the last step {step}")
+            end = browser.execute_script(where)
+            assert int(last["step"]) == end["step"] == step
+            moved = np.hypot(end["x"] - start["x"], end["y"] - start["y"]) * start["scale"]
+            assert moved > max(start["w"], start["h"]) / 2, (start, end)  # out of the first fit
+            assert 0 <= end["px"] <= end["w"] and 0 <= end["py"] <= end["h"], end
+    finally:
+        client.shutdown()

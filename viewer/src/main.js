@@ -6,7 +6,8 @@
 //
 // URL parameters: ws (the plugin's WebSocket; default: what viewer-config.json of the server
 // that serves the page says, else ws://<this host>:10000), prefix (default likewise, else
-// sharedspace), env (an env id to follow at once), k (strongest edges drawn per agent, default 2).
+// sharedspace), env (an env id to follow at once), k (strongest edges drawn per agent, default 2),
+// follow (0: the camera stays where the episode's fit put it; default: it follows the car).
 import { Config, Session } from "@eclipse-zenoh/zenoh-ts";
 import { decodePayload, readRiskGraph, readStates, strongestEdges } from "./wire.js";
 import { drawFrame, fitView, toWorld } from "./draw.js";
@@ -45,6 +46,9 @@ const state = {
   episode: null,
   view: null,
   userMoved: false,
+  // The camera keeps the followed car at the centre (the ego, or a vehicle clicked on) so that a
+  // car leaving its recorded path stays in the picture; a drag of the scene stops that.
+  follow: params.get("follow") !== "0",
   paused: false,
   autoFollow: !params.get("env"), // switch to another env when the followed one closes
   selected: null,
@@ -183,10 +187,21 @@ function render() {
   }
 }
 
+/** The car the camera follows: the selected vehicle, else the ego (the first external one), else
+ * the first vehicle; null when there is none. */
+function followedCar(frame) {
+  const cars = frame.agents.filter((a) => a.kind === "vehicle");
+  return (
+    cars.find((a) => a.id === state.selected) || cars.find((a) => a.external) || cars[0] || null
+  );
+}
+
 function draw() {
   const { width, height } = canvas;
   const frame = state.frame;
   if (!state.view) state.view = fitView(frame, state.trails, width, height);
+  const car = state.follow ? followedCar(frame) : null;
+  if (car) [state.view.cx, state.view.cy] = [car.x, car.y];
   const all = state.graph && state.graph.episode === frame.episode ? state.graph.edges : [];
   const present = new Set(frame.agents.map((a) => a.id));
   const live = all.filter((e) => present.has(e.src) && present.has(e.dst));
@@ -255,6 +270,12 @@ function agentAt(px, py) {
   return best;
 }
 
+function setFollow(on) {
+  state.follow = on;
+  $("follow").checked = on;
+  requestRender();
+}
+
 function setupInteraction() {
   let drag = null;
   const px = (ev) => [ev.offsetX * devicePixelRatio, ev.offsetY * devicePixelRatio];
@@ -291,6 +312,7 @@ function setupInteraction() {
       state.view.cy += dy / state.view.scale;
       drag.start = [x, y];
       state.userMoved = true;
+      setFollow(false);
       requestRender();
     }
     const tip = $("tooltip");
@@ -312,6 +334,8 @@ function setupInteraction() {
     state.userMoved = false;
     requestRender();
   });
+  $("follow").checked = state.follow;
+  $("follow").addEventListener("change", (ev) => setFollow(ev.target.checked));
   $("topk").addEventListener("change", () => requestRender());
   $("envs").addEventListener("change", (ev) => {
     state.autoFollow = false;

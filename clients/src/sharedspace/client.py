@@ -20,6 +20,7 @@ from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
+from .closing import Closing
 from .transport import (
     CREATE_TIMEOUT,
     DEFAULT_ENDPOINT,
@@ -72,6 +73,9 @@ class SimClient:
         self.discover_timeout = (
             self.transport.timeout if discover_timeout is None else float(discover_timeout)
         )
+        #: The server this client was opened on by :meth:`Connection.open` when it found one
+        #: (``FoundServer``): its lease ends when the client shuts down.
+        self.server_lease: Closing | None = None
         #: env id -> server id of every env created (and not closed) by this client.
         self.env_server: dict[str, str] = {}
         #: env id -> ``n_ext`` (number of external agents).
@@ -391,10 +395,15 @@ class SimClient:
 
     def shutdown(self) -> None:
         """Closes every env of this client and the transport (if this client opened it)."""
-        if not self.transport.closed:
-            self.close_many(list(self.env_server))
-        if self._own_transport:
-            self.transport.close()
+        try:
+            if not self.transport.closed:
+                self.close_many(list(self.env_server))
+            if self._own_transport:
+                self.transport.close()
+        finally:
+            lease, self.server_lease = self.server_lease, None
+            if lease is not None:
+                lease.close()
 
     def __enter__(self) -> SimClient:
         return self
@@ -407,9 +416,12 @@ class Connection(Checked):
     """Where the servers are and how to reach them: what :meth:`open` connects with, and what
     an env keeps to connect again when it is copied or unpickled."""
 
-    #: zenoh ``connect`` endpoint(s) of the servers or of a router (``[]``: none, scouting).
-    endpoint: str | list[str] | None = DEFAULT_ENDPOINT
-    #: Key prefix of the servers (SPEC section 1).
+    #: zenoh ``connect`` endpoint(s) of the servers or of a router (``[]``: none, scouting);
+    #: ``""``: find one (``$SHAREDSPACE_ENDPOINT``, else a ``sim-server`` this process starts:
+    #: :func:`~sharedspace.local_server.find_server`).
+    endpoint: str | list[str] | None = ""
+    #: Key prefix of the servers (SPEC section 1); with ``endpoint`` "", ``$SHAREDSPACE_PREFIX``
+    #: overrides it, and a server this process starts has its own.
     prefix: str = DEFAULT_PREFIX
     #: Query timeout, s (``env/create`` waits at least ``CREATE_TIMEOUT``).
     timeout: float = DEFAULT_TIMEOUT
@@ -421,14 +433,25 @@ class Connection(Checked):
     failover: bool = False
 
     def open(self) -> SimClient:
-        """A new :class:`SimClient` on this connection."""
-        return SimClient(
-            self.endpoint,
-            self.prefix,
-            timeout=self.timeout,
-            mode=self.zenoh_mode,
-            config=self.config,
-        )
+        """A new :class:`SimClient` on this connection; with ``endpoint`` "", on the server
+        :func:`~sharedspace.local_server.find_server` finds, which the client holds until it
+        shuts down."""
+        endpoint, prefix, found = self.endpoint, self.prefix, None
+        if endpoint == "":
+            from .local_server import find_server
+
+            found = find_server(prefix=prefix)
+            endpoint, prefix = found.endpoints, found.prefix
+        try:
+            client = SimClient(
+                endpoint, prefix, timeout=self.timeout, mode=self.zenoh_mode, config=self.config
+            )
+        except BaseException:
+            if found is not None:
+                found.close()
+            raise
+        client.server_lease = found
+        return client
 
     @classmethod
     def of_client(cls, client: SimClient, failover: bool = False) -> Connection:
@@ -454,19 +477,19 @@ class Connection(Checked):
     ) -> Connection:
         """A trainer's connection: the zenoh configuration file ``zenoh_config`` if given
         (deploy/trainer.json5: its ``mode``, endpoints, TLS, credentials), else ``endpoint``,
-        else a ``sim-server`` this process starts on a free loopback port, serving
-        ``local_pools`` with ``local_params`` (:func:`sharedspace.local_server.shared_server`;
-        it stops when the process exits)."""
+        else the server :func:`~sharedspace.local_server.find_server` finds:
+        ``$SHAREDSPACE_ENDPOINT``'s, or a ``sim-server`` this process starts on a free loopback
+        port, serving ``local_pools`` with ``local_params`` (it stops when the process exits)."""
         if zenoh_config:
             settings = zenoh_file_settings(zenoh_config)
             mode = settings.pop("mode", "client")
             return cls(endpoint=None, prefix=prefix, zenoh_mode=mode, config=settings)
         if endpoint:
             return cls(endpoint=endpoint, prefix=prefix)
-        from .local_server import shared_server
+        from .local_server import find_server
 
-        server = shared_server(local_pools, local_params)
-        return cls(endpoint=server.endpoint, prefix=server.prefix)
+        found = find_server(local_pools, local_params, prefix)  # held until the process exits
+        return cls(endpoint=found.endpoints, prefix=found.prefix)
 
 
 class EnvOptions(NamedTuple):

@@ -1,9 +1,12 @@
 """The Rust simulator on this machine: find ``sim-server``, run one on a free loopback port, or
 roll out one scenario with it.
 
-The Python package carries no simulator of its own: everything that steps a world (the trainer,
-the figures) goes through ``sim-server``. A trainer pointed at no server starts one here
-(:func:`shared_server`); it stops when the process exits.
+The Python package carries no simulator of its own: everything that steps a world (the envs,
+the trainer, the figures) goes through ``sim-server``. **Finding a server** is one rule
+(:func:`find_server`), for every env and the trainer given no endpoint: the server named by
+``$SHAREDSPACE_ENDPOINT`` (with ``$SHAREDSPACE_PREFIX``) if set, else a ``sim-server`` this
+process starts on a free loopback port, or the one it already started. An env's lease on that
+server ends when the env closes; the server stops when its last lease ends, or at exit.
 """
 
 from __future__ import annotations
@@ -27,7 +30,11 @@ from typing import Any
 from .closing import Closing
 
 __all__ = [
+    "ENDPOINT_VAR",
+    "PREFIX_VAR",
+    "FoundServer",
     "LocalServer",
+    "find_server",
     "free_port",
     "rollout",
     "shared_server",
@@ -37,6 +44,11 @@ __all__ = [
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
+#: The environment variable naming the server(s) of every env and trainer given no endpoint:
+#: zenoh endpoints, comma-separated (``tcp/10.0.0.5:7447``).
+ENDPOINT_VAR = "SHAREDSPACE_ENDPOINT"
+#: The key prefix of that server (default ``sharedspace``).
+PREFIX_VAR = "SHAREDSPACE_PREFIX"
 
 
 def sim_server_binary() -> Path:
@@ -151,16 +163,14 @@ class LocalServer(Closing):
 
 
 _shared: dict[tuple[str, ...], LocalServer] = {}
+#: Leases held on each shared server; a server whose count falls to 0 stops.
+_leases: dict[tuple[str, ...], int] = {}
 _shared_lock = threading.Lock()
 
 
-def shared_server(
-    pools: Sequence[str | Path] = (), params: str | Path | None = None
-) -> LocalServer:
-    """This process's local server for ``pools`` (scenario files or ``embedded:NAME``; the
-    server's defaults, both embedded pools, when empty) and world ``params`` (a JSON5 parameter
-    file, docs/PARAMETERS.md; the server's defaults when None), started on first use and
-    stopped at exit: what a trainer uses when no endpoint is given."""
+def _lease_server(pools: Sequence[str | Path], params: str | Path | None) -> tuple:
+    """Starts (or reuses) the shared server of ``pools`` and ``params``, counts one more lease
+    on it, and returns its key."""
     key = (*(str(p) for p in pools), f"params={params or ''}")
     with _shared_lock:
         server = _shared.get(key)
@@ -171,7 +181,67 @@ def shared_server(
             server = LocalServer(cfg=cfg)
             atexit.register(server.close)
             _shared[key] = server
-        return server
+            _leases[key] = 0
+        _leases[key] += 1
+        return key
+
+
+def _release_server(key: tuple) -> None:
+    """Ends one lease on the shared server of ``key``; the last one stops it."""
+    with _shared_lock:
+        _leases[key] -= 1
+        if _leases[key] > 0:
+            return
+        server = _shared.pop(key)
+        del _leases[key]
+    server.close()
+
+
+def shared_server(
+    pools: Sequence[str | Path] = (), params: str | Path | None = None
+) -> LocalServer:
+    """This process's local server for ``pools`` (scenario files or ``embedded:NAME``; the
+    server's defaults, both embedded pools, when empty) and world ``params`` (a JSON5 parameter
+    file, docs/PARAMETERS.md; the server's defaults when None), started on first use and
+    stopped at exit (a lease that never ends)."""
+    return _shared[_lease_server(pools, params)]
+
+
+class FoundServer(Closing):
+    """Where :func:`find_server` found a server: ``endpoints`` and ``prefix`` to connect with.
+    ``close()`` ends this process's lease on a server it started (nothing for a named one)."""
+
+    def __init__(self, endpoints: list[str], prefix: str, lease: tuple | None = None):
+        self.endpoints, self.prefix, self._lease = endpoints, prefix, lease
+
+    @property
+    def started_here(self) -> bool:
+        """Whether this process runs the server."""
+        return self._lease is not None
+
+    def close(self) -> None:
+        lease, self._lease = self._lease, None
+        if lease is not None:
+            _release_server(lease)
+
+
+def find_server(
+    pools: Sequence[str | Path] = (),
+    params: str | Path | None = None,
+    prefix: str = "sharedspace",
+) -> FoundServer:
+    """The one rule of every env and trainer given no endpoint: the server(s) that
+    ``$SHAREDSPACE_ENDPOINT`` names (comma-separated endpoints) under the key prefix
+    ``$SHAREDSPACE_PREFIX`` (``prefix`` when unset); with the variable unset, a lease on
+    this process's own ``sim-server`` serving ``pools`` with ``params``
+    (:func:`shared_server`'s), started now if it runs not yet. Close the result when done
+    with the server."""
+    named = os.environ.get(ENDPOINT_VAR, "").strip()
+    if named:
+        endpoints = [e.strip() for e in named.split(",") if e.strip()]
+        return FoundServer(endpoints, os.environ.get(PREFIX_VAR, "").strip() or prefix)
+    key = _lease_server(pools, params)
+    return FoundServer([_shared[key].endpoint], _shared[key].prefix, key)
 
 
 def rollout(

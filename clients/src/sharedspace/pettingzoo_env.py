@@ -285,9 +285,14 @@ class SharedSpaceParallelEnv(ParallelEnv):
             raise EnvClosed("env_closed", "this sharedspace ParallelEnv is closed")
 
     def _agent_obs(self, obs: Mapping[str, np.ndarray], e: int) -> dict[str, np.ndarray]:
+        """Agent ``e``'s observation, a copy inside its space's bounds (spaces.py says why)."""
+        features, adjacency = _spaces.clip_observation(
+            np.array(obs["features"][e], dtype=np.float32),
+            np.array(obs["adjacency"][e], dtype=np.float32),
+        )
         return {
-            "features": np.array(obs["features"][e], dtype=np.float32),
-            "adjacency": np.array(obs["adjacency"][e], dtype=np.float32),
+            "features": features,
+            "adjacency": adjacency,
             "mask": np.array(obs["mask"][e], dtype=np.int8),
         }
 

@@ -16,9 +16,27 @@ The tables, the powered test, the planner and the plots are the paper's tooling:
 :mod:`sharedspace.paper`; several learning cars: :mod:`sharedspace.marl`.
 """
 
-from sharedspace.train.config import TrainConfig, load_config
-from sharedspace.train.networks import NETWORKS, Network, register_network
-from sharedspace.train.registry import ALGORITHMS, Algorithm, register_algorithm
+import importlib
+
+#: What the package exports, by the module that holds it: imported on first use, so that
+#: ``python -m sharedspace.train --help`` answers without loading torch.
+_EXPORTS = {
+    "TrainConfig": "config",
+    "load_config": "config",
+    "NETWORKS": "networks",
+    "Network": "networks",
+    "register_network": "networks",
+    "ALGORITHMS": "registry",
+    "Algorithm": "registry",
+    "register_algorithm": "registry",
+}
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "ALGORITHMS",

@@ -14,7 +14,6 @@ from typing import Any
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
 from sharedspace.pool import DEFAULT_POOL_PATH
-from sharedspace.scripted import SCRIPTED
 from sharedspace.train.networks import UnknownNetwork, canonical_network, get_network
 from sharedspace.train.registry import (
     ALGORITHMS,
@@ -112,9 +111,10 @@ class TrainConfig:
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
     pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
-    server_endpoint: str = ""  # Zenoh endpoint of the server; "" = start a local sim-server
+    server_endpoint: str = ""  # Zenoh endpoint of the server; "" = $SHAREDSPACE_ENDPOINT, else
+    #                            a local sim-server the run starts
     server_params: str = ""  # world-parameter file of that local server; "" = its defaults
-    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server
+    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server (or $SHAREDSPACE_PREFIX)
     zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
     variations: dict[str, Any] = field(
         default_factory=dict
@@ -142,6 +142,7 @@ class TrainConfig:
     normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm; ppo)
     update_threads: int = 0  # torch CPU threads while updating (0 = every core: the server idles)
     anneal_lr: bool = False  # lr falls linearly to 0 at total_frames (CleanRL, TorchRL sota PPO)
+    anneal_start: float = 0.0  # share of total_frames at which that fall starts (0 = at once)
     # --- off-policy: SAC, MASAC
     frames_per_batch: int = 0  # frames per collector batch; 0 = the algorithm's (sac
     #                            num_envs * 8, masac 2048)
@@ -269,8 +270,12 @@ class TrainConfig:
             raise ConfigError(f"readout must be ego or ego_mean, not {self.readout!r}")
         if self.eval_split not in ("validation", "test"):
             raise ConfigError(f"eval_split must be validation or test, not {self.eval_split!r}")
+        from sharedspace.scripted import SCRIPTED  # torch: imported once a config is made
+
         if self.base_driver and self.base_driver not in SCRIPTED:
             raise ConfigError(f"base_driver must be one of {sorted(SCRIPTED)} or empty")
+        if not 0.0 <= self.anneal_start < 1.0:
+            raise ConfigError(f"anneal_start must be in [0, 1), not {self.anneal_start}")
         if not 0.0 <= self.prior_ratio < 1.0:
             raise ConfigError(f"prior_ratio must be in [0, 1), not {self.prior_ratio}")
         if self.bc_steps > 0 and not self.prior_data:

@@ -29,12 +29,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from torch import nn
-
-from sharedspace.train.gcn import FeatureNorm, GraphEncoder
 from sharedspace.train.registry import ALGORITHMS
+
+if TYPE_CHECKING:  # torch is imported where a network is built, not where one is named
+    from torch import nn
+
+    from sharedspace.train.gcn import FeatureNorm, GraphEncoder
 
 __all__ = [
     "NETWORKS",
@@ -113,6 +115,8 @@ def network_label(name: str, algorithm: str = "") -> str:
 
 def _graph_encoder(graph: str | None) -> Callable[[Any, FeatureNorm | None], nn.Module]:
     def make(cfg, norm: FeatureNorm | None) -> GraphEncoder:
+        from sharedspace.train.gcn import GraphEncoder
+
         return GraphEncoder(
             graph,
             cfg.max_agents,

@@ -101,6 +101,15 @@ def make_critic(cfg: TrainConfig, norm: FeatureNorm | None) -> ValueOperator:
     return ValueOperator(net, in_keys=OBS_KEYS, out_keys=["state_value"]).to(cfg.device)
 
 
+def annealed_lr(cfg: TrainConfig, frames: int) -> float:
+    """The learning rate ``frames`` into a run with ``anneal_lr``: ``lr`` until
+    ``anneal_start * total_frames``, then falling linearly to 0 at ``total_frames``. A late
+    start keeps the early learning of a constant rate and still lets the policy settle, so that
+    the run's last checkpoint is its policy."""
+    left = 1.0 - frames / cfg.total_frames
+    return cfg.lr * min(max(left / max(1.0 - cfg.anneal_start, 1e-9), 0.0), 1.0)
+
+
 class PPOUpdate(nn.Module):
     """One iteration's learning on a collected batch ``[K, T]``: GAE, then ``ppo_epochs``
     passes of ``ClipPPOLoss`` over shuffled minibatches, then the feature normalisation folds
@@ -132,12 +141,13 @@ class PPOUpdate(nn.Module):
 
     def step(self, data: TensorDictBase, frames: int = 0) -> dict[str, float]:
         """Learns from ``data`` (rewards as the env gave them), ``frames`` into the run (with
-        ``anneal_lr`` the learning rate is ``lr * (1 - frames / total_frames)``); returns the
-        means of the losses and of the clip fraction, KL estimate and explained variance."""
+        ``anneal_lr`` the learning rate falls linearly from ``lr`` at ``anneal_start`` of the
+        run to 0 at its end: :func:`annealed_lr`); returns the means of the losses and of the
+        clip fraction, KL estimate and explained variance."""
         cfg = self.cfg
         if cfg.anneal_lr:
             for group in self.optimizer.param_groups:
-                group["lr"] = cfg.lr * max(1.0 - frames / cfg.total_frames, 0.0)
+                group["lr"] = annealed_lr(cfg, frames)
         data = data.to(cfg.device)
         data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
         with torch.no_grad():

@@ -158,6 +158,7 @@ register_algorithm(
             "normalize_obs",
             "update_threads",
             "anneal_lr",
+            "anneal_start",
         ),
         # a validation scoring costs about as much as 40 k frames of PPO-GCN: every 500 k
         # keeps it under a tenth of a run's wall time (docs/BENCHMARKS.md, "Learner")

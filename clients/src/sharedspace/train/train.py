@@ -25,8 +25,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sharedspace.train import loop
-from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.config import (
     TrainConfig,
     _read_table,
@@ -42,15 +40,18 @@ def train(cfg: TrainConfig, resume: str | None = None) -> dict[str, Any]:
     """Runs ``cfg.algorithm`` on ``cfg`` (from the checkpoint ``resume`` if given) through the
     one training loop (:mod:`sharedspace.train.loop`); returns the final counters, the last
     scoring and where the time went."""
+    from sharedspace.train import loop  # torch: imported once there is a run (not for --help)
+
     return loop.train(cfg, resume)
 
 
 def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
+    from sharedspace.train.reference import help_text
+
     ap = command_parser("python -m sharedspace.train", __doc__)
+    ap.epilog = help_text()
     ap.add_argument("--config", default=None, help="TOML or JSON file of config fields")
-    add_overrides_argument(
-        ap, "config overrides: KEY=VALUE (every key, a doc line each: train/config.py)"
-    )
+    add_overrides_argument(ap, "config overrides: KEY=VALUE (every key is listed below)")
     ap.add_argument(
         "--resume",
         nargs="?",
@@ -61,6 +62,8 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
         "bare: from log_dir's last checkpoint, if there is one",
     )
     args = ap.parse_args(argv)
+    from sharedspace.train.checkpoint import read_checkpoint  # torch
+
     table = _read_table(args.config) if args.config else {}
     saved = read_checkpoint(args.resume) if isinstance(args.resume, str) else None
     if saved is not None:  # the checkpoint's config, then the file and the overrides over it
@@ -73,7 +76,7 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     if resume is True:  # bare: log_dir's last checkpoint, where there is one
         last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
         resume = str(last) if last.is_file() else None
-    out = loop.train(cfg, resume)
+    out = train(cfg, resume)
     print(json.dumps(dict(out), default=float))
     return 0
 
