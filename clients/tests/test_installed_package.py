@@ -241,3 +241,170 @@ def test_the_wheels_install_into_a_fresh_venv_and_train_with_the_bundled_server(
     assert "episode " in played.stdout
     site = venv / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
     assert f"page {site / 'sharedspace' / 'viewer_page'} True" in played.stdout, played.stdout
+
+
+# ------------------------------------------------------------------------------------------
+# The README, as a new user follows it: its blocks marked `<!-- readme-test -->` run in order in
+# a fresh venv of the wheels, with nothing listening and no server named.
+
+README = REPO_ROOT / "README.md"
+_MARK = "<!-- readme-test"
+
+
+def readme_blocks(text: str) -> list[tuple[str, str]]:
+    """``(language, code)`` of every fenced block whose preceding line is a ``readme-test``
+    marker, in order, with the marker's substitutions (``<!-- readme-test: OLD -> NEW, ... -->``,
+    small sizes for a test) applied."""
+    lines = text.splitlines()
+    blocks = []
+    for i, line in enumerate(lines):
+        if not line.startswith("```") or line == "```" or i == 0:
+            continue
+        marker = lines[i - 1].strip()
+        if not marker.startswith(_MARK):
+            continue
+        end = lines.index("```", i + 1)
+        code = "\n".join(lines[i + 1 : end]) + "\n"
+        spec = marker[len(_MARK) :].removesuffix("-->").strip().lstrip(":").strip()
+        for pair in filter(None, (p.strip() for p in spec.split(","))):
+            old, new = (x.strip() for x in pair.split("->"))
+            assert old in code, f"README block {i + 1}: {old!r} is not in it"
+            code = code.replace(old, new)
+        blocks.append((line[3:].strip(), code))
+    return blocks
+
+
+def test_the_readme_blocks_are_found_with_their_small_sizes():
+    blocks = readme_blocks(README.read_text())
+    assert [lang for lang, _ in blocks] == ["python", "python", "sh", "sh"]
+    assert "total_frames=8192" in blocks[2][1] and "2000000" not in blocks[2][1]
+    # what the test below installs is what the README's install line names
+    assert 'pip install --find-links dist "sharedspace[train,server]"' in README.read_text()
+
+
+@pytest.fixture(scope="module")
+def user_venv(wheels, tmp_path_factory) -> Path:
+    """A fresh venv outside the checkout with ``sharedspace[train,server]`` from the wheels
+    (offline, from uv's cache, as the test above installs them)."""
+    uv = Path(sys.executable).parent / "uv"
+    venv = tmp_path_factory.mktemp("user") / "venv"
+    subprocess.run([str(uv), "venv", "-q", "--python", sys.executable, str(venv)], check=True)
+    python = venv / "bin" / "python"
+    done = subprocess.run(
+        [
+            str(uv),
+            "pip",
+            "install",
+            "--offline",
+            "--python",
+            str(python),
+            f"sharedspace[train] @ {wheels['package'].as_uri()}",
+            str(wheels["server"]),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return venv
+
+
+def _user_env(venv: Path, **extra: str) -> dict[str, str]:
+    """A user's shell: the venv first on a PATH of no cargo and no checkout, no variable of
+    ours (so nothing names a server or a binary)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SHAREDSPACE_")}
+    return {**env, "PATH": f"{venv / 'bin'}:/usr/bin:/bin", "VIRTUAL_ENV": str(venv), **extra}
+
+
+def test_the_readme_runs_in_a_fresh_venv_of_the_wheels(user_venv, tmp_path):
+    work = tmp_path / "user"
+    work.mkdir()
+    outputs = []
+    for n, (lang, code) in enumerate(readme_blocks(README.read_text())):
+        if lang == "python":
+            script = work / f"block{n}.py"
+            script.write_text(code)
+            cmd = [str(user_venv / "bin" / "python"), str(script)]
+        else:
+            cmd = ["bash", "-euo", "pipefail", "-c", code]
+        done = subprocess.run(
+            cmd, cwd=work, env=_user_env(user_venv), capture_output=True, text=True, timeout=900
+        )
+        assert done.returncode == 0, f"README block {n} ({lang}):\n{code}\n{done.stderr[-3000:]}"
+        assert str(REPO_ROOT) not in done.stdout + done.stderr  # nothing from the checkout
+        outputs.append(done.stdout)
+    assert outputs[0].startswith("episode over: hbs-car"), outputs[0]
+    finished = int(outputs[1].split("episodes finished:")[1])
+    assert finished > 4, outputs[1]  # each of the 4 envs ended an episode and went on
+    assert (work / "runs" / "ppo-paper" / "checkpoints" / "last.pt").is_file()
+    assert (work / "results" / "paper" / "ppo-paper.json").is_file()
+    assert "car_aware" in outputs[3] and "paired" in outputs[3].lower(), outputs[3]
+
+
+def test_an_env_needs_no_server_in_a_fresh_venv(user_venv, tmp_path):
+    """With nothing listening: the registered id after `import sharedspace`, and the prefixed id
+    with no import, reset and step on a server the process starts (the wheel's binary)."""
+    script = textwrap.dedent(
+        """
+        import gymnasium
+        env = gymnasium.make("sharedspace:sharedspace/SharedSpace-v0")
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        env.close()
+        import sharedspace
+        from sharedspace import local_server
+        env = gymnasium.make("sharedspace/SharedSpace-v0")
+        env.reset(seed=1)
+        env.step(env.action_space.sample())
+        print("binary", local_server.sim_server_binary())
+        env.close()
+        print("servers left", len(local_server._shared))
+        """
+    )
+    done = subprocess.run(
+        [str(user_venv / "bin" / "python"), "-c", script],
+        cwd=tmp_path,
+        env=_user_env(user_venv),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert f"binary {user_venv / 'bin' / 'sim-server'}" in done.stdout, done.stdout
+    assert "servers left 0" in done.stdout
+
+
+def test_envs_use_the_server_the_environment_names_in_a_fresh_venv(user_venv, sim_server, tmp_path):
+    """With ``SHAREDSPACE_ENDPOINT`` (and ``SHAREDSPACE_PREFIX``) set, the envs are created on
+    that server (its env list shows them) and the process starts no server of its own."""
+    script = textwrap.dedent(
+        """
+        import os, gymnasium, sharedspace
+        from sharedspace import local_server
+        from sharedspace.client import SimClient
+        envs = [gymnasium.make("sharedspace/SharedSpace-v0") for _ in range(3)]
+        for env in envs:
+            env.reset(seed=0)
+        with SimClient(os.environ["SHAREDSPACE_ENDPOINT"], os.environ["SHAREDSPACE_PREFIX"]) as c:
+            mine = {env.unwrapped._parallel.client.client_id for env in envs}
+            info = c.info(c.pick_server()["server_id"])
+            print("ours", sum(e["client_id"] in mine for e in info["envs"]))
+        print("own servers", len(local_server._shared))
+        for env in envs:
+            env.close()
+        """
+    )
+    done = subprocess.run(
+        [str(user_venv / "bin" / "python"), "-c", script],
+        cwd=tmp_path,
+        env=_user_env(
+            user_venv,
+            SHAREDSPACE_ENDPOINT=sim_server.endpoint,
+            SHAREDSPACE_PREFIX=sim_server.prefix,
+        ),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "ours 3" in done.stdout and "own servers 0" in done.stdout, done.stdout

@@ -477,19 +477,20 @@ class Connection(Checked):
     ) -> Connection:
         """A trainer's connection: the zenoh configuration file ``zenoh_config`` if given
         (deploy/trainer.json5: its ``mode``, endpoints, TLS, credentials), else ``endpoint``,
-        else the server :func:`~sharedspace.local_server.find_server` finds:
-        ``$SHAREDSPACE_ENDPOINT``'s, or a ``sim-server`` this process starts on a free loopback
-        port, serving ``local_pools`` with ``local_params`` (it stops when the process exits)."""
+        else a ``sim-server`` this process starts on a free loopback port, serving
+        ``local_pools`` with ``local_params`` (:func:`sharedspace.local_server.shared_server`;
+        it stops when the process exits). ``$SHAREDSPACE_ENDPOINT`` is not read here: a run's
+        world is its own, which a named server cannot be checked to serve."""
         if zenoh_config:
             settings = zenoh_file_settings(zenoh_config)
             mode = settings.pop("mode", "client")
             return cls(endpoint=None, prefix=prefix, zenoh_mode=mode, config=settings)
         if endpoint:
             return cls(endpoint=endpoint, prefix=prefix)
-        from .local_server import find_server
+        from .local_server import shared_server
 
-        found = find_server(local_pools, local_params, prefix)  # held until the process exits
-        return cls(endpoint=found.endpoints, prefix=found.prefix)
+        server = shared_server(local_pools, local_params)
+        return cls(endpoint=server.endpoint, prefix=server.prefix)
 
 
 class EnvOptions(NamedTuple):

@@ -3,10 +3,14 @@ roll out one scenario with it.
 
 The Python package carries no simulator of its own: everything that steps a world (the envs,
 the trainer, the figures) goes through ``sim-server``. **Finding a server** is one rule
-(:func:`find_server`), for every env and the trainer given no endpoint: the server named by
+(:func:`find_server`), for every env given no endpoint (Gymnasium, PettingZoo, TorchRL: they
+all open their connection through ``Connection.open``): the server named by
 ``$SHAREDSPACE_ENDPOINT`` (with ``$SHAREDSPACE_PREFIX``) if set, else a ``sim-server`` this
 process starts on a free loopback port, or the one it already started. An env's lease on that
-server ends when the env closes; the server stops when its last lease ends, or at exit.
+server ends when the env closes; the server stops when its last lease ends, or at exit. The
+trainer and the bench, given no endpoint, start a server of their own instead
+(:func:`shared_server`): they need their task's pools and world parameters, which a named
+server cannot be checked to serve.
 """
 
 from __future__ import annotations
@@ -225,22 +229,17 @@ class FoundServer(Closing):
             _release_server(lease)
 
 
-def find_server(
-    pools: Sequence[str | Path] = (),
-    params: str | Path | None = None,
-    prefix: str = "sharedspace",
-) -> FoundServer:
-    """The one rule of every env and trainer given no endpoint: the server(s) that
-    ``$SHAREDSPACE_ENDPOINT`` names (comma-separated endpoints) under the key prefix
-    ``$SHAREDSPACE_PREFIX`` (``prefix`` when unset); with the variable unset, a lease on
-    this process's own ``sim-server`` serving ``pools`` with ``params``
-    (:func:`shared_server`'s), started now if it runs not yet. Close the result when done
-    with the server."""
+def find_server(prefix: str = "sharedspace") -> FoundServer:
+    """The one rule of every env given no endpoint: the server(s) that ``$SHAREDSPACE_ENDPOINT``
+    names (comma-separated endpoints) under the key prefix ``$SHAREDSPACE_PREFIX`` (``prefix``
+    when unset); with the variable unset, a lease on this process's own ``sim-server`` (the
+    server's default world and both embedded pools: :func:`shared_server`'s), started now if it
+    runs not yet. Close the result when done with the server."""
     named = os.environ.get(ENDPOINT_VAR, "").strip()
     if named:
         endpoints = [e.strip() for e in named.split(",") if e.strip()]
         return FoundServer(endpoints, os.environ.get(PREFIX_VAR, "").strip() or prefix)
-    key = _lease_server(pools, params)
+    key = _lease_server((), None)
     return FoundServer([_shared[key].endpoint], _shared[key].prefix, key)
 
 

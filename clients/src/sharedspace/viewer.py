@@ -17,6 +17,7 @@ import argparse
 import functools
 import http.server
 import json
+import os
 import signal
 import subprocess
 import threading
@@ -25,7 +26,15 @@ from pathlib import Path
 from urllib.parse import urlencode
 
 from .closing import Closing
-from .local_server import die_with_parent, free_port, sim_server_binary, stop_process, wait_port
+from .local_server import (
+    ENDPOINT_VAR,
+    PREFIX_VAR,
+    die_with_parent,
+    free_port,
+    sim_server_binary,
+    stop_process,
+    wait_port,
+)
 
 __all__ = ["VIEWER_DIST", "Viewer"]
 
@@ -167,13 +176,19 @@ def _interrupt(signum, frame) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    named = os.environ.get(ENDPOINT_VAR, "")
     ap.add_argument(
         "--connect",
         nargs="+",
-        default=["tcp/127.0.0.1:7447"],
-        help="zenoh endpoints of the servers (or a router) to watch",
+        default=[e.strip() for e in named.split(",") if e.strip()] or ["tcp/127.0.0.1:7447"],
+        help="zenoh endpoints of the servers (or a router) to watch (default: "
+        "$SHAREDSPACE_ENDPOINT's, else tcp/127.0.0.1:7447)",
     )
-    ap.add_argument("--prefix", default="sharedspace", help="the servers' key prefix")
+    ap.add_argument(
+        "--prefix",
+        default=os.environ.get(PREFIX_VAR) or "sharedspace",
+        help="the servers' key prefix (default: $SHAREDSPACE_PREFIX, else sharedspace)",
+    )
     ap.add_argument("--http", type=int, default=8090, help="port of the page")
     ap.add_argument("--ws", type=int, default=10000, help="port of the zenoh WebSocket")
     ap.add_argument("--host", default="127.0.0.1", help="interface of both ports")

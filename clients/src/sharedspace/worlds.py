@@ -36,6 +36,7 @@ __all__ = [
     "training_task",
     "validation_pool",
     "validation_pool_file",
+    "world_params_file",
 ]
 
 #: The repository's root (pool and parameter files are named relative to it).
@@ -128,6 +129,31 @@ def repo_path(path: str) -> Path:
     return p if p.is_absolute() or p.exists() else REPO / p
 
 
+def _cache_dir(kind: str) -> Path:
+    """``REPO/out/KIND`` in a checkout, else ``~/.cache/sharedspace/KIND``."""
+    if (REPO / "clients").is_dir():
+        return REPO / "out" / kind
+    return Path.home() / ".cache" / "sharedspace" / kind
+
+
+def world_params_file(task: TrainingTask) -> Path:
+    """The file of ``task``'s world parameters for a local server: the repository's
+    (``task.server_params``) in a checkout, else :attr:`TrainingTask.world_params` written once
+    as JSON (which JSON5 reads) under ``~/.cache/sharedspace/params``, named by its content."""
+    shipped = repo_path(task.server_params)
+    if shipped.is_file():
+        return shipped.resolve()
+    text = json.dumps(task.world_params, sort_keys=True, indent=1)
+    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+    path = _cache_dir("params") / f"{Path(task.server_params).stem}-{digest}.json"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return path
+
+
 def validation_pool(pool: dict[str, Any], n: int, seed: int = 0) -> dict[str, Any]:
     """A pool document: ``pool``'s train scenes, of which ``n`` (chosen by ``seed``, kept in
     pool order) are in the ``test`` split as validation scenes; ``pool``'s test scenes are left
@@ -164,11 +190,7 @@ def validation_pool_file(pool: str, n: int, seed: int = 0, out: str | Path = "")
     text = source.read_bytes()
     digest = hashlib.sha256(text).hexdigest()[:12]
     if not out:
-        out = (
-            REPO / "out" / "validation"
-            if (REPO / "clients").is_dir()
-            else (Path.home() / ".cache" / "sharedspace" / "validation")
-        )
+        out = _cache_dir("validation")
     path = Path(out) / f"{source.stem}-{digest}-validation-{n}-s{seed}.json"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)

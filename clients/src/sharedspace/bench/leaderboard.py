@@ -1,5 +1,8 @@
 """A task's leaderboard from its result files: one row per result, best success first, each
-with its Wilson intervals and its paired difference against the task's ``car_aware`` row.
+with its Wilson intervals, its paired difference against the task's ``car_aware`` row, and for a
+learned row its success on the validation split, on which the task's best row is chosen
+(:mod:`sharedspace.bench.best`, ``OUT/best.json``): the table says which, and the test scores
+above it play no part in that choice.
 
     python -m sharedspace.bench.leaderboard results/bench/crowd [--out LEADERBOARD.md]
 """
@@ -7,9 +10,11 @@ with its Wilson intervals and its paired difference against the task's ``car_awa
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from sharedspace.bench.score import Result, compare, load_result
 from sharedspace.bench.tasks import BenchError
@@ -18,8 +23,12 @@ from sharedspace.episodes import STATUSES
 __all__ = ["render"]
 
 
-def render(results: Sequence[Result], reference: str = "car_aware") -> str:
-    """The markdown table of ``results`` (all of one task version)."""
+def render(
+    results: Sequence[Result], reference: str = "car_aware", best: dict[str, Any] | None = None
+) -> str:
+    """The markdown table of ``results`` (all of one task version); ``best``: the task's entry
+    of ``best.json`` (its ``name`` and every row's ``validation`` score), if there is one."""
+    validation = (best or {}).get("validation", {})
     ref = next((r for r in results if r.policy == reference), None)
     task = results[0].task
     lines = [
@@ -27,8 +36,9 @@ def render(results: Sequence[Result], reference: str = "car_aware") -> str:
         f"{task['fingerprint']}). Paired differences: scenes resampled, 95 %"
         + ("; scenes fixed in brackets after it." if task.get("scenes_fixed_interval") else "."),
         "",
-        f"| row | seeds | episodes | success [95 %] | collision | timeout | − {reference} |",
-        "|---|---:|---:|---|---:|---:|---|",
+        f"| row | seeds | episodes | success [95 %] | collision | timeout | − {reference} "
+        "| validation success |",
+        "|---|---:|---:|---|---:|---:|---|---:|",
     ]
     for r in sorted(results, key=lambda r: -r.summary["success"]["rate"]):
         s = r.summary
@@ -43,9 +53,22 @@ def render(results: Sequence[Result], reference: str = "car_aware") -> str:
             f"| {r.policy} | {len(r.sources)} | {s['episodes']} | {success['rate']:.3f} "
             f"[{success['ci95'][0]:.3f}, {success['ci95'][1]:.3f}] | "
             + " | ".join(f"{s[k]['rate']:.3f}" for k in STATUSES[1:])
-            + f" | {cell} |"
+            + f" | {cell} | {_validation_cell(validation.get(r.policy))} |"
         )
+    if best:
+        lines += [
+            "",
+            f"Best learned row, chosen on validation: **{best['name']}** (validation: "
+            "the train scenes carved off for it, never the test scenes; * = a row whose runs "
+            "trained on those scenes too).",
+        ]
     return "\n".join(lines) + "\n"
+
+
+def _validation_cell(v: dict[str, Any] | None) -> str:
+    if v is None:
+        return "–"
+    return f"{v['success']:.3f}" + ("" if v.get("held_out", True) else "*")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -61,7 +84,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             results.append(load_result(path))
         except BenchError:
             continue
-    text = render(results)
+    folder = Path(args.folder)
+    best_file = folder.parent / "best.json"
+    task = results[0].task["name"] if results else ""
+    best = json.loads(best_file.read_text()).get(task) if best_file.is_file() else None
+    text = render(results, best=best)
     print(text)
     if args.out:
         Path(args.out).write_text(text)

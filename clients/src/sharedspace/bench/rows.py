@@ -13,7 +13,8 @@ is the run's policy (nothing is chosen on the test scenes), shipped without its 
 as ``OUT/policies/TASK-ARM-NETWORK-sSEED.pt``. Then every network's seeds are scored as one
 pooled row (``OUT/TASK/ARM-NETWORK.json`` / ``.md``) against the task's ``car_aware`` row, and
 the paper's question is asked of the rows: Cog − NoCog and Cog − S, paired. ``OUT/TASK/runs.json``
-keeps each run's wall time.
+keeps each run's wall time. Last, the task's best row is chosen on validation
+(:mod:`sharedspace.bench.best`, ``OUT/best.json``) and its leaderboard written.
 
 The recipe (the trainer's PPO defaults and the tasks' training worlds, :mod:`sharedspace.worlds`)
 was chosen on a validation split carved from the train scenes (results/ppo/tuning), never on the
@@ -33,6 +34,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedspace.bench import leaderboard
+from sharedspace.bench.best import choose_best, validation_variations
 from sharedspace.bench.score import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
 from sharedspace.train.checkpoint import read_checkpoint
@@ -55,8 +58,6 @@ ARMS: dict[str, list[str]] = {
 }
 #: Frames between validation scorings: a multiple of PPO's batch (256 x 32 frames).
 EVAL_INTERVAL = 524_288
-#: Validation episodes per scoring, at least: one scoring's standard error near 0.012 at 0.85.
-VALIDATION_EPISODES = 960
 #: The single-car tasks a row trains for.
 SINGLE_CAR_TASKS = tuple(n for n, t in TRAINING_TASKS.items() if t.cars == 1)
 
@@ -87,7 +88,6 @@ def train_run(
         done = int(read_checkpoint(last)["counters"]["frames"])
         if done >= frames:
             return 0.0
-    scenes = TRAINING_TASKS[task].validation_scenes
     overrides = [
         "algorithm=ppo",
         f"task={task}",
@@ -96,7 +96,7 @@ def train_run(
         f"total_frames={frames}",
         *ARMS[arm],
         f"eval_interval={EVAL_INTERVAL}",
-        f"validation_variations={-(-VALIDATION_EPISODES // scenes)}",
+        f"validation_variations={validation_variations(task)}",  # 960 episodes or more
         f"checkpoint_interval={EVAL_INTERVAL}",
         f"log_dir={log_dir}",
         *extra,
@@ -182,6 +182,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         (folder / f"{args.arm}-question.json").write_text(json.dumps(question, indent=1))
         for key, c in question.items():
             print(f"{args.arm}: {key}: {c['diff']:+.3f} [{c['lo']:+.3f}, {c['hi']:+.3f}]")
+    best = choose_best([args.task], out)  # on validation: the test scores above play no part
+    print(f"best row of {args.task}, chosen on validation: {best[args.task]['name']}")
+    leaderboard.main([str(folder), "--out", str(folder / "LEADERBOARD.md")])
     return 0
 
 

@@ -11,6 +11,7 @@ mean over them.
 from __future__ import annotations
 
 import json
+import re
 import tempfile
 import time
 from collections.abc import Sequence
@@ -28,7 +29,16 @@ from sharedspace.client import Connection
 from sharedspace.episodes import STATUSES, outcome_rates, run_episodes, variation_batches
 from sharedspace.stats import paired_clustered
 
-__all__ = ["Result", "compare", "load_result", "score"]
+__all__ = ["Result", "compare", "file_name", "load_result", "score"]
+
+
+def file_name(name: str) -> str:
+    """``name`` as a file or folder name that every file system takes: each character other
+    than letters, digits, ``.``, ``_`` and ``-`` becomes ``_`` (a row named after
+    ``mypkg.mod:act`` or an env id ``sharedspace:sharedspace/SharedSpace-v0``); never empty,
+    never hidden."""
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", name).lstrip(".")
+    return safe or "_"
 
 
 @dataclass
@@ -48,11 +58,12 @@ class Result:
         return asdict(self)
 
     def save(self, out: str | Path) -> Path:
-        """Writes ``out/TASK/ROW.json`` (every episode) and ``.md``; returns the JSON's path."""
+        """Writes ``out/TASK/ROW.json`` (every episode) and ``.md``, ``ROW`` the row's name made
+        safe on every file system (:func:`file_name`); returns the JSON's path."""
         folder = Path(out) / self.task["name"]
         folder.mkdir(parents=True, exist_ok=True)
-        (folder / f"{self.policy}.md").write_text(self.markdown())
-        path = folder / f"{self.policy}.json"
+        (folder / f"{file_name(self.policy)}.md").write_text(self.markdown())
+        path = folder / f"{file_name(self.policy)}.json"
         path.write_text(json.dumps(self.to_json()))
         return path
 

@@ -23,7 +23,12 @@ from sharedspace.train.registry import (
 )
 from sharedspace.train.reward import REWARDS
 from sharedspace.wire import EnvSpec
-from sharedspace.worlds import UnknownTask, training_task, validation_pool_file
+from sharedspace.worlds import (
+    UnknownTask,
+    training_task,
+    validation_pool_file,
+    world_params_file,
+)
 
 __all__ = [
     "ConfigError",
@@ -111,10 +116,10 @@ class TrainConfig:
     max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
     pedestrian_model: str = DEFAULT_MODEL  # model of the simulated crowd (sharedspace.models)
     scenario_pool: str = ""  # scenario file path; "" = scenarios/data/hbs-paper.json
-    server_endpoint: str = ""  # Zenoh endpoint of the server; "" = $SHAREDSPACE_ENDPOINT, else
-    #                            a local sim-server the run starts
+    server_endpoint: str = ""  # Zenoh endpoint of the server; "" = a local sim-server the run
+    #                            starts, serving the run's pools and world
     server_params: str = ""  # world-parameter file of that local server; "" = its defaults
-    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server (or $SHAREDSPACE_PREFIX)
+    server_prefix: str = "sharedspace"  # Zenoh key prefix of the server
     zenoh_config: str = ""  # trainer session file (deploy/trainer.json5); "" = peer on endpoint
     variations: dict[str, Any] = field(
         default_factory=dict
@@ -347,12 +352,15 @@ class TrainConfig:
         pools, carved = [self.scenario_pool], self.training_pool()
         if carved != self.scenario_pool:  # the pool first: the server's default stays its own
             pools = [self.scenario_pool or str(DEFAULT_POOL_PATH), carved]
+        params = self.server_params or None
+        if params and self.task and params == training_task(self.task).server_params:
+            params = str(world_params_file(training_task(self.task)))  # found outside a checkout
         conn = Connection.resolve(
             self.server_endpoint,
             self.server_prefix,
             self.zenoh_config,
             [p for p in pools if p],
-            self.server_params or None,
+            params,
         )
         return conn.replace(failover=self.failover) if self.failover else conn
 

@@ -1,6 +1,8 @@
-"""An env given no endpoint finds a server by one rule (sharedspace.local_server.find_server):
-``$SHAREDSPACE_ENDPOINT`` if set, else a sim-server of its own process, shared by its envs and
-stopped with the last of them; and the trainer's command answers ``--help`` without torch."""
+"""A new user's first hour, against a real server: an env given no endpoint finds one by one
+rule (sharedspace.local_server.find_server: ``$SHAREDSPACE_ENDPOINT`` if set, else a sim-server
+of its own process, shared by its envs and stopped with the last of them); Gymnasium's checker
+passes with no warning; the trainer's ``--help`` lists every key without importing torch and
+docs/USAGE.md holds the same list; result files are named safely."""
 
 from __future__ import annotations
 
@@ -142,3 +144,19 @@ def test_docs_usage_holds_the_reference_as_generated_now():
     assert generated.strip() == markdown().strip(), (
         "docs/USAGE.md is out of date: python -m sharedspace.train.reference --write docs/USAGE.md"
     )
+
+
+@pytest.mark.parametrize(
+    ("name", "safe"),
+    [
+        ("mypkg.mymodule:act", "mypkg.mymodule_act"),
+        ("sharedspace:sharedspace/SharedSpace-v0", "sharedspace_sharedspace_SharedSpace-v0"),
+        ("residual-g_sac_cog", "residual-g_sac_cog"),
+        ("..\\x y", "_x_y"),
+        ("", "_"),
+    ],
+)
+def test_a_result_file_is_named_safely_on_every_file_system(name, safe):
+    from sharedspace.bench.score import file_name
+
+    assert file_name(name) == safe
