@@ -51,7 +51,7 @@ VIEWER_PAGE := viewer/dist/index.html
 $(VIEWER_PAGE): viewer/package-lock.json viewer/build.mjs $(wildcard viewer/src/*)
 	cd viewer && npm ci --no-audit --no-fund && npm run build
 
-# The wheels a Python user installs (README, "Install from wheels"): sharedspace-server (the
+# The wheels a Python user installs (README, "Install"; docs/DEVELOPING.md, "The wheels"): sharedspace-server (the
 # sim-server binary, jemalloc inside; maturin's `bin` bindings) and the pure sharedspace package.
 # deploy/Dockerfile's builder runs this target with its own maturin and uv and no venv:
 # `make wheel WHEEL_TOOLS= MATURIN=... UV=...`.
@@ -80,7 +80,7 @@ wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel (manylinux2014) and s
 	rm -f $(DIST)/sharedspace*.whl $(DIST)/sharedspace_server-*.tar.gz
 	PATH="$(WHEEL_PATH)" $(MATURIN) build $(WHEEL_PROFILE) $(WHEEL_LINK) --locked --manifest-path sim-server/Cargo.toml --out $(DIST)
 	@# the server's source, for a platform with no wheel (macOS, aarch64): `pip install` builds it
-	@# with cargo (README, "Install from wheels")
+	@# with cargo (README, "Install"; docs/DEVELOPING.md, "The wheels")
 	$(MATURIN) sdist --manifest-path sim-server/Cargo.toml --out $(DIST)
 	rm -rf $(PAGE_IN_PACKAGE) && cp -r viewer/dist $(PAGE_IN_PACKAGE)
 	rm -rf $(POOL_IN_PACKAGE) && mkdir -p $(POOL_IN_PACKAGE) && cp scenarios/data/hbs-paper.json $(POOL_IN_PACKAGE)/
