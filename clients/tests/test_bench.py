@@ -295,3 +295,26 @@ def test_a_task_whose_pool_is_missing_or_changed_is_refused():
     changed = dataclasses.replace(SMALL, scenes_sha256="0" * 64)
     with pytest.raises(BenchError, match="the pool changed, so the task needs a new version"):
         score(changed, "hold")
+
+
+def test_a_run_is_stable_when_its_last_three_scorings_agree_over_a_million_frames(tmp_path):
+    from sharedspace.bench.rows import stability
+
+    def run(name, scorings):
+        folder = tmp_path / name
+        folder.mkdir()
+        lines = [f"{f},1.0,train/success,0.5" for f, _ in scorings]
+        for frames, success in scorings:
+            lines += [f"{frames},2.0,eval/success,{success}", f"{frames},2.0,eval/episodes,960"]
+        (folder / "metrics.csv").write_text("\n".join(lines) + "\n")
+        return stability(folder)
+
+    m = 524_288
+    steady = run("steady", [(m, 0.5), (4 * m, 0.80), (5 * m, 0.82), (6 * m, 0.81)])
+    assert steady["stable"] and steady["success"] == [0.80, 0.82, 0.81]
+    assert steady["episodes"] == [960] * 3 and steady["range"] == 0.02
+    assert not run("swings", [(4 * m, 0.80), (5 * m, 0.72), (6 * m, 0.75)])["stable"]
+    assert not run("short span", [(4 * m, 0.80), (4 * m + 8192, 0.80), (5 * m, 0.80)])["stable"]
+    off = run("last off", [(4 * m, 0.80), (5 * m, 0.80), (6 * m, 0.848)])  # range 0.048
+    assert off["range"] <= 0.05 and off["last_minus_mean"] > 0.03 and not off["stable"]
+    assert not run("too few", [(5 * m, 0.80), (6 * m, 0.80)])["stable"]

@@ -109,6 +109,43 @@ def train_run(
     return time.perf_counter() - t0
 
 
+#: A run is stable when its last three validation scorings span this many frames or more ...
+STABLE_SPAN = 1_000_000
+#: ... and lie within this of each other, and its last within :data:`SHIPPED_TOLERANCE` of their
+#: mean (the shipped checkpoint is the last scoring's).
+STABLE_RANGE, SHIPPED_TOLERANCE = 0.05, 0.03
+
+
+def stability(log_dir: Path) -> dict[str, Any]:
+    """A run's last three validation scorings (``eval/success`` and ``eval/episodes`` of its
+    ``metrics.csv``) and whether they are stable: spanning :data:`STABLE_SPAN` frames, within
+    :data:`STABLE_RANGE` of each other, the last within :data:`SHIPPED_TOLERANCE` of their
+    mean."""
+    scorings: dict[int, dict[str, float]] = {}
+    with open(log_dir / "metrics.csv") as f:
+        for line in f:
+            parts = line.strip().split(",")
+            if len(parts) == 4 and parts[2] in ("eval/success", "eval/episodes"):
+                scorings.setdefault(int(parts[0]), {})[parts[2][5:]] = float(parts[3])
+    last = sorted(scorings.items())[-3:]
+    frames = [f for f, _ in last]
+    success = [v["success"] for _, v in last]
+    if len(last) < 3:
+        return {"frames": frames, "success": success, "stable": False}
+    mean = sum(success) / 3
+    spread = max(success) - min(success)
+    return {
+        "frames": frames,
+        "success": success,
+        "episodes": [int(v.get("episodes", 0)) for _, v in last],
+        "range": round(spread, 4),
+        "last_minus_mean": round(success[-1] - mean, 4),
+        "stable": frames[-1] - frames[0] >= STABLE_SPAN
+        and spread <= STABLE_RANGE
+        and abs(success[-1] - mean) <= SHIPPED_TOLERANCE,
+    }
+
+
 def ship(task: str, arm: str, network: str, seed: int, out: Path) -> Path:
     """The run's last checkpoint without its learner state: the policy a result names."""
     name = run_name(task, arm, network, seed)
@@ -163,6 +200,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                 entry["wall_s"] += spent
                 log_path.write_text(json.dumps(log, indent=1))
                 print(f"{name}: trained in {spent / 60:.1f} min", flush=True)
+
+    steady = {
+        run_name(args.task, args.arm, n, s): stability(
+            out / "runs" / run_name(args.task, args.arm, n, s)
+        )
+        for n in args.networks
+        for s in args.seeds
+    }
+    (folder / f"{args.arm}-stability.json").write_text(json.dumps(steady, indent=1))
+    for name, st in steady.items():
+        print(f"{name}: last three validation scorings {st['success']}: stable {st['stable']}")
 
     car_aware = reference(args.task, "car_aware", out)
     reference(args.task, "pursuit_3", out)
