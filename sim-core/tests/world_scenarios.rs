@@ -872,3 +872,62 @@ fn observation_errors_and_absent_ego() {
     assert_eq!(w.fill_observation(3, 4, (&mut f, &mut a, &mut m)), Ok(true));
     assert_eq!(m, vec![1, 0, 0, 0]); // nobody within 15 m of (40, 0)
 }
+
+// ---------------------------------------------------------------- an external pedestrian
+
+/// The documented integration of an external pedestrian's action (model.md 2b): the action,
+/// clipped to [-1, 1]², is an acceleration along and to the left of its heading at `t`, times
+/// `ped_acc_max`; `v' = clip_norm(v + a dt, ped_speed_max)`, `x' = x + v' dt`, and its heading
+/// turns to `v'` (kept while it stands).
+#[test]
+fn an_external_pedestrian_follows_the_documented_integration() {
+    let sc = scenario(
+        0,
+        vec![
+            line(AgentKind::Vehicle, 0, [-30.0, -30.0], [1.0, 0.0], 41),
+            line(AgentKind::Pedestrian, 0, [0.0, 0.0], [1.0, 0.5], 41),
+            line(AgentKind::Pedestrian, 0, [4.0, 3.0], [-0.5, 0.0], 41),
+        ],
+    );
+    let params = WorldParams::default();
+    let mut w = world(&sc, with_external(vec![1]));
+    assert_eq!(w.control(1), Some(Control::External));
+    let (dt, a_max, v_max) = (params.dt, params.ped_acc_max, params.ped_speed_max);
+    let start = w.agent(1).unwrap();
+    let (mut x, mut v, mut heading) = (start.position, start.velocity, start.heading);
+    let actions = [
+        [1.0, 0.0],
+        [0.5, -0.5],
+        [-1.0, 1.0],
+        [3.0, -2.0], // clipped to [1, -1]
+        [0.0, 0.0],
+        [-1.0, 0.0],
+        [-1.0, 0.0],
+        [0.2, 0.9],
+    ];
+    for (t, act) in actions.iter().enumerate() {
+        let out = w.step(&[(1, *act)]).unwrap();
+        let (f, l) = (act[0].clamp(-1.0, 1.0), act[1].clamp(-1.0, 1.0));
+        assert_eq!(out.agents[0].action_clipped, f != act[0] || l != act[1]);
+        let (s, c) = heading.sin_cos();
+        let acc = Vec2::new(c * f - s * l, s * f + c * l) * a_max;
+        v += acc * dt;
+        if v.norm() > v_max {
+            v = v * (v_max / v.norm());
+        }
+        x += v * dt;
+        if v.norm() > 0.0 {
+            heading = v.y.atan2(v.x);
+        }
+        let got = w.agent(1).unwrap();
+        for (g, want) in [
+            (got.position.x, x.x),
+            (got.position.y, x.y),
+            (got.velocity.x, v.x),
+            (got.velocity.y, v.y),
+        ] {
+            assert!((g - want).abs() < 1e-9, "step {t}: {g} != {want}");
+        }
+        assert!((got.heading - heading).abs() < 1e-9, "step {t}: heading");
+    }
+}

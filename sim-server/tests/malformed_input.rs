@@ -142,7 +142,11 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
             ErrorCode::BadRequest,
         ),
         (
-            base(&|r| r.external_agents = vec!["pedestrian_0".into()]),
+            base(&|r| r.external_agents = vec!["pedestrian_3".into()]), // hbs-paper has 3
+            ErrorCode::BadRequest,
+        ),
+        (
+            base(&|r| r.external_agents = vec!["pedestrian_01".into()]),
             ErrorCode::BadRequest,
         ),
         (
@@ -384,5 +388,86 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
     .unwrap();
     assert_eq!(r.env_ids.len(), 2);
     assert_eq!(r.obs.features.shape(), &[2, 1, 8, 11]);
+    server.stop().await;
+}
+
+/// Contract: 256 malformed steps of an env whose second external agent is a pedestrian (NaN and
+/// infinite numbers in its row, wrong shapes and dtypes, garbage) are each answered with an
+/// error code, the non-finite ones naming `pedestrian_0`; none advances the env, and the server
+/// goes on serving it and another trainer.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_pedestrian_actions_leave_the_server_serving() {
+    let server = start(config(free_port(), "srv-ped")).await;
+    let c = client(&server, "ped-trainer").await;
+    let other = client(&server, "car-trainer").await;
+    let car = one_env(&other).await;
+    t(other.reset(&car, &Reset::default())).await.unwrap();
+    let mut req = CreateEnv::new("ped-trainer");
+    req.external_agents = vec!["vehicle_0".into(), "pedestrian_0".into()];
+    let env = t(c.create(req)).await.unwrap().env_ids.remove(0);
+    t(c.reset(&env, &Reset::default())).await.unwrap();
+    let key = c.keys().env_step("srv-ped", &env).unwrap();
+    let rows = |ped: [f32; 2]| {
+        encode(&Step {
+            actions: F32Array::new(vec![2, 2], &[0.1, 0.0, ped[0], ped[1]])
+                .unwrap()
+                .into(),
+        })
+    };
+    for i in 0..256u32 {
+        let x = i as f32 / 64.0 - 2.0;
+        let (payload, want) = match i % 8 {
+            0 => (rows([f32::NAN, x]), ErrorCode::NonFiniteAction),
+            1 => (rows([x, f32::INFINITY]), ErrorCode::NonFiniteAction),
+            2 => (
+                rows([f32::NEG_INFINITY, f32::NAN]),
+                ErrorCode::NonFiniteAction,
+            ),
+            3 => (
+                encode(&Step {
+                    actions: F32Array::new(vec![1, 2], &[x, x]).unwrap().into(),
+                }),
+                ErrorCode::WrongShape,
+            ),
+            4 => (
+                encode(&Step {
+                    actions: F32Array::new(vec![2, 3], &[x; 6]).unwrap().into(),
+                }),
+                ErrorCode::WrongShape,
+            ),
+            5 => (
+                encode(&IntStep {
+                    actions: U32Array::new(vec![2, 2], &[i, 1, 2, 3]).unwrap(),
+                }),
+                ErrorCode::BadRequest,
+            ),
+            6 => (
+                (0..(i % 31))
+                    .map(|k| (k * 37 + i) as u8)
+                    .chain([0xc1])
+                    .collect(),
+                ErrorCode::BadRequest,
+            ),
+            _ => (
+                json_msgpack(json!({"actions": [[0.1, 0.0], [x, "walk"]]})),
+                ErrorCode::BadRequest,
+            ),
+        };
+        let bytes = t(c.raw(&key, payload)).await.expect("a reply");
+        match protocol::decode::<Reply<serde::de::IgnoredAny>>(&bytes).expect("an envelope") {
+            Reply::Err(e) => {
+                assert_eq!(e.code, want, "case {i}: {}", e.message);
+                if want == ErrorCode::NonFiniteAction {
+                    assert!(e.message.starts_with("pedestrian_0: "), "{}", e.message);
+                }
+            }
+            Reply::Ok(_) => panic!("case {i}: a malformed step was accepted"),
+        }
+    }
+    // None of them advanced the env; it and the other trainer's env step on.
+    let s = t(c.step(&env, &[[0.1, 0.0], [0.5, 0.5]])).await.unwrap();
+    assert_eq!((s.step, s.reward.len()), (1, 2));
+    let s = t(other.step(&car, &[[0.2, 0.0]])).await.unwrap();
+    assert_eq!(s.step, 1);
     server.stop().await;
 }

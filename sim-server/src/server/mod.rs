@@ -32,7 +32,7 @@
 //!   and starts a new permutation. Trainers sharing a server never influence each other's
 //!   sequences.
 //! * **Agent names.** `vehicle_0` is the scenario's ego, other vehicles follow in agent order;
-//!   `pedestrian_k` in agent order. External agents must be vehicles.
+//!   `pedestrian_k` in agent order. Either may be external (`pools::ExternalAgent`).
 //! * **Publications cost nothing unobserved.** For each topic (`states`, `uncertainty`,
 //!   `risk_graph`, `events`, `result`) the server declares one publisher on `{p}/env/*/{topic}` and
 //!   keeps its zenoh matching status in an atomic flag; a topic without any matching subscriber

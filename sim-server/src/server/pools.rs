@@ -3,9 +3,10 @@
 //! **Agent names.** In every scenario the vehicles are named `vehicle_0`, `vehicle_1`, ... with
 //! `vehicle_0` the scenario's ego (`Scenario::ego`) and the other vehicles following in the
 //! scenario's agent order; pedestrians are `pedestrian_0`, `pedestrian_1`, ... in agent order.
+//! Either may be external ([`ExternalAgent`]).
 //!
 //! **Scenario sequence.** An env draws its episodes from the candidate scenarios of its pool
-//! split (those with enough vehicles for its external agents), in pool order. The sequence is a
+//! split (those with enough vehicles and pedestrians for its external agents), in pool order. The sequence is a
 //! series of random permutations of the candidates: the first is drawn by a SplitMix64 generator
 //! seeded with the env's seed (`CreateEnv.seed + k` for the k-th env of a request), and each
 //! time a permutation is used up the next one is drawn from the same generator. `Reset.seed`
@@ -117,6 +118,8 @@ pub struct ServedScenario {
     pub scenario: Arc<Scenario>,
     /// Agent ids of the vehicles: index k is `vehicle_k` (the ego first).
     pub vehicles: Vec<AgentId>,
+    /// Agent ids of the pedestrians: index k is `pedestrian_k` (agent order).
+    pub pedestrians: Vec<AgentId>,
     /// Name of every agent, indexed by agent id.
     pub names: Vec<String>,
     /// The scenario's name, shared by the batch replies that name it (no copy per env step).
@@ -142,18 +145,87 @@ impl ServedScenario {
         for (k, &id) in vehicles.iter().enumerate() {
             names[id as usize] = format!("vehicle_{k}");
         }
-        let mut peds = 0usize;
+        let mut pedestrians: Vec<AgentId> = Vec::new();
         for (k, a) in scenario.agents.iter().enumerate() {
             if a.kind == AgentKind::Pedestrian {
-                names[k] = format!("pedestrian_{peds}");
-                peds += 1;
+                names[k] = format!("pedestrian_{}", pedestrians.len());
+                pedestrians.push(k as AgentId);
             }
         }
         Self {
             name: Arc::from(scenario.name.as_str()),
             scenario: Arc::new(scenario),
             vehicles,
+            pedestrians,
             names,
+        }
+    }
+
+    /// The agent id of an external agent, if the scenario has it.
+    pub fn agent_id(&self, agent: ExternalAgent) -> Option<AgentId> {
+        match agent {
+            ExternalAgent::Vehicle(k) => self.vehicles.get(k).copied(),
+            ExternalAgent::Pedestrian(k) => self.pedestrians.get(k).copied(),
+        }
+    }
+}
+
+/// An agent a client drives: `vehicle_{k}` or `pedestrian_{k}` (the module doc says which).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExternalAgent {
+    Vehicle(usize),
+    Pedestrian(usize),
+}
+
+impl ExternalAgent {
+    /// `vehicle_{k}` or `pedestrian_{k}` with `k` a decimal number without leading zeros.
+    pub fn parse(name: &str) -> Option<Self> {
+        let (kind, k): (fn(usize) -> Self, &str) = if let Some(k) = name.strip_prefix("vehicle_") {
+            (Self::Vehicle, k)
+        } else {
+            (Self::Pedestrian, name.strip_prefix("pedestrian_")?)
+        };
+        if k.is_empty()
+            || (k.len() > 1 && k.starts_with('0'))
+            || !k.bytes().all(|b| b.is_ascii_digit())
+        {
+            return None;
+        }
+        k.parse().ok().map(kind)
+    }
+}
+
+/// What a scenario must have to serve a list of external agents: this many vehicles and
+/// pedestrians.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AgentsNeeded {
+    pub vehicles: usize,
+    pub pedestrians: usize,
+}
+
+impl AgentsNeeded {
+    pub fn of(agents: &[ExternalAgent]) -> Self {
+        let mut need = Self::default();
+        for a in agents {
+            match *a {
+                ExternalAgent::Vehicle(k) => need.vehicles = need.vehicles.max(k + 1),
+                ExternalAgent::Pedestrian(k) => need.pedestrians = need.pedestrians.max(k + 1),
+            }
+        }
+        need
+    }
+
+    fn met_by(&self, s: &ServedScenario) -> bool {
+        s.vehicles.len() >= self.vehicles && s.pedestrians.len() >= self.pedestrians
+    }
+}
+
+impl std::fmt::Display for AgentsNeeded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (self.vehicles, self.pedestrians) {
+            (v, 0) => write!(f, "{v} vehicle(s)"),
+            (0, p) => write!(f, "{p} pedestrian(s)"),
+            (v, p) => write!(f, "{v} vehicle(s) and {p} pedestrian(s)"),
         }
     }
 }
@@ -214,11 +286,11 @@ impl ServedPool {
     }
 
     /// Indices of the scenarios of `split` with at least `vehicles` vehicles, in pool order.
-    pub fn candidates(&self, split: Split, vehicles: usize) -> Vec<usize> {
+    pub fn candidates(&self, split: Split, need: AgentsNeeded) -> Vec<usize> {
         self.scenarios
             .iter()
             .enumerate()
-            .filter(|(_, s)| s.scenario.split == split && s.vehicles.len() >= vehicles)
+            .filter(|(_, s)| s.scenario.split == split && need.met_by(s))
             .map(|(i, _)| i)
             .collect()
     }

@@ -3,6 +3,8 @@
 
 use sim_core::params::OverlayError;
 
+use crate::server::pools::{AgentsNeeded, ExternalAgent};
+
 use super::{
     bad, decode, lock, make_env_id, validate_env_id, ActionSpace, Arc, BTreeMap, CreateEnv,
     Duration, Env, EnvCreated, EnvSpec, ErrorCode, ErrorReply, Instant, Mode, Mutex, ObsLayout,
@@ -28,15 +30,6 @@ fn split_of(s: WireSplit) -> Split {
         WireSplit::Train => Split::Train,
         WireSplit::Test => Split::Test,
     }
-}
-
-fn parse_vehicle(name: &str) -> Option<usize> {
-    let k = name.strip_prefix("vehicle_")?;
-    if k.is_empty() || (k.len() > 1 && k.starts_with('0')) || !k.bytes().all(|b| b.is_ascii_digit())
-    {
-        return None;
-    }
-    k.parse().ok()
 }
 
 /// Most pedestrians of a requested synthetic scene (a world of this size steps in milliseconds).
@@ -119,9 +112,9 @@ impl ServerCore {
             &req.pedestrian_params,
             &req.reward_weights,
         )?;
-        let vehicles = external_vehicles(&req.external_agents)?;
+        let externals = external_agents(&req.external_agents)?;
         let split = split_of(req.split);
-        let (candidates, pinned) = episode_candidates(&pool, split, &vehicles, &req.scenario)?;
+        let (candidates, pinned) = episode_candidates(&pool, split, &externals, &req.scenario)?;
         let spec = Arc::new(EnvSpec {
             client_id: req.client_id.clone(),
             pool: pool.clone(),
@@ -131,7 +124,7 @@ impl ServerCore {
             model: req.pedestrian_model,
             params,
             external_names: req.external_agents.clone(),
-            external_vehicles: vehicles,
+            externals,
             mode: req.mode,
             max_agents: req.max_agents,
             autoreset: req.autoreset,
@@ -255,29 +248,29 @@ impl ServerCore {
     }
 }
 
-/// The vehicle index `k` of each external agent `vehicle_{k}`.
-fn external_vehicles(names: &[String]) -> Result<Vec<usize>, ErrorReply> {
+/// Each external agent's name parsed: `vehicle_{k}` or `pedestrian_{k}`.
+fn external_agents(names: &[String]) -> Result<Vec<ExternalAgent>, ErrorReply> {
     names
         .iter()
         .map(|name| {
-            parse_vehicle(name).ok_or_else(|| {
+            ExternalAgent::parse(name).ok_or_else(|| {
                 bad(format!(
-                    "external agent {name:?}: expected a vehicle name vehicle_{{k}} (vehicle_0 is the scenario's ego)"
+                    "external agent {name:?}: expected vehicle_{{k}} (vehicle_0 is the scenario's ego) or pedestrian_{{k}}"
                 ))
             })
         })
         .collect()
 }
 
-/// The scenarios of `split` with every external vehicle, and the pinned `scenario`'s index
+/// The scenarios of `split` with every external agent, and the pinned `scenario`'s index
 /// among them (if one is named).
 fn episode_candidates(
     pool: &ServedPool,
     split: Split,
-    vehicles: &[usize],
+    externals: &[ExternalAgent],
     scenario: &Option<String>,
 ) -> Result<(Vec<usize>, Option<usize>), ErrorReply> {
-    let need = vehicles.iter().max().map_or(0, |k| k + 1);
+    let need = AgentsNeeded::of(externals);
     let candidates = pool.candidates(split, need);
     let pinned = match scenario {
         None => None,
@@ -287,7 +280,7 @@ fn episode_candidates(
                 .ok_or_else(|| bad(format!("no scenario {name:?} in pool {:?}", pool.name)))?;
             if !candidates.contains(&i) {
                 return Err(bad(format!(
-                    "scenario {name:?} is not in split {:?} of pool {:?} or has fewer than {need} vehicles",
+                    "scenario {name:?} is not in split {:?} of pool {:?} or has fewer than {need}",
                     split, pool.name
                 )));
             }
@@ -296,7 +289,7 @@ fn episode_candidates(
     };
     if candidates.is_empty() {
         return Err(bad(format!(
-            "split {split:?} of pool {:?} has no scenario with {need} vehicle(s)",
+            "split {split:?} of pool {:?} has no scenario with {need}",
             pool.name
         )));
     }

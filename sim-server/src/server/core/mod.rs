@@ -39,6 +39,23 @@ mod batch;
 mod create;
 mod memory;
 mod reaping;
+/// A `non_finite_action` error of a `Step` with the name of the external agent whose row holds
+/// the first non-finite number, as the client named it (`pedestrian_1: actions: ...`).
+fn named_agent(e: ErrorReply, req: &Step, names: &[String]) -> ErrorReply {
+    if e.code != ErrorCode::NonFiniteAction {
+        return e;
+    }
+    let values = req.actions.to_f64_vec();
+    match values
+        .iter()
+        .position(|v| !v.is_finite())
+        .and_then(|i| names.get(i / 2))
+    {
+        Some(name) => ErrorReply::new(e.code, format!("{name}: {}", e.message)),
+        None => e,
+    }
+}
+
 #[cfg(test)]
 mod tests;
 
@@ -420,6 +437,7 @@ impl ServerCore {
             env.check_steppable(true)?;
             let actions = req
                 .checked_actions(env.spec.n_ext() as u32)
+                .map_err(|e| named_agent(e, &req, &env.spec.external_names))
                 .map_err(|e| e.with_env(env_id.to_string()))?;
             // A pooled scratch: an autoreset world starts every episode with an empty one.
             let mut scratch = self.take_stepper();

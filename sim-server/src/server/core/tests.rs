@@ -275,6 +275,70 @@ fn synthetic_scenes_with_two_controlled_vehicles_are_created_and_stepped() {
 }
 
 #[test]
+fn pedestrians_are_external_agents_beside_the_car_and_bad_names_are_refused() {
+    let c = core(Limits::default());
+    let mut req = CreateEnv::new("peds");
+    req.external_agents = vec!["vehicle_0".into(), "pedestrian_1".into()];
+    req.scenario = Some("hbs-car1116".into());
+    let created = create(&c, &req);
+    assert_eq!(created.external_agents, req.external_agents);
+    let id = &created.env_ids[0];
+    let reset: ResetResult =
+        decode::<Reply<ResetResult>>(&c.handle_reset(id, &[], Gates::NONE).reply)
+            .unwrap()
+            .into_result()
+            .unwrap();
+    let ped = reset
+        .agents
+        .iter()
+        .find(|a| a.name == "pedestrian_1")
+        .expect("pedestrian_1 is present at the start of hbs-car1116");
+    assert!(ped.external && ped.kind == protocol::AgentKind::Pedestrian);
+    // its observation row: node 0 is itself
+    assert_eq!(reset.obs.node_ids.get(&[1, 0]), Some(ped.id));
+    let step = encode(&Step::from_rows(&[[0.5, 0.0], [1.0, 0.5]]));
+    let r: StepResult = decode::<Reply<StepResult>>(&c.handle_step(id, &step, Gates::NONE).reply)
+        .unwrap()
+        .into_result()
+        .unwrap();
+    assert_eq!(r.reward.len(), 2);
+    // A non-finite pedestrian action is refused by name and leaves the env as it was.
+    let nan = encode(&Step::from_rows(&[[0.0, 0.0], [f32::NAN, 0.0]]));
+    let e = err_of(&c.handle_step(id, &nan, Gates::NONE).reply);
+    assert_eq!(e.code, ErrorCode::NonFiniteAction);
+    assert!(e.message.starts_with("pedestrian_1: "), "{}", e.message);
+    // Refused with a message that names the problem, and nothing is created.
+    let load = c.load();
+    for (names, scenario, needle) in [
+        (
+            vec!["pedestrian_01"],
+            None,
+            "\"pedestrian_01\": expected vehicle_{k}",
+        ),
+        (vec!["walker_0"], None, "\"walker_0\""),
+        (
+            vec!["vehicle_0", "pedestrian_3"],
+            None,
+            "no scenario with 1 vehicle(s) and 4 pedestrian(s)",
+        ),
+        (
+            vec!["pedestrian_3"],
+            Some("hbs-car1116"),
+            "has fewer than 4 pedestrian(s)",
+        ),
+    ] {
+        let mut bad_req = CreateEnv::new("peds");
+        bad_req.external_agents = names.iter().map(|n| n.to_string()).collect();
+        bad_req.scenario = scenario.map(String::from);
+        let r = c.handle_create(&encode(&bad_req), Instant::now());
+        let e = err_of(&r.reply);
+        assert_eq!(e.code, ErrorCode::BadRequest, "{names:?}");
+        assert!(e.message.contains(needle), "{names:?}: {}", e.message);
+    }
+    assert_eq!(c.load(), load);
+}
+
+#[test]
 fn an_oversized_request_is_refused_before_decoding() {
     let c = core(Limits {
         max_request_bytes: 64,

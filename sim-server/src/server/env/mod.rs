@@ -22,7 +22,7 @@ use sim_core::world::{
 
 use protocol::wire::{BatchArrays, BatchColumns, BatchReset, ObsRef};
 
-use super::pools::{ScenarioSequence, ServedPool, ServedScenario};
+use super::pools::{AgentsNeeded, ExternalAgent, ScenarioSequence, ServedPool, ServedScenario};
 
 mod buffers;
 mod publish;
@@ -45,10 +45,10 @@ pub struct EnvSpec {
     pub pinned: Option<usize>,
     pub model: PedestrianModel,
     pub params: WorldParams,
-    /// External agent names (`vehicle_{k}`) in action order.
+    /// External agent names (`vehicle_{k}`, `pedestrian_{k}`) in action order.
     pub external_names: Vec<String>,
-    /// The `k` of each `vehicle_{k}`.
-    pub external_vehicles: Vec<usize>,
+    /// Each of them parsed.
+    pub externals: Vec<ExternalAgent>,
     pub mode: Mode,
     pub max_agents: u32,
     pub autoreset: bool,
@@ -247,9 +247,13 @@ impl Env {
         let spec = self.spec.clone();
         let served = &spec.pool.scenarios[idx];
         let ext_ids: Vec<AgentId> = spec
-            .external_vehicles
+            .externals
             .iter()
-            .map(|&k| served.vehicles[k])
+            .map(|&e| {
+                served
+                    .agent_id(e)
+                    .expect("a candidate scenario has every external agent")
+            })
             .collect();
         let config = EpisodeConfig {
             pedestrian_model: spec.model,
@@ -301,10 +305,10 @@ impl Env {
             return Err(ErrorReply::new(
                 ErrorCode::BadRequest,
                 format!(
-                    "scenario {name:?} is not in this env's candidates (split {:?} of pool {:?} with at least {} vehicles)",
+                    "scenario {name:?} is not in this env's candidates (split {:?} of pool {:?} with at least {})",
                     spec.split,
                     pool.name,
-                    spec.external_vehicles.iter().max().map_or(0, |k| k + 1)
+                    AgentsNeeded::of(&spec.externals)
                 ),
             )
             .with_env(self.id.clone()));
@@ -510,12 +514,19 @@ impl Env {
             None => world.step(&self.active),
         };
         out.map_err(|e| {
-            let code = match e {
-                StepError::EpisodeOver => ErrorCode::NeedsReset,
-                StepError::NonFiniteAction { .. } => ErrorCode::NonFiniteAction,
-                _ => ErrorCode::Internal,
+            let (code, message) = match e {
+                StepError::EpisodeOver => (ErrorCode::NeedsReset, e.to_string()),
+                // named as the client names the agent: its row in `external_agents`
+                StepError::NonFiniteAction { agent, .. } => {
+                    let name = ext_ids
+                        .iter()
+                        .position(|&x| x == agent)
+                        .map_or("?", |k| self.spec.external_names[k].as_str());
+                    (ErrorCode::NonFiniteAction, format!("{name}: {e}"))
+                }
+                _ => (ErrorCode::Internal, e.to_string()),
             };
-            ErrorReply::new(code, e.to_string()).with_env(self.id.clone())
+            ErrorReply::new(code, message).with_env(self.id.clone())
         })
     }
 
