@@ -1,0 +1,62 @@
+"""Pedestrians under external control (issue 60), against a live server: a mixed env, one learned
+car and one learned pedestrian among CR-SFM pedestrians and IDM cars, passes PettingZoo's and
+TorchRL's own checks, and a pedestrian the scenes lack is refused by name."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("pettingzoo")
+
+import sharedspace  # noqa: E402
+from sharedspace.wire.errors import ServerError  # noqa: E402
+
+MIXED = ("vehicle_0", "pedestrian_0")
+
+
+def options(sim_server):
+    return dict(
+        endpoint=sim_server.endpoint,
+        prefix=sim_server.prefix,
+        external_agents=MIXED,
+        pool="hbs-general",
+        vehicle_model="idm",
+        max_agents=8,
+    )
+
+
+def test_a_mixed_env_passes_pettingzoo_parallel_api_test(sim_server):
+    from pettingzoo.test import parallel_api_test
+
+    env = sharedspace.parallel_env(**options(sim_server))
+    try:
+        obs, _ = env.reset(seed=0)
+        assert env.possible_agents == list(MIXED)
+        assert all(obs[a]["features"].shape == (8, 11) for a in MIXED)
+        parallel_api_test(env, num_cycles=200)
+    finally:
+        env.close()
+
+
+def test_a_mixed_env_passes_torchrl_check_env_specs(sim_server):
+    pytest.importorskip("torchrl")
+    from torchrl.envs.utils import check_env_specs
+
+    env = sharedspace.RemoteMultiAgentEnv(num_envs=2, **options(sim_server))
+    try:
+        check_env_specs(env)
+    finally:
+        env.close()
+
+
+def test_a_pedestrian_the_scenes_lack_is_refused_by_name(sim_server):
+    env = sharedspace.parallel_env(
+        endpoint=sim_server.endpoint,
+        prefix=sim_server.prefix,
+        external_agents=("vehicle_0", "pedestrian_3"),  # hbs-paper's scenes have 3
+    )
+    try:
+        with pytest.raises(ServerError, match="3 pedestrian|4 pedestrian"):
+            env.reset(seed=0)
+    finally:
+        env.close()
