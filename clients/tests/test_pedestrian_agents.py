@@ -45,6 +45,13 @@ def test_a_mixed_env_passes_torchrl_check_env_specs(sim_server):
     env = sharedspace.RemoteMultiAgentEnv(num_envs=2, **options(sim_server))
     try:
         check_env_specs(env)
+        # grouped by kind: one car, one pedestrian, each with its own tensors
+        assert env.groups == {"vehicle": [0], "pedestrian": [1]}
+        td = env.rollout(4)
+        for group in ("vehicle", "pedestrian"):
+            assert td[group, "action"].shape == (2, 4, 1, 2)
+            assert td["next", group, "features"].shape == (2, 4, 1, 8, 11)
+            assert td["next", group, "reward"].shape == (2, 4, 1, 1)
     finally:
         env.close()
 

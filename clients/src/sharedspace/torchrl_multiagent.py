@@ -1,6 +1,7 @@
-"""TorchRL env with several controlled vehicles per sub-env (ENV_CONTRACT.md "Several vehicles"):
+"""TorchRL env with several controlled agents per sub-env (ENV_CONTRACT.md "Several vehicles"):
 :class:`RemoteMultiAgentEnv`, TorchRL's grouped multi-agent layout over the same server envs as
-:class:`~sharedspace.torchrl_env.RemoteBatchedEnv`.
+:class:`~sharedspace.torchrl_env.RemoteBatchedEnv`, the agents grouped by kind: ``vehicle`` and
+``pedestrian``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,19 @@ from .client import Connection, SimClient, env_options
 from .torchrl_env import NODE_FEATURES, _ServerEnvs
 from .wire.requests import EnvSpec
 
-__all__ = ["AGENT_OUTCOME_KEYS", "RemoteMultiAgentEnv"]
+__all__ = ["AGENT_OUTCOME_KEYS", "GROUPS", "RemoteMultiAgentEnv", "group_of"]
+
+#: The agent groups, by the prefix of an agent's name (``vehicle_0``, ``pedestrian_3``).
+GROUPS = ("vehicle", "pedestrian")
+
+
+def group_of(agent: str) -> str:
+    """The group of an external agent's name: ``vehicle`` or ``pedestrian``."""
+    for group in GROUPS:
+        if agent.startswith(f"{group}_"):
+            return group
+    raise ValueError(f"external agent {agent!r}: expected vehicle_{{k}} or pedestrian_{{k}}")
+
 
 #: Per-agent flags ``[K, A, 1]`` under the group, set on the step that ends that agent's
 #: episode: how it ended, and ``episode_car_collision`` when its collision was with a vehicle.
@@ -30,10 +43,12 @@ AGENT_OUTCOME_KEYS = (
 
 
 class RemoteMultiAgentEnv(_ServerEnvs):
-    """K server envs with several controlled vehicles each, in TorchRL's multi-agent layout.
+    """K server envs with several controlled agents each, in TorchRL's multi-agent layout.
 
-    The A vehicles of ``external_agents`` form one agent group, ``"vehicle"`` (as TorchRL's
-    PettingZoo and VMAS wrappers group agents): under it ``features [K, A, M, F]``,
+    The agents of ``external_agents`` are grouped by kind (as TorchRL's PettingZoo and VMAS
+    wrappers group agents): the A vehicles under ``"vehicle"``, the pedestrians, if any, under
+    ``"pedestrian"`` (:attr:`groups`: each group's columns of ``external_agents``; ``group``:
+    the first). Under each group ``features [K, A, M, F]``,
     ``adjacency [K, A, M, M]``, ``mask [K, A, M]`` (bool: which nodes are real), ``action
     [K, A, 2]``, ``reward [K, A, 1]`` and the per-agent ``done`` / ``terminated`` /
     ``truncated [K, A, 1]``. An agent's flags stay set once its own episode has ended (the
@@ -61,7 +76,6 @@ class RemoteMultiAgentEnv(_ServerEnvs):
     """
 
     batch_locked = True
-    group = "vehicle"
 
     def __init__(
         self,
@@ -89,6 +103,13 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         self.n_agents = a = len(spec.external_agents)
         self.max_agents = m = spec.max_agents
         self.agent_names = list(spec.external_agents)
+        #: Each group's columns of ``external_agents``, vehicles first.
+        self.groups: dict[str, list[int]] = {}
+        for i, name in enumerate(self.agent_names):
+            self.groups.setdefault(group_of(name), []).append(i)
+        self.groups = {g: self.groups[g] for g in GROUPS if g in self.groups}
+        #: The first group (``"vehicle"`` unless only pedestrians are driven).
+        self.group = next(iter(self.groups))
         #: Scenario name of each sub-env's current episode.
         self.scenarios: list[str | None] = [None] * k
         self._obs = {
@@ -108,7 +129,7 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         self._set_specs()
 
     def _set_specs(self) -> None:
-        k, a, m, dev = self.num_envs, self.n_agents, self.max_agents, self.device
+        k, m, dev = self.num_envs, self.max_agents, self.device
 
         def flags(shape):
             return {
@@ -116,31 +137,39 @@ class RemoteMultiAgentEnv(_ServerEnvs):
                 for key in ("done", "terminated", "truncated")
             }
 
-        def grouped(**specs) -> Composite:
-            """``specs`` (each ``[k, a, ...]``) under the agent group, as TorchRL's multi-agent
-            envs nest them: batch ``[k]`` outside, ``[k, a]`` inside."""
-            inner = Composite(specs, shape=(k, a), device=dev)
-            return Composite({self.group: inner}, shape=(k,), device=dev)
+        def grouped(make) -> Composite:
+            """``make(a)``'s specs (each ``[k, a, ...]``) under each agent group of ``a``
+            agents, as TorchRL's multi-agent envs nest them: batch ``[k]`` outside, ``[k, a]``
+            inside."""
+            return Composite(
+                {
+                    g: Composite(make(len(cols)), shape=(k, len(cols)), device=dev)
+                    for g, cols in self.groups.items()
+                },
+                shape=(k,),
+                device=dev,
+            )
 
         self.observation_spec = grouped(
-            features=Unbounded((k, a, m, NODE_FEATURES), dtype=torch.float32, device=dev),
-            adjacency=Unbounded((k, a, m, m), dtype=torch.float32, device=dev),
-            mask=Binary(n=m, shape=(k, a, m), dtype=torch.bool, device=dev),
+            lambda a: {
+                "features": Unbounded((k, a, m, NODE_FEATURES), dtype=torch.float32, device=dev),
+                "adjacency": Unbounded((k, a, m, m), dtype=torch.float32, device=dev),
+                "mask": Binary(n=m, shape=(k, a, m), dtype=torch.bool, device=dev),
+                **{
+                    key: Categorical(2, shape=(k, a, 1), dtype=torch.bool, device=dev)
+                    for key in AGENT_OUTCOME_KEYS
+                },
+            }
         )
         self.action_spec = grouped(
-            action=Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev)
+            lambda a: {"action": Bounded(-1.0, 1.0, (k, a, 2), dtype=torch.float32, device=dev)}
         )
-        self.reward_spec = grouped(reward=Unbounded((k, a, 1), dtype=torch.float32, device=dev))
-        outcome_specs = {
-            key: Categorical(2, shape=(k, a, 1), dtype=torch.bool, device=dev)
-            for key in AGENT_OUTCOME_KEYS
-        }
-        self.observation_spec[self.group].update(outcome_specs)
-        self.done_spec = Composite(
-            {**flags((k, 1)), self.group: Composite(flags((k, a, 1)), shape=(k, a), device=dev)},
-            shape=(k,),
-            device=dev,
+        self.reward_spec = grouped(
+            lambda a: {"reward": Unbounded((k, a, 1), dtype=torch.float32, device=dev)}
         )
+        done = grouped(lambda a: flags((k, a, 1)))
+        done.update(flags((k, 1)))
+        self.done_spec = done
 
     def _take_reset(self, k: int, result: Mapping[str, Any]) -> None:
         for key in ("features", "adjacency", "mask"):
@@ -159,23 +188,30 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         k, a = self.num_envs, self.n_agents
         over = self._agent_done.all(1, keepdims=True)
         trunc = over & self._agent_trunc.any(1, keepdims=True)
-        group = {
-            "features": torch.from_numpy(self._obs["features"].copy()),
-            "adjacency": torch.from_numpy(self._obs["adjacency"].copy()),
-            "mask": torch.from_numpy(self._obs["mask"].copy()),
-            "done": torch.from_numpy(self._agent_done.reshape(k, a, 1).copy()),
-            "terminated": torch.from_numpy(self._agent_term.reshape(k, a, 1).copy()),
-            "truncated": torch.from_numpy(self._agent_trunc.reshape(k, a, 1).copy()),
+        columns = {
+            "features": self._obs["features"],
+            "adjacency": self._obs["adjacency"],
+            "mask": self._obs["mask"],
+            "done": self._agent_done.reshape(k, a, 1),
+            "terminated": self._agent_term.reshape(k, a, 1),
+            "truncated": self._agent_trunc.reshape(k, a, 1),
         }
         if reward is not None:
-            group["reward"] = torch.from_numpy(reward.reshape(k, a, 1).astype(np.float32))
+            columns["reward"] = reward.reshape(k, a, 1).astype(np.float32)
         if outcomes is None:
             outcomes = {key: np.zeros((k, a), dtype=bool) for key in AGENT_OUTCOME_KEYS}
         for key, flags in outcomes.items():
-            group[key] = torch.from_numpy(flags.reshape(k, a, 1))
+            columns[key] = flags.reshape(k, a, 1)
+        groups = {
+            g: TensorDict(
+                {key: torch.from_numpy(v[:, cols].copy()) for key, v in columns.items()},
+                batch_size=(k, len(cols)),
+            )
+            for g, cols in self.groups.items()
+        }
         return TensorDict(
             {
-                self.group: TensorDict(group, batch_size=(k, a)),
+                **groups,
                 "done": torch.from_numpy(over),
                 "terminated": torch.from_numpy(over & ~trunc),
                 "truncated": torch.from_numpy(trunc),
@@ -208,9 +244,10 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         if self._needs_reset.any():
             k = int(np.flatnonzero(self._needs_reset)[0])
             raise RuntimeError(f"sub-env {k} is done: reset it (with `_reset`) before stepping")
-        action = tensordict.get((self.group, "action")).detach().cpu().numpy()
-        action = np.clip(action.astype(np.float32, copy=False), -1.0, 1.0)
-        res = self.vec.step(action.reshape(self.num_envs, self.n_agents, 2))
+        action = np.zeros((self.num_envs, self.n_agents, 2), dtype=np.float32)
+        for g, cols in self.groups.items():
+            action[:, cols] = tensordict.get((g, "action")).detach().cpu().numpy()
+        res = self.vec.step(np.clip(action, -1.0, 1.0))
         for key in ("features", "adjacency", "mask"):
             self._obs[key][:] = res["obs"][key]
         term = res["terminated"].astype(bool)
