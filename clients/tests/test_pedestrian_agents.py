@@ -67,3 +67,38 @@ def test_a_pedestrian_the_scenes_lack_is_refused_by_name(sim_server):
             env.reset(seed=0)
     finally:
         env.close()
+
+
+def test_a_gymnasium_env_drives_one_pedestrian_and_passes_check_env(sim_server):
+    gymnasium = pytest.importorskip("gymnasium")
+    from gymnasium.utils.env_checker import check_env
+
+    env = gymnasium.make(
+        "sharedspace/SharedSpace-v0",
+        agent="pedestrian_0",
+        endpoint=sim_server.endpoint,
+        prefix=sim_server.prefix,
+        split="test",
+    )
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+        obs, info = env.reset(seed=0)
+        assert obs["features"][0, 7] == 0.0  # node 0, is_vehicle: itself, a pedestrian
+        done, steps = False, 0
+        while not done:
+            obs, reward, term, trunc, info = env.step([1.0, 0.0])  # walk straight on
+            done, steps = term or trunc, steps + 1
+        assert info["success"] + info["collision"] + info["timeout"] == 1
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="'walker_0'"):
+        gymnasium.make("sharedspace/SharedSpace-v0", agent="walker_0")
+
+
+def test_agent_names_are_parsed_once():
+    from sharedspace.names import agent_group
+
+    assert agent_group("vehicle_0") == "vehicle" and agent_group("pedestrian_12") == "pedestrian"
+    for bad in ("pedestrian_01", "pedestrian_", "bus_0", "vehicle_x"):
+        with pytest.raises(ValueError, match=repr(bad)):
+            agent_group(bad)

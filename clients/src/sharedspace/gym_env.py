@@ -13,7 +13,9 @@ In a process that has not imported sharedspace (a vector env's worker), name the
 id: ``gym.make("sharedspace:sharedspace/SharedSpace-v0", ...)`` imports it first.
 
 A thin adapter over :class:`~sharedspace.pettingzoo_env.SharedSpaceParallelEnv` with one
-external agent (``vehicle_0``, the scenario's recorded car): the same observation dict
+external agent (``agent``: ``vehicle_0``, the scenario's recorded car, by default; or a
+pedestrian, ``agent="pedestrian_0"``, whose action is an acceleration in its own frame,
+docs/MODEL.md 2b): the same observation dict
 (``features [M, 11]``, ``adjacency [M, M]``, ``mask [M]``), action (normalised
 ``[acc, omega]`` in ``[-1, 1]``), reward and infos. The server truncates at the scenario's
 horizon, so no ``TimeLimit`` is added.
@@ -30,13 +32,15 @@ from typing import Any
 
 import gymnasium
 
+from .names import agent_group
 from .spaces import action_space, observation_space
 
 __all__ = ["SharedSpaceEnv", "ENV_ID", "register"]
 
 #: The registered id (``gymnasium.make(ENV_ID, endpoint=...)``).
 ENV_ID = "sharedspace/SharedSpace-v0"
-_AGENT = "vehicle_0"
+#: The agent a Gymnasium env drives unless told: the scenario's recorded car.
+DEFAULT_AGENT = "vehicle_0"
 #: Options of the parallel env that are neither spec nor connection fields.
 _PARALLEL_ONLY = ("scenario", "max_cycles", "render_size")
 
@@ -46,16 +50,24 @@ class SharedSpaceEnv(gymnasium.Env):
 
     Takes what :class:`~sharedspace.pettingzoo_env.SharedSpaceParallelEnv` takes (a
     :class:`~sharedspace.wire.EnvSpec` and options naming its fields or ``Connection`` fields;
-    ``scenario``, ``max_cycles``, ``render_size``) but ``external_agents`` (always the
-    scenario's car) and ``client`` (a copy must be able to connect on its own). The options
+    ``scenario``, ``max_cycles``, ``render_size``) but ``external_agents`` (the one ``agent``)
+    and ``client`` (a copy must be able to connect on its own). The options
     become the spec and the connection here, where they are checked.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
 
-    def __init__(self, render_mode: str | None = None, spec=None, **options: Any):
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        spec=None,
+        agent: str = DEFAULT_AGENT,
+        **options: Any,
+    ):
         from .client import env_options
 
+        agent_group(agent)  # a vehicle_{k} or pedestrian_{k}, or a ValueError naming it
+        self.agent = agent
         for fixed in ("external_agents", "client"):
             if fixed in options:
                 raise TypeError(f"SharedSpaceEnv does not take {fixed!r}")
@@ -66,7 +78,7 @@ class SharedSpaceEnv(gymnasium.Env):
         spec, connection, _ = env_options(options, spec)
         self._args: dict[str, Any] = {
             **own,
-            "spec": spec.replace(external_agents=(_AGENT,)),
+            "spec": spec.replace(external_agents=(agent,)),
             "client": connection,
             "render_mode": render_mode,
         }
@@ -89,13 +101,14 @@ class SharedSpaceEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         obs, infos = self._env().reset(seed=seed, options=options)
-        return obs[_AGENT], infos[_AGENT]
+        return obs[self.agent], infos[self.agent]
 
     def step(self, action):
         if self._parallel is None:
             raise RuntimeError("call reset() before step()")
-        obs, rewards, terms, truncs, infos = self._parallel.step({_AGENT: action})
-        return obs[_AGENT], rewards[_AGENT], terms[_AGENT], truncs[_AGENT], infos[_AGENT]
+        a = self.agent
+        obs, rewards, terms, truncs, infos = self._parallel.step({a: action})
+        return obs[a], rewards[a], terms[a], truncs[a], infos[a]
 
     def render(self):
         return None if self._parallel is None else self._parallel.render()

@@ -14,7 +14,15 @@ from importlib import resources
 
 _DOC = json.loads(resources.files(__package__).joinpath("names.json").read_text())
 
-__all__ = ["FEATURE_NAMES", "FEATURE_SCALE", "NODE_FEATURES", "REWARD_TERMS", "Feature"]
+__all__ = [
+    "AGENT_GROUPS",
+    "FEATURE_NAMES",
+    "FEATURE_SCALE",
+    "NODE_FEATURES",
+    "REWARD_TERMS",
+    "Feature",
+    "agent_group",
+]
 
 #: Node features of an observation, in order (protocol/SPEC.md section 7).
 FEATURE_NAMES: tuple[str, ...] = tuple(_DOC["feature_names"])
@@ -28,3 +36,16 @@ REWARD_TERMS: tuple[str, ...] = tuple(_DOC["reward_terms"])
 
 #: Each feature's column: ``Feature.SPEED == 4``, ``Feature.GOAL_DIST == 10``.
 Feature = enum.IntEnum("Feature", [(name.upper(), i) for i, name in enumerate(FEATURE_NAMES)])
+
+#: The kinds of agent a client may drive, by the prefix of the agent's name (SPEC 5.2):
+#: ``vehicle_{k}`` (``vehicle_0``: the scenario's ego) and ``pedestrian_{k}``.
+AGENT_GROUPS = ("vehicle", "pedestrian")
+
+
+def agent_group(agent: str) -> str:
+    """The kind of an external agent's name, ``vehicle`` or ``pedestrian``; a ``ValueError``
+    naming it otherwise."""
+    kind, _, k = agent.rpartition("_")
+    if kind in AGENT_GROUPS and k.isdigit() and (k == "0" or not k.startswith("0")):
+        return kind
+    raise ValueError(f"external agent {agent!r}: expected vehicle_{{k}} or pedestrian_{{k}}")

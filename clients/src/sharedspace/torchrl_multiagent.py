@@ -15,21 +15,11 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Categorical, Composite, Unbounded
 
 from .client import Connection, SimClient, env_options
+from .names import AGENT_GROUPS, agent_group
 from .torchrl_env import NODE_FEATURES, _ServerEnvs
 from .wire.requests import EnvSpec
 
-__all__ = ["AGENT_OUTCOME_KEYS", "GROUPS", "RemoteMultiAgentEnv", "group_of"]
-
-#: The agent groups, by the prefix of an agent's name (``vehicle_0``, ``pedestrian_3``).
-GROUPS = ("vehicle", "pedestrian")
-
-
-def group_of(agent: str) -> str:
-    """The group of an external agent's name: ``vehicle`` or ``pedestrian``."""
-    for group in GROUPS:
-        if agent.startswith(f"{group}_"):
-            return group
-    raise ValueError(f"external agent {agent!r}: expected vehicle_{{k}} or pedestrian_{{k}}")
+__all__ = ["AGENT_OUTCOME_KEYS", "RemoteMultiAgentEnv"]
 
 
 #: Per-agent flags ``[K, A, 1]`` under the group, set on the step that ends that agent's
@@ -106,8 +96,8 @@ class RemoteMultiAgentEnv(_ServerEnvs):
         #: Each group's columns of ``external_agents``, vehicles first.
         self.groups: dict[str, list[int]] = {}
         for i, name in enumerate(self.agent_names):
-            self.groups.setdefault(group_of(name), []).append(i)
-        self.groups = {g: self.groups[g] for g in GROUPS if g in self.groups}
+            self.groups.setdefault(agent_group(name), []).append(i)
+        self.groups = {g: self.groups[g] for g in AGENT_GROUPS if g in self.groups}
         #: The first group (``"vehicle"`` unless only pedestrians are driven).
         self.group = next(iter(self.groups))
         #: Scenario name of each sub-env's current episode.
