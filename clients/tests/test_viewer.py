@@ -271,11 +271,12 @@ def test_the_viewer_follows_a_live_env_with_its_agents_and_risk_edges(
                 const ctx = c.getContext('2d');
                 return v.frame.agents
                   .filter((a) => a.kind === 'vehicle' && !a.external && a.reactive === 1)
-                  .map((a) => {
-                    const px = Math.round(c.width / 2 + (a.x - v.view.cx) * v.view.scale);
-                    const py = Math.round(c.height / 2 - (a.y - v.view.cy) * v.view.scale);
-                    return Array.from(ctx.getImageData(px, py, 1, 1).data);
-                  });
+                  .map((a) => [
+                    Math.round(c.width / 2 + (a.x - v.view.cx) * v.view.scale),
+                    Math.round(c.height / 2 - (a.y - v.view.cy) * v.view.scale),
+                  ])  // the camera follows the ego: only the cars in the picture
+                  .filter(([px, py]) => px >= 0 && py >= 0 && px < c.width && py < c.height)
+                  .map(([px, py]) => Array.from(ctx.getImageData(px, py, 1, 1).data));
                 """
             centres = None
             deadline = time.monotonic() + 20
@@ -283,7 +284,7 @@ def test_the_viewer_follows_a_live_env_with_its_agents_and_risk_edges(
                 client.step(env2, np.zeros((1, 2), np.float32))
                 time.sleep(0.3)
                 centres = browser.execute_script(script, env2)
-            assert centres, "no reactive car among the agents of an hbs-general env"
+            assert centres, "no reactive car in the picture of an hbs-general env"
             amber = [
                 rgb
                 for rgb in centres
@@ -404,5 +405,54 @@ def test_the_camera_follows_the_ego_to_the_end_of_its_episode(server_factory, br
             moved = np.hypot(end["x"] - start["x"], end["y"] - start["y"]) * start["scale"]
             assert moved > max(start["w"], start["h"]) / 2, (start, end)  # out of the first fit
             assert 0 <= end["px"] <= end["w"] and 0 <= end["py"] <= end["h"], end
+    finally:
+        client.shutdown()
+
+
+def test_a_pedestrian_a_learner_drives_is_drawn_apart_and_followed(server_factory, browser):
+    """An env whose learner drives a pedestrian: the page paints it purple (the simulated ones
+    stay green) and keeps it at the centre of the picture."""
+    server = server_factory(unique_prefix(), "view2")
+    client = SimClient(server.endpoint, server.prefix, timeout=5.0)
+    env_id = client.create(1, max_agents=8, split="test", external_agents=("pedestrian_0",))[
+        "env_ids"
+    ][0]
+    client.reset(env_id, seed=0, scenario="hbs-car1387")
+    script = """
+        const v = window.viewer, c = document.getElementById('scene');
+        if (!v.frame || !v.view) return null;
+        const ctx = c.getContext('2d');
+        return v.frame.agents.filter((a) => a.kind === 'pedestrian').map((a) => {
+            const px = Math.round(c.width / 2 + (a.x - v.view.cx) * v.view.scale);
+            const py = Math.round(c.height / 2 - (a.y - v.view.cy) * v.view.scale);
+            const patch = Array.from(ctx.getImageData(px - 2, py - 2, 5, 5).data);
+            const rgbs = [];  // the disc's pixels around its centre (the arrow crosses it)
+            for (let i = 0; i < patch.length; i += 4) rgbs.push(patch.slice(i, i + 3));
+            return {external: a.external, px: px, py: py, w: c.width, h: c.height, rgbs: rgbs};
+        });
+        """
+    try:
+        with Viewer(server.endpoint, server.prefix) as viewer:
+            browser.get(f"http://127.0.0.1:{viewer.http_port}/index.html")
+            _wait(browser, lambda s: s["env"] == env_id, 30, f"env {env_id}")
+            peds = None
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline and not (peds and any(p["external"] for p in peds)):
+                client.step(env_id, np.array([[1.0, 0.0]], np.float32))
+                time.sleep(0.3)
+                peds = browser.execute_script(script)
+            assert peds, "no pedestrian drawn"
+            (me,) = [p for p in peds if p["external"]]
+
+            def near(rgb, want):
+                return sum(abs(c - w) for c, w in zip(rgb, want, strict=True)) < 40
+
+            assert any(near(rgb, (0x94, 0x67, 0xBD)) for rgb in me["rgbs"]), me  # purple
+            # followed: at the canvas's centre (to the rounding of an odd height)
+            assert abs(me["px"] - me["w"] / 2) <= 1 and abs(me["py"] - me["h"] / 2) <= 1, me
+            for other in (p for p in peds if not p["external"]):
+                inside = 0 <= other["px"] < other["w"] and 0 <= other["py"] < other["h"]
+                if inside:
+                    assert any(near(rgb, (0x2C, 0xA0, 0x2C)) for rgb in other["rgbs"]), other
     finally:
         client.shutdown()

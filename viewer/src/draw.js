@@ -112,13 +112,28 @@ export function drawFrame(ctx, width, height, view, frame, edges, amax, trails, 
       ctx.fillRect(l / 2 - Math.min(l * 0.25, 0.8 * view.scale), -w / 2 + 1, 2, w - 2);
       ctx.restore();
     } else {
+      // A pedestrian a learner drives is purple with a ring and its goal marked; the
+      // simulated and replayed ones green.
       const r = Math.max(2.5, (a.length / 2) * view.scale);
-      ctx.fillStyle = "#2ca02c";
-      ctx.strokeStyle = a.id === selected ? "#000" : "#1b5e1b";
+      const [fill, line] = a.external ? ["#9467bd", "#4b2a75"] : ["#2ca02c", "#1b5e1b"];
+      if (a.external && a.goal) {
+        const [gx, gy] = S(a.goal[0], a.goal[1]);
+        ctx.strokeStyle = fill; ctx.lineWidth = 2;
+        ctx.beginPath();
+        ctx.moveTo(gx - 5, gy - 5); ctx.lineTo(gx + 5, gy + 5);
+        ctx.moveTo(gx - 5, gy + 5); ctx.lineTo(gx + 5, gy - 5);
+        ctx.stroke();
+      }
+      ctx.fillStyle = fill;
+      ctx.strokeStyle = a.id === selected ? "#000" : line;
       ctx.lineWidth = a.id === selected ? 2.5 : 1;
       ctx.beginPath(); ctx.arc(x, y, r, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+      if (a.external) {
+        ctx.strokeStyle = line; ctx.lineWidth = 1.5;
+        ctx.beginPath(); ctx.arc(x, y, r + 3, 0, 2 * Math.PI); ctx.stroke();
+      }
       const [vx, vy] = S(a.x + a.vx, a.y + a.vy);
-      ctx.strokeStyle = "#1b5e1b"; ctx.lineWidth = 1.2;
+      ctx.strokeStyle = line; ctx.lineWidth = 1.2;
       ctx.beginPath(); ctx.moveTo(x, y); ctx.lineTo(vx, vy); ctx.stroke();
     }
   }

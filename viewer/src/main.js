@@ -187,12 +187,16 @@ function render() {
   }
 }
 
-/** The car the camera follows: the selected vehicle, else the ego (the first external one), else
- * the first vehicle; null when there is none. */
+/** The agent the camera follows: the selected vehicle, else the ego (the first external
+ * vehicle), else an external pedestrian, else the first vehicle; null when there is none. */
 function followedCar(frame) {
   const cars = frame.agents.filter((a) => a.kind === "vehicle");
   return (
-    cars.find((a) => a.id === state.selected) || cars.find((a) => a.external) || cars[0] || null
+    cars.find((a) => a.id === state.selected) ||
+    cars.find((a) => a.external) ||
+    frame.agents.find((a) => a.external) ||
+    cars[0] ||
+    null
   );
 }
 
