@@ -26,6 +26,23 @@ fn create(c: &ServerCore, req: &CreateEnv) -> EnvCreated {
         .unwrap()
 }
 
+/// The `ResetResult` of resetting env `id` with no options.
+fn reset(c: &ServerCore, id: &str) -> ResetResult {
+    decode::<Reply<ResetResult>>(&c.handle_reset(id, &[], Gates::NONE).reply)
+        .unwrap()
+        .into_result()
+        .unwrap()
+}
+
+/// The `StepResult` of stepping env `id` with `rows`.
+fn step(c: &ServerCore, id: &str, rows: &[[f32; 2]]) -> StepResult {
+    let payload = encode(&Step::from_rows(rows));
+    decode::<Reply<StepResult>>(&c.handle_step(id, &payload, Gates::NONE).reply)
+        .unwrap()
+        .into_result()
+        .unwrap()
+}
+
 #[test]
 fn lifecycle_and_errors_without_zenoh() {
     let c = core(Limits::default());
@@ -207,20 +224,12 @@ fn synthetic_scenes_with_two_controlled_vehicles_are_created_and_stepped() {
     });
     let created = create(&c, &req);
     let id = &created.env_ids[0];
-    let reset: ResetResult =
-        decode::<Reply<ResetResult>>(&c.handle_reset(id, &[], Gates::NONE).reply)
-            .unwrap()
-            .into_result()
-            .unwrap();
+    let reset = reset(&c, id);
     assert!(reset
         .scenario
         .starts_with("synthetic-counter_flow-n60-v2-seed"));
     assert_eq!(reset.agents.len(), 62);
-    let step = encode(&Step::from_rows(&[[0.5, 0.0], [0.0, 0.1]]));
-    let r: StepResult = decode::<Reply<StepResult>>(&c.handle_step(id, &step, Gates::NONE).reply)
-        .unwrap()
-        .into_result()
-        .unwrap();
+    let r = step(&c, id, &[[0.5, 0.0], [0.0, 0.1]]);
     assert_eq!(r.reward.len(), 2);
     // Refused with a message that names the problem, and nothing is created.
     let load = c.load();
@@ -283,11 +292,7 @@ fn pedestrians_are_external_agents_beside_the_car_and_bad_names_are_refused() {
     let created = create(&c, &req);
     assert_eq!(created.external_agents, req.external_agents);
     let id = &created.env_ids[0];
-    let reset: ResetResult =
-        decode::<Reply<ResetResult>>(&c.handle_reset(id, &[], Gates::NONE).reply)
-            .unwrap()
-            .into_result()
-            .unwrap();
+    let reset = reset(&c, id);
     let ped = reset
         .agents
         .iter()
@@ -296,12 +301,7 @@ fn pedestrians_are_external_agents_beside_the_car_and_bad_names_are_refused() {
     assert!(ped.external && ped.kind == protocol::AgentKind::Pedestrian);
     // its observation row: node 0 is itself
     assert_eq!(reset.obs.node_ids.get(&[1, 0]), Some(ped.id));
-    let step = encode(&Step::from_rows(&[[0.5, 0.0], [1.0, 0.5]]));
-    let r: StepResult = decode::<Reply<StepResult>>(&c.handle_step(id, &step, Gates::NONE).reply)
-        .unwrap()
-        .into_result()
-        .unwrap();
-    assert_eq!(r.reward.len(), 2);
+    assert_eq!(step(&c, id, &[[0.5, 0.0], [1.0, 0.5]]).reward.len(), 2);
     // A non-finite pedestrian action is refused by name and leaves the env as it was.
     let nan = encode(&Step::from_rows(&[[0.0, 0.0], [f32::NAN, 0.0]]));
     let e = err_of(&c.handle_step(id, &nan, Gates::NONE).reply);
