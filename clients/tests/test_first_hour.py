@@ -167,3 +167,17 @@ def test_a_result_file_is_named_safely_on_every_file_system(name, safe):
     from sharedspace.bench.score import file_name
 
     assert file_name(name) == safe
+
+
+def test_an_endpoint_variable_that_names_no_endpoint_is_refused_by_name(monkeypatch):
+    monkeypatch.setenv(local_server.ENDPOINT_VAR, " , ")
+    with pytest.raises(ValueError, match="SHAREDSPACE_ENDPOINT"):
+        local_server.find_server()
+
+
+def test_anneal_start_outside_0_1_is_refused_by_name():
+    from sharedspace.train.config import ConfigError, TrainConfig
+
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ConfigError, match="anneal_start"):
+            TrainConfig(algorithm="ppo", anneal_lr=True, anneal_start=bad, device="cpu")

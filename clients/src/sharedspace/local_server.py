@@ -238,6 +238,8 @@ def find_server(prefix: str = "sharedspace") -> FoundServer:
     named = os.environ.get(ENDPOINT_VAR, "").strip()
     if named:
         endpoints = [e.strip() for e in named.split(",") if e.strip()]
+        if not endpoints:
+            raise ValueError(f"${ENDPOINT_VAR}={named!r} names no endpoint (tcp/HOST:PORT, ...)")
         return FoundServer(endpoints, os.environ.get(PREFIX_VAR, "").strip() or prefix)
     key = _lease_server((), None)
     return FoundServer([_shared[key].endpoint], _shared[key].prefix, key)
