@@ -1,4 +1,5 @@
-"""Every test scene once with each checkpoint's deterministic policy (the trainer's evaluation,
+"""Every scene of a split (the test split by default; `--split train`: the scenes a run trained on)
+once with each checkpoint's deterministic policy (the trainer's evaluation,
 ``sharedspace.train.evaluation.evaluate_split``), in the checkpoint's own world: what a run's
 last checkpoint scores, for runs whose loop ended without a final evaluation.
 
