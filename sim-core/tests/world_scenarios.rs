@@ -931,3 +931,74 @@ fn an_external_pedestrian_follows_the_documented_integration() {
         assert!((got.heading - heading).abs() < 1e-9, "step {t}: heading");
     }
 }
+
+/// Runs an external car (id 0, action `[0, 0]`: constant speed and heading) and an external
+/// pedestrian (id 1, `walk` each step) until the episode ends; the collision events and the
+/// at-fault events seen.
+fn car_meets_pedestrian(
+    car_v: [f64; 2],
+    ped: [f64; 2],
+    ped_v: [f64; 2],
+    walk: [f64; 2],
+) -> (usize, usize) {
+    let sc = scenario(
+        0,
+        vec![
+            line(AgentKind::Vehicle, 0, [0.0, 0.0], car_v, 41),
+            line(AgentKind::Pedestrian, 0, ped, ped_v, 41),
+        ],
+    );
+    let mut w = world(&sc, with_external(vec![0, 1]));
+    let (mut collisions, mut faults) = (0, 0);
+    while !w.is_over() {
+        let active: Vec<u32> = w.active_externals().collect();
+        let acts: Vec<(u32, [f64; 2])> = active
+            .iter()
+            .map(|&id| (id, if id == 0 { [0.0, 0.0] } else { walk }))
+            .collect();
+        let out = w.step(&acts).unwrap();
+        for e in &out.events {
+            match e {
+                Event::Collision { .. } => collisions += 1,
+                Event::AtFault {
+                    vehicle,
+                    pedestrian,
+                } => {
+                    assert_eq!((*vehicle, *pedestrian), (0, 1));
+                    faults += 1;
+                }
+                _ => {}
+            }
+        }
+    }
+    (collisions, faults)
+}
+
+/// model.md 2c: a car that drives on into a pedestrian standing in its path, seen from further
+/// than its braking distance, is at fault.
+#[test]
+fn a_car_driving_into_a_pedestrian_standing_in_its_path_is_at_fault() {
+    assert_eq!(
+        car_meets_pedestrian([4.0, 0.0], [20.0, 0.0], [0.0, 0.05], [0.0, 0.0]),
+        (1, 1)
+    );
+}
+
+/// model.md 2c: touching a car's side is never its fault.
+#[test]
+fn a_pedestrian_walking_into_a_cars_side_is_not_its_fault() {
+    assert_eq!(
+        car_meets_pedestrian([2.0, 0.0], [1.0, -3.0], [0.0, 1.5], [1.0, 0.0]),
+        (1, 0)
+    );
+}
+
+/// model.md 2c: a pedestrian who steps into the path nearer than the car's braking distance
+/// (6.25 m at 5 m/s) is not the car's fault.
+#[test]
+fn a_pedestrian_stepping_in_nearer_than_the_braking_distance_is_not_the_cars_fault() {
+    assert_eq!(
+        car_meets_pedestrian([5.0, 0.0], [6.0, -1.8], [0.0, 2.0], [0.0, 0.0]),
+        (1, 0)
+    );
+}

@@ -77,6 +77,10 @@ pub(crate) fn agent_json<const N: usize>(
 fn event_json(e: &Event) -> Value {
     match *e {
         Event::Collision { a, b } => json!({"event": "collision", "a": a, "b": b}),
+        Event::AtFault {
+            vehicle,
+            pedestrian,
+        } => json!({"event": "at_fault", "vehicle": vehicle, "pedestrian": pedestrian}),
         Event::GoalReached { agent } => json!({"event": "goal_reached", "agent": agent}),
         Event::Entered { agent } => json!({"event": "entered", "agent": agent}),
         Event::Left { agent } => json!({"event": "left", "agent": agent}),

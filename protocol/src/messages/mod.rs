@@ -190,6 +190,9 @@ pub enum EventKind {
     EpisodeStart,
     /// `"collision"`: two agents overlap; `agents` = the pair.
     Collision,
+    /// `"at_fault"`: the collision just listed of an external vehicle and a pedestrian is the
+    /// vehicle's fault (model.md 2c); `agents` = `[vehicle, pedestrian]`.
+    AtFault,
     /// `"goal_reached"`: an agent reached its goal; `agents` = `[id]`.
     GoalReached,
     /// `"agent_entered"`: an agent entered the scene; `agents` = `[id]`.

@@ -3,6 +3,7 @@
 //! [`crate::geometry`] (footprints and clearance) and [`crate::params`].
 
 pub mod cognition;
+pub mod fault;
 pub mod pedestrian;
 pub mod risk;
 pub mod traffic;

@@ -16,6 +16,9 @@ pub(super) struct ExternalTrack {
     /// Centre distance to the goal at the current step, m.
     pub(super) goal_distance: f64,
     pub(super) status: Option<EpisodeStatus>,
+    /// For a vehicle: the pedestrians in its path at the current step that have been there
+    /// since a step when it had room to stop short of them (model.md 2c).
+    pub(super) in_path: Vec<AgentId>,
 }
 
 /// Structure-of-arrays state of the agents present at the current step.

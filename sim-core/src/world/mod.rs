@@ -11,7 +11,8 @@
 //! 3. pedestrians at their goal and replayed agents past their record leave; agents recorded from
 //!    `t + 1` enter;
 //! 4. observe at `t + 1`: beliefs (`u_{t+1}`), clearances, `psi_{t+1}`, the graph;
-//! 5. events (collisions, arrivals) and every reward term of the transition.
+//! 5. events (collisions and whose fault they are, arrivals) and every reward term of the
+//!    transition.
 //!
 //! Where each stage lives (the equations themselves are in [`crate::model`]):
 //! - `agents.rs`, `store.rs`: the state (agents by slot, the edge store of beliefs and graph);
@@ -152,6 +153,12 @@ pub struct AgentOutcome {
 pub enum Event {
     /// Two footprints overlap (clearance `<= 0`); `a < b`.
     Collision { a: AgentId, b: AgentId },
+    /// The collision of an external `vehicle` and a `pedestrian` this step is the vehicle's
+    /// fault (model.md 2c); follows their [`Event::Collision`].
+    AtFault {
+        vehicle: AgentId,
+        pedestrian: AgentId,
+    },
     /// An agent arrived at its goal.
     GoalReached { agent: AgentId },
     /// An agent entered the scene at its first recorded step.
@@ -348,6 +355,7 @@ fn external_tracks(
             last_acc: None,
             goal_distance: 0.0,
             status: None,
+            in_path: Vec::new(),
         });
     }
     Ok(externals)

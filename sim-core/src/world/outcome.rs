@@ -2,7 +2,9 @@
 //! transition (model.md 7), and whether the episode is over.
 
 use super::{AgentOutcome, Event, RewardTerms, StepOutcome, World};
+use crate::geometry::Shape;
 use crate::metrics::{EpisodeMetrics, EpisodeStatus};
+use crate::model::fault::{gap_in_path, room_to_stop, FAULT_MIN_SPEED};
 use crate::scenario::AgentKind;
 
 impl World {
@@ -25,6 +27,7 @@ impl World {
                 }
             }
         }
+        self.judge_faults(&mut events);
         let mut outcome = StepOutcome {
             step: self.step,
             agents: Vec::with_capacity(self.externals.len()),
@@ -57,6 +60,63 @@ impl World {
         self.over = truncated || all_finished;
         outcome.episode_over = self.over;
         outcome
+    }
+
+    /// Adds an [`Event::AtFault`] after each collision of an external vehicle with a pedestrian
+    /// that is the vehicle's fault (model.md 2c), judged on the pedestrians in its path up to
+    /// the last step; then updates each active external vehicle's pedestrians in its path.
+    fn judge_faults(&mut self, events: &mut Vec<Event>) {
+        let braking = self.params.vehicle.acc_max;
+        for k in 0..self.externals.len() {
+            let vehicle = self.externals[k].id;
+            let Some(v) = self.slot_of(vehicle) else {
+                continue;
+            };
+            if !self.externals[k].active || self.agents.kind[v] != AgentKind::Vehicle {
+                continue;
+            }
+            let a = &self.agents;
+            let speed = a.speed[v];
+            let before = events.len();
+            for e in 0..before {
+                let Event::Collision { a: x, b: y } = events[e] else {
+                    continue;
+                };
+                let pedestrian = if x == vehicle {
+                    y
+                } else if y == vehicle {
+                    x
+                } else {
+                    continue;
+                };
+                if speed >= FAULT_MIN_SPEED && self.externals[k].in_path.contains(&pedestrian) {
+                    events.push(Event::AtFault {
+                        vehicle,
+                        pedestrian,
+                    });
+                }
+            }
+            let Shape::Rect { length, width } = a.shape[v] else {
+                continue; // a disc-shaped vehicle has no front face
+            };
+            let was = std::mem::take(&mut self.externals[k].in_path);
+            let mut now = Vec::with_capacity(was.len());
+            for p in 0..a.len() {
+                if a.kind[p] != AgentKind::Pedestrian {
+                    continue;
+                }
+                let radius = a.shape[p].bounding_radius();
+                let Some(gap) =
+                    gap_in_path(a.pos[v], a.heading[v], length, width, a.pos[p], radius)
+                else {
+                    continue;
+                };
+                if was.contains(&a.id[p]) || room_to_stop(gap, speed, braking) {
+                    now.push(a.id[p]);
+                }
+            }
+            self.externals[k].in_path = now;
+        }
     }
 
     fn external_outcome(

@@ -147,6 +147,10 @@ pub fn fingerprint(w: &sim_core::World, out: Option<&sim_core::StepOutcome>) -> 
                 sim_core::world::Event::GoalReached { agent } => 2 << 60 | u64::from(agent),
                 sim_core::world::Event::Entered { agent } => 3 << 60 | u64::from(agent),
                 sim_core::world::Event::Left { agent } => 4 << 60 | u64::from(agent),
+                sim_core::world::Event::AtFault {
+                    vehicle,
+                    pedestrian,
+                } => 5 << 60 | u64::from(vehicle) << 32 | u64::from(pedestrian),
             });
         }
         f.push(u64::from(out.episode_over));

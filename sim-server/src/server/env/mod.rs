@@ -140,6 +140,10 @@ fn outcome_of(s: EpisodeStatus) -> Outcome {
 fn sim_event(e: &SimEvent, step: u32, t: f64) -> Event {
     match *e {
         SimEvent::Collision { a, b } => event(EventKind::Collision, step, t, vec![a, b]),
+        SimEvent::AtFault {
+            vehicle,
+            pedestrian,
+        } => event(EventKind::AtFault, step, t, vec![vehicle, pedestrian]),
         SimEvent::GoalReached { agent } => event(EventKind::GoalReached, step, t, vec![agent]),
         SimEvent::Entered { agent } => event(EventKind::AgentEntered, step, t, vec![agent]),
         SimEvent::Left { agent } => event(EventKind::AgentLeft, step, t, vec![agent]),

@@ -1,0 +1,84 @@
+"""``python -m sharedspace.adversary COMMAND``: the adversarial stress test of the drivers.
+
+    # train an adversary of a driver (any policy spec; several: a row's seeds, pooled)
+    python -m sharedspace.adversary train --name car_aware --driver car_aware --frames 1048576
+    # score a driver against CR-SFM and against adversaries (label=checkpoint)
+    python -m sharedspace.adversary stress --name car_aware --driver car_aware \\
+        --adversary own=results/adversary/runs/car_aware/checkpoints/last.pt
+    # the walking range the adversary is held to
+    python -m sharedspace.adversary walking-range
+
+Runs go to ``results/adversary/runs/NAME``, scorings to ``results/adversary/NAME.json`` (every
+episode) and ``.md`` (docs/RESULTS.md, "Adversarial stress test").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+RESULTS = Path("results/adversary")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m sharedspace.adversary",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--task", default="crowd-adversary", help="the adversarial task")
+    sub = ap.add_subparsers(dest="command", required=True)
+    tr = sub.add_parser("train", help="train an adversary against a driver")
+    tr.add_argument("--name", required=True, help="the run's folder under results/adversary/runs")
+    tr.add_argument("--driver", nargs="+", required=True, help="policy spec(s) of the driver")
+    tr.add_argument("--frames", type=int, default=1_048_576, help="frames to train for")
+    tr.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="config overrides")
+    tr.add_argument("--out", default=str(RESULTS / "runs"), help="where runs go")
+    st = sub.add_parser("stress", help="score a driver against CR-SFM and adversaries")
+    st.add_argument("--name", required=True, help="the driver's row name")
+    st.add_argument("--driver", nargs="+", required=True, help="policy spec(s), pooled")
+    st.add_argument(
+        "--adversary", nargs="*", default=[], metavar="LABEL=CHECKPOINT", help="adversaries"
+    )
+    st.add_argument("--out", default=str(RESULTS), help="where the scoring goes")
+    sub.add_parser("walking-range", help="measure the CR-SFM pedestrians' walking range")
+    args = ap.parse_args(argv)
+
+    if args.command == "walking-range":
+        from sharedspace.adversary.task import get_adversary_task
+        from sharedspace.adversary.walking import walking_range
+
+        print(json.dumps(walking_range(get_adversary_task(args.task).driving)))
+        return 0
+    if args.command == "train":
+        from sharedspace.adversary.stress import pooled_driver
+        from sharedspace.adversary.task import get_adversary_task
+        from sharedspace.adversary.train import train
+
+        task = get_adversary_task(args.task)
+        driver = pooled_driver(args.driver, task, args.name)
+        out = train(driver, Path(args.out) / args.name, args.frames, args.set, task)
+        print(json.dumps({"counters": out["counters"], "eval": out["eval"]}, default=str))
+        return 0
+    from sharedspace.adversary.stress import stress_row
+    from sharedspace.adversary.table import stress_markdown
+
+    adversaries: dict[str, str | None] = {"CR-SFM": None}
+    for item in args.adversary:
+        label, _, path = item.partition("=")
+        if not path:
+            ap.error(f"--adversary {item!r}: give LABEL=CHECKPOINT")
+        adversaries[label] = path
+    result = stress_row(args.driver, adversaries, args.task, args.name)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{args.name}.json").write_text(json.dumps(result))
+    (out / f"{args.name}.md").write_text(stress_markdown(result))
+    print(stress_markdown(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
