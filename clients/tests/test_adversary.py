@@ -170,3 +170,19 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
         assert result["conditions"][label]["summary"]["episodes"] == 2 * 4  # scenes x variations
         assert f"| {label} |" in table
     assert "drop" in result["conditions"]["own"]
+
+    # an episode of it as pictures: the adversary drawn apart, a GIF written
+    from sharedspace.adversary.pictures import record_stress_episode
+    from sharedspace.adversary.stress import load_adversary
+    from sharedspace.bench.policies import make_policy
+    from sharedspace.paper.episode import write_gif
+
+    client = serve_task(task, tmp_path).open()
+    try:
+        driver = make_policy(lambda obs: np.zeros(2), task.driving)
+        ep = record_stress_episode(driver, load_adversary(ckpt), task, "in-the-path", 0, client)
+    finally:
+        client.shutdown()
+    assert len(ep.frames) >= 3
+    assert any(a.controlled and a.length is None for f in ep.frames for a in f.agents)
+    assert write_gif(ep, tmp_path / "ep.gif").stat().st_size > 0

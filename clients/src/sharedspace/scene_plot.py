@@ -21,6 +21,8 @@ CONTROLLED = "#1f5fd0"
 VEHICLE = "#c62828"
 REACTIVE = "#e0a030"
 PEDESTRIAN = "#2e7d32"
+#: A pedestrian a client drives (model.md 2b), e.g. an adversary: purple, ringed.
+EXTERNAL_PEDESTRIAN = "#8e24aa"
 GOAL = "#1f5fd0"
 EDGE_CMAP = "YlOrRd"
 
@@ -129,11 +131,14 @@ def _draw_vehicle(ax, a: Agent) -> None:
 def _draw_pedestrian(ax, a: Agent) -> None:
     import matplotlib.patches as mpatches
 
-    ax.add_patch(mpatches.Circle((a.x, a.y), a.radius, fc=PEDESTRIAN, ec="black", lw=0.4, zorder=4))
+    color = EXTERNAL_PEDESTRIAN if a.controlled else PEDESTRIAN
+    ax.add_patch(mpatches.Circle((a.x, a.y), a.radius, fc=color, ec="black", lw=0.4, zorder=4))
     # A dot of a few pixels, so that a pedestrian stays visible in a wide view.
-    ax.plot(a.x, a.y, "o", ms=3.5, color=PEDESTRIAN, zorder=4)
+    ax.plot(a.x, a.y, "o", ms=3.5, color=color, zorder=4)
+    if a.controlled:  # ringed, so that it stands out in a crowd
+        ax.plot(a.x, a.y, "o", ms=11, mfc="none", mec=color, mew=1.5, zorder=4)
     if abs(a.vx) + abs(a.vy) > 1e-3:
-        ax.arrow(a.x, a.y, a.vx, a.vy, width=0.05, head_width=0.3, color=PEDESTRIAN, zorder=3)
+        ax.arrow(a.x, a.y, a.vx, a.vy, width=0.05, head_width=0.3, color=color, zorder=3)
 
 
 def _draw_scale_and_label(ax, frame: Frame) -> None:
@@ -175,6 +180,15 @@ def _draw_legend(ax, frame: Frame, cmap, top_k: int) -> None:
             else []
         ),
         Line2D([], [], marker="o", ls="", color=PEDESTRIAN, label="pedestrian"),
+        *(
+            [
+                Line2D(
+                    [], [], marker="o", ls="", color=EXTERNAL_PEDESTRIAN, label="driven pedestrian"
+                )
+            ]
+            if any(a.controlled and a.length is None for a in frame.agents)
+            else []
+        ),
         Line2D([], [], marker="*", ls="", ms=10, color=GOAL, label="goal"),
         Line2D([], [], color=cmap(0.9), lw=2.5, label=f"risk A (top {top_k} per agent)"),
     ]
@@ -289,7 +303,7 @@ def frame_from_publications(
                 radius=radius,
             )
         )
-        if external[i] and goal_of is not None:
+        if external[i] and vehicle and goal_of is not None:
             goals.append((float(goal_of[i, 0]), float(goal_of[i, 1])))
     edges = []
     if risk_graph is not None:

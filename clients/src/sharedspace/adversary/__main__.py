@@ -5,6 +5,8 @@
     # score a driver against CR-SFM and against adversaries (label=checkpoint)
     python -m sharedspace.adversary stress --name car_aware --driver car_aware \\
         --adversary own=results/adversary/runs/car_aware/checkpoints/last.pt
+    # animations of three failures it found
+    python -m sharedspace.adversary gifs --stress results/adversary/car_aware.json --label own
     # the walking range the adversary is held to
     python -m sharedspace.adversary walking-range
 
@@ -44,6 +46,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     st.add_argument("--out", default=str(RESULTS), help="where the scoring goes")
     sub.add_parser("walking-range", help="measure the CR-SFM pedestrians' walking range")
+    gi = sub.add_parser("gifs", help="animations of the failures an adversary found")
+    gi.add_argument("--stress", required=True, help="a stress scoring's JSON")
+    gi.add_argument("--label", required=True, help="the adversary's label in it")
+    gi.add_argument("--count", type=int, default=3, help="failures to draw")
+    gi.add_argument("--out", default=str(RESULTS / "gifs"), help="where they go")
     args = ap.parse_args(argv)
 
     if args.command == "walking-range":
@@ -51,6 +58,12 @@ def main(argv: list[str] | None = None) -> int:
         from sharedspace.adversary.walking import walking_range
 
         print(json.dumps(walking_range(get_adversary_task(args.task).driving)))
+        return 0
+    if args.command == "gifs":
+        from sharedspace.adversary.pictures import write_failures
+
+        for path in write_failures(args.stress, args.label, args.out, args.count):
+            print("wrote", path)
         return 0
     if args.command == "train":
         from sharedspace.adversary.stress import pooled_driver

@@ -104,6 +104,7 @@ def stress_row(
     None for CR-SFM): every episode and the summary of each condition."""
     task = get_adversary_task(task) if isinstance(task, str) else task
     out: dict[str, Any] = {"task": task.tag, "fingerprint": task.fingerprint(), "driver": name}
+    out["driver_specs"] = [str(s) for s in driver_specs]
     out["conditions"] = {}
     with tempfile.TemporaryDirectory() as tmp:
         client = serve_task(task, Path(tmp)).open()
