@@ -10,7 +10,7 @@ use sim_core::params::{PedestrianModel, VehicleModel};
 use sim_core::scenario::ScenarioPool;
 use sim_core::variation::VariationSpec;
 use sim_server::params_file::ParamsDoc;
-use sim_server::rollout::{rollout, EgoDrive, RolloutModels};
+use sim_server::rollout::{rollout_driving, DrivenPedestrian, EgoDrive, RolloutModels};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -211,6 +211,11 @@ struct RolloutArgs {
     /// `replay` (the AV follows its record) or a constant normalised action `ACC,YAW_RATE` in [-1, 1].
     #[arg(long, default_value = "replay")]
     av: String,
+    /// Drive `pedestrian_K` (the scene's pedestrians in agent order) like an external agent
+    /// holding the normalised acceleration `F,L` along and to the left of its heading
+    /// (docs/MODEL.md 2b): `K=F,L`; repeatable.
+    #[arg(long = "pedestrian", value_name = "K=F,L")]
+    pedestrians: Vec<String>,
     /// Output file; standard output when absent.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -272,6 +277,23 @@ fn parse_ego(text: &str) -> Result<EgoDrive, String> {
     }
 }
 
+fn parse_walker(text: &str) -> Result<DrivenPedestrian, String> {
+    let bad = || format!("--pedestrian `{text}`: expected K=F,L (an index, two finite numbers)");
+    let (k, action) = text.split_once('=').ok_or_else(bad)?;
+    let index = k.trim().parse::<usize>().map_err(|_| bad())?;
+    let parse = |s: &str| s.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+    match action.split(',').collect::<Vec<_>>().as_slice() {
+        [f, l] => match (parse(f), parse(l)) {
+            (Some(f), Some(l)) => Ok(DrivenPedestrian {
+                index,
+                action: [f, l],
+            }),
+            _ => Err(bad()),
+        },
+        _ => Err(bad()),
+    }
+}
+
 fn run_rollout(args: RolloutArgs) -> Result<(), String> {
     let pool = load_pool(&args.pool)?;
     let model = parse_model(&args.model)?;
@@ -279,6 +301,11 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
         .and_then(|doc| doc.world_params(Some(model)))
         .map_err(|e| e.to_string())?;
     let ego = parse_ego(&args.av)?;
+    let walkers = args
+        .pedestrians
+        .iter()
+        .map(|t| parse_walker(t))
+        .collect::<Result<Vec<_>, _>>()?;
     let scenario = pool
         .scenarios
         .iter()
@@ -323,11 +350,12 @@ fn run_rollout(args: RolloutArgs) -> Result<(), String> {
         pedestrians: model,
         vehicles,
     };
-    rollout(
+    rollout_driving(
         scenario,
         params,
         models,
         ego,
+        &walkers,
         variation.as_ref(),
         threads,
         &mut out,

@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use serde_json::{json, Value};
 use sim_core::params::{PedestrianModel, VehicleModel, WorldParams};
-use sim_core::scenario::{AgentRecord, Scenario};
+use sim_core::scenario::{AgentKind, AgentRecord, Scenario};
 use sim_core::variation::Variation;
 use sim_core::world::{AgentOutcome, Control, EpisodeConfig, Event, World, WorldError};
 
@@ -44,6 +44,17 @@ pub enum RolloutError {
     Step(#[from] sim_core::StepError),
     #[error("writing the rollout: {0}")]
     Io(#[from] std::io::Error),
+    #[error("--pedestrian {index}: the scenario has {count} pedestrian(s) (pedestrian_0 .. pedestrian_{last})", last = .count.saturating_sub(1))]
+    NoPedestrian { index: usize, count: usize },
+}
+
+/// A pedestrian driven like an external agent during a rollout (model.md 2b): `pedestrian_{index}`
+/// (the scenario's pedestrians in agent order, as a server names them) holding `action`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DrivenPedestrian {
+    pub index: usize,
+    /// Normalised `[forward, left]` acceleration, held every step.
+    pub action: [f64; 2],
 }
 
 fn control_name(c: Control) -> String {
@@ -144,6 +155,22 @@ pub fn rollout(
     threads: usize,
     out: &mut impl Write,
 ) -> Result<u32, RolloutError> {
+    rollout_driving(scenario, params, models, ego, &[], variation, threads, out)
+}
+
+/// [`rollout`] with `walkers` driven like external agents (their rewards and episode metrics
+/// are written as the car's).
+#[allow(clippy::too_many_arguments)] // the rollout's inputs, each plainly named
+pub fn rollout_driving(
+    scenario: Arc<Scenario>,
+    params: WorldParams,
+    models: RolloutModels,
+    ego: EgoDrive,
+    walkers: &[DrivenPedestrian],
+    variation: Option<&Variation>,
+    threads: usize,
+    out: &mut impl Write,
+) -> Result<u32, RolloutError> {
     let (scenario, params) = match variation {
         Some(v) => (Arc::new(v.apply(&scenario)), v.apply_params(&params)),
         None => (scenario, params),
@@ -154,9 +181,26 @@ pub fn rollout(
         EgoDrive::Constant(_) => EpisodeConfig::ego_external(&scenario, model),
     };
     config.vehicle_model = models.vehicles;
+    let pedestrians: Vec<u32> = (0..scenario.agents.len() as u32)
+        .filter(|&id| scenario.agents[id as usize].kind == AgentKind::Pedestrian)
+        .collect();
+    let mut walker_actions = Vec::with_capacity(walkers.len());
+    for w in walkers {
+        let id = *pedestrians.get(w.index).ok_or(RolloutError::NoPedestrian {
+            index: w.index,
+            count: pedestrians.len(),
+        })?;
+        config.external.push(id);
+        walker_actions.push((id, w.action));
+    }
     let mut world = World::new(scenario.clone(), params, config)?;
     world.set_threads(threads);
-    let header = header_json(&world, &scenario, &params, models, ego, variation);
+    let mut header = header_json(&world, &scenario, &params, models, ego, variation);
+    header["pedestrians_driven"] = walkers
+        .iter()
+        .zip(&walker_actions)
+        .map(|(w, (id, a))| json!({"name": format!("pedestrian_{}", w.index), "agent": id, "action": a}))
+        .collect();
     writeln!(out, "{header}")?;
     writeln!(out, "{}", step_json(&world, &[], &[]))?;
     let last_recorded = scenario.recorded_steps().saturating_sub(1);
@@ -168,10 +212,16 @@ pub fn rollout(
         if ego == EgoDrive::Replay && world.step_index() >= last_recorded {
             break "record_ended";
         }
-        let actions: Vec<_> = match ego {
-            EgoDrive::Constant(a) => world.active_externals().map(|id| (id, a)).collect(),
-            EgoDrive::Replay => Vec::new(),
-        };
+        let actions: Vec<_> = world
+            .active_externals()
+            .filter_map(|id| match walker_actions.iter().find(|(w, _)| *w == id) {
+                Some(&(_, a)) => Some((id, a)),
+                None => match ego {
+                    EgoDrive::Constant(a) => Some((id, a)),
+                    EgoDrive::Replay => None,
+                },
+            })
+            .collect();
         let outcome = world.step(&actions)?;
         metrics.extend(
             outcome

@@ -35,6 +35,48 @@ fn rollout_writes_header_steps_and_end() {
         .all(|l| l["type"] == "step"));
 }
 
+/// model.md 2b through the rollout: a driven pedestrian is listed as external, has rewards
+/// every step and speeds up along its heading by `ped_acc_max * dt` per step.
+#[test]
+fn a_driven_pedestrian_is_recorded_as_an_external_agent() {
+    let out = rollout(&["--scenario", "0", "--pedestrian", "0=1,0", "--av", "0,0"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let driven = &lines[0]["pedestrians_driven"][0];
+    assert_eq!(driven["name"], "pedestrian_0");
+    let id = driven["agent"].as_u64().unwrap();
+    let agent = lines[0]["agents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["id"] == id)
+        .unwrap();
+    assert_eq!(agent["control"], "external");
+    let speed = |l: &serde_json::Value| {
+        l["agents"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|a| a["id"] == id)
+            .map(|a| (a["vx"].as_f64().unwrap().powi(2) + a["vy"].as_f64().unwrap().powi(2)).sqrt())
+    };
+    let (s1, s2) = (speed(&lines[1]).unwrap(), speed(&lines[2]).unwrap());
+    assert!((s2 - (s1 + 1.0).min(2.0)).abs() < 1e-9, "{s1} -> {s2}");
+    assert!(lines[2]["rewards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|r| r["agent"] == id));
+}
+
 #[test]
 fn bad_arguments_are_refused_with_a_message_naming_them() {
     for (args, needle) in [
@@ -53,6 +95,11 @@ fn bad_arguments_are_refused_with_a_message_naming_them() {
             "/nonexistent/params.json5",
         ),
         (vec!["--threads", "0"], "--threads"),
+        (vec!["--pedestrian", "0=1"], "--pedestrian `0=1`"),
+        (
+            vec!["--pedestrian", "99=0,0"],
+            "--pedestrian 99: the scenario has",
+        ),
     ] {
         let out = rollout(&args);
         assert!(!out.status.success(), "{args:?} should fail");
