@@ -14,8 +14,9 @@ An episode ends for the adversary when its own episode or the driver's ends
 scoring the driver: an adversary that reached its goal has left, and the driver drives on).
 With ``adversary=False`` the pedestrian is the crowd's own CR-SFM pedestrian: the baseline
 the drop is measured from, on the same scenes and variations. :attr:`AdversaryEnv.finished`
-keeps one record per ended episode: scene, variation, the driver's outcome, and whether the
-driver was at fault or the adversary to blame.
+keeps one record per ended episode: scene, variation, the driver's outcome, whether the driver
+was at fault with the adversary (``fault``) or with anyone (``fault_any``), and whether the
+adversary was to blame.
 """
 
 from __future__ import annotations
@@ -47,6 +48,9 @@ __all__ = ["DRIVER", "ADVERSARY", "AdversaryEnv"]
 #: The driver's and the adversary's names in every scene of an adversarial task's pool.
 DRIVER, ADVERSARY = "vehicle_0", "pedestrian_0"
 _OBS = ("features", "adjacency", "mask")
+#: The corridor of the ``ahead`` shaping term, in the driver's frame: up to this far ahead of
+#: its centre (m) and this far to either side of its centreline (m).
+AHEAD_RANGE, AHEAD_HALF_WIDTH = 15.0, 1.5
 
 
 class AdversaryEnv(_ServerEnvs):
@@ -151,6 +155,7 @@ class AdversaryEnv(_ServerEnvs):
                 "features": np.zeros((k, m, f), dtype=np.float32),
                 "adjacency": np.zeros((k, m, m), dtype=np.float32),
                 "mask": np.zeros((k, m), dtype=bool),
+                "node_ids": np.full((k, m), 0xFFFFFFFF, dtype=np.uint32),
             }
             for who in ("driver", "adversary")
         }
@@ -170,7 +175,7 @@ class AdversaryEnv(_ServerEnvs):
     def _take_obs(self, k: int, obs: dict[str, np.ndarray], row: int | None = None) -> None:
         """Sub-env ``k``'s observations (``row``: the batch row of a step's obs)."""
         for j, who in enumerate(("driver", "adversary")[: 2 if self.adversary else 1]):
-            for key in _OBS:
+            for key in (*_OBS, "node_ids"):
                 value = obs[key][j] if row is None else obs[key][row, j]
                 self._obs[who][key][k] = value
 
@@ -196,7 +201,7 @@ class AdversaryEnv(_ServerEnvs):
                 self._variation[k] = int(variation["seed"]) if variation else -1
                 self._ids[k] = self._roles[r["scenario"]]
                 self._ped_active[k] = self.adversary
-                self._near[k] = _nearest_vehicle(self._obs["adversary"], k)
+                self._near[k] = self._distance_to_driver(k)
                 self._done[k] = False
                 self._open[k] = {
                     "scene": r["scenario"],
@@ -204,6 +209,7 @@ class AdversaryEnv(_ServerEnvs):
                     "driver": "",
                     "adversary": "",
                     "fault": False,
+                    "fault_any": False,
                     "blame": False,
                 }
         td = self._to_td(blank_step_columns(self.num_envs))
@@ -258,22 +264,52 @@ class AdversaryEnv(_ServerEnvs):
         fault, blame = np.zeros(k), np.zeros(k)
         for entry in res["events"]:
             i, event = int(entry["index"]), entry["event"]
-            if event["kind"] == "at_fault" and tuple(event["agents"]) == self._ids[i]:
+            if event["kind"] != "at_fault":
+                continue
+            if tuple(event["agents"]) == self._ids[i]:
                 fault[i] = 1.0
+            if event["agents"][0] == self._ids[i][0]:
+                self._open[i]["fault_any"] = True
         for entry in res["metrics"]:
             i, met = int(entry["index"]), entry["metrics"]
             if met["agent"] == ADVERSARY and met["outcome"] == "collision" and not fault[i]:
                 blame[i] = 1.0
-        near = np.array([_nearest_vehicle(self._obs["adversary"], i) for i in range(k)])
+        near = np.array([self._distance_to_driver(i) for i in range(k)])
         closing = np.nan_to_num(self._near - near, nan=0.0).clip(-2.0, 2.0)
         closing = np.where(self._ped_active, closing, 0.0)
         self._near = near
+        ahead = np.array([self._ahead_of_driver(i) for i in range(k)]) & self._ped_active
         w = self.weights
         return {
             "fault": w["fault"] * fault,
             "blame": w["blame"] * blame,
             "approach": w["approach"] * closing,
+            "ahead": w["ahead"] * ahead,
         }
+
+    def _node(self, who: str, k: int, agent: int) -> np.ndarray | None:
+        """The node features of ``agent`` in sub-env ``k``'s observation of ``who``, if seen."""
+        obs = self._obs[who]
+        hit = np.flatnonzero(obs["mask"][k] & (obs["node_ids"][k] == agent))
+        return obs["features"][k, hit[0]] if hit.size else None
+
+    def _distance_to_driver(self, k: int) -> float:
+        """The adversary's centre distance to the driver, as it sees it (NaN: unseen)."""
+        node = self._node("adversary", k, self._ids[k][0])
+        return (
+            float("nan")
+            if node is None
+            else float(np.hypot(node[Feature.REL_X], node[Feature.REL_Y]))
+        )
+
+    def _ahead_of_driver(self, k: int) -> bool:
+        """Whether the driver sees the adversary in the corridor ahead of it (the ``ahead``
+        shaping term; the fault itself is the server's judgement, model.md 2c)."""
+        node = self._node("driver", k, self._ids[k][1])
+        if node is None:
+            return False
+        x, y = float(node[Feature.REL_X]), float(node[Feature.REL_Y])
+        return 0.0 < x < AHEAD_RANGE and abs(y) < AHEAD_HALF_WIDTH
 
     def _record_ends(self, res: dict[str, Any], out: dict, terms: dict) -> None:
         """Marks the sub-envs whose episode ended (module doc) and records each: the episode
@@ -315,14 +351,3 @@ def _rebuild(kwargs: dict[str, Any]) -> AdversaryEnv:
 def _first(agents: list[dict[str, Any]], kind: str) -> int:
     """The index of a scene's first agent of ``kind`` (``vehicle_0``, ``pedestrian_0``)."""
     return next(i for i, a in enumerate(agents) if a["kind"] == kind)
-
-
-def _nearest_vehicle(obs: dict[str, np.ndarray], k: int) -> float:
-    """The centre distance from sub-env ``k``'s observer to the nearest vehicle it sees (NaN
-    when it sees none)."""
-    f, m = obs["features"][k], obs["mask"][k]
-    cars = m & (f[:, Feature.IS_VEHICLE] > 0.5)
-    cars[0] = False
-    if not cars.any():
-        return float("nan")
-    return float(np.min(np.hypot(f[cars, Feature.REL_X], f[cars, Feature.REL_Y])))

@@ -4,9 +4,9 @@ the server's publications (:mod:`sharedspace.scene_plot`; the adversary purple a
 
     python -m sharedspace.adversary gifs --stress results/adversary/car_aware.json --label own
 
-picks the first ``--count`` episodes where the driver was at fault against the adversary and
-reached its goal against CR-SFM, and writes ``results/adversary/gifs/DRIVER-LABEL-SCENE-vV.gif``
-with a still of the collision (``.png``) beside each.
+picks ``--count`` episodes the driver failed against the adversary and passed against CR-SFM
+(:func:`found_failures`: at fault first) and writes
+``results/adversary/gifs/DRIVER-LABEL-SCENE-vV.gif`` with a still of the last step (``.png``).
 """
 
 from __future__ import annotations
@@ -35,18 +35,22 @@ __all__ = ["found_failures", "record_stress_episode", "write_failures"]
 
 
 def found_failures(result: dict[str, Any], label: str, count: int = 3) -> list[dict[str, Any]]:
-    """The first ``count`` episodes (pool order) where the driver was at fault against
-    adversary ``label`` and reached its goal against CR-SFM with the same policy."""
+    """The first ``count`` episodes (pool order) that the driver failed against adversary
+    ``label`` and reached its goal in against CR-SFM with the same policy: those where it was
+    at fault first, then its other collisions, then its timeouts."""
     base = {
         (e["scene"], e["variation"], e["policy"]): e
         for e in result["conditions"]["CR-SFM"]["episodes"]
     }
-    found = []
-    for e in result["conditions"][label]["episodes"]:
-        before = base.get((e["scene"], e["variation"], e["policy"]))
-        if e["fault"] and before is not None and before["driver"] == "success":
-            found.append(e)
-    return found[:count]
+    failed = [
+        e
+        for e in result["conditions"][label]["episodes"]
+        if e["driver"] != "success"
+        and base.get((e["scene"], e["variation"], e["policy"]), {}).get("driver") == "success"
+    ]
+    rank = {"collision": 1, "timeout": 2}
+    failed.sort(key=lambda e: 0 if e["fault"] else rank.get(e["driver"], 3))
+    return failed[:count]
 
 
 def _td(obs: dict[str, np.ndarray]) -> TensorDict:

@@ -127,7 +127,8 @@ def stress_row(
 
 
 def summarize_stress(result: dict[str, Any]) -> dict[str, Any]:
-    """Adds each condition's rates (Wilson 95 %) and, against the first condition (CR-SFM), the
+    """Adds each condition's rates (Wilson 95 %: success, collision, at fault with the adversary
+    and with anyone, the adversary to blame) and, against the first condition (CR-SFM), the
     paired drop in success and rise in at-fault collisions (scenes resampled)."""
     conditions = result["conditions"]
     base_label = next(iter(conditions))
@@ -140,6 +141,7 @@ def summarize_stress(result: dict[str, Any]) -> dict[str, Any]:
             ("success", lambda e: e["driver"] == "success"),
             ("collision", lambda e: e["driver"] == "collision"),
             ("at_fault", lambda e: e["fault"]),
+            ("at_fault_any", lambda e: e.get("fault_any", False)),
             ("adversary_blamed", lambda e: e["blame"]),
         ):
             count = sum(1 for e in eps if hit(e))

@@ -14,7 +14,9 @@ its reacting cars) with one pedestrian per scene given to an adversary:
 - **rewarded** (:data:`ADVERSARY_REWARD`, weights by name): ``fault`` when the driver's
   collision with it is the driver's fault (the server's ``at_fault`` event), ``blame`` when it
   touches a vehicle that is not at fault (its side or rear, or stepping in nearer than the
-  vehicle's braking distance), ``approach`` per metre it closes on the nearest vehicle.
+  vehicle's braking distance), ``approach`` per metre it closes on the driver, ``ahead`` per
+  step the driver sees it in the corridor ahead of it (15 m long, 3 m wide): the last two shape
+  the search, the fault itself is the server's judgement (docs/MODEL.md 2c).
 
 The pool file is derived from ``crowd``'s and checked by its fingerprint, like every task's.
 """
@@ -50,7 +52,7 @@ __all__ = [
 WALKING_RANGE = {"speed_max": 1.693, "acc_max": 1.6}
 
 #: The adversary's reward terms and their weights (``reward_weights`` overrides them by name).
-ADVERSARY_REWARD = {"fault": 10.0, "blame": -5.0, "approach": 0.2}
+ADVERSARY_REWARD = {"fault": 10.0, "blame": -5.0, "approach": 0.2, "ahead": 0.05}
 
 
 @dataclass(frozen=True)
