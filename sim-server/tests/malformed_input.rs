@@ -393,7 +393,7 @@ async fn every_queryable_answers_bad_input_with_an_error_code() {
 
 /// Contract: 256 malformed steps of an env whose second external agent is a pedestrian (NaN and
 /// infinite numbers in its row, wrong shapes and dtypes, garbage) are each answered with an
-/// error code, the non-finite ones naming `pedestrian_0`; none advances the env, and the server
+/// error code, the non-finite ones naming `pedestrian_0` (in a `BatchStep` too); none advances the env, and the server
 /// goes on serving it and another trainer.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_pedestrian_actions_leave_the_server_serving() {
@@ -464,6 +464,20 @@ async fn malformed_pedestrian_actions_leave_the_server_serving() {
             Reply::Ok(_) => panic!("case {i}: a malformed step was accepted"),
         }
     }
+    // In a batch too, the non-finite action is named by its agent and its env.
+    let err = t(c.batch_step(&BatchStep {
+        env_ids: vec![env.clone()],
+        actions: F32Array::new(vec![1, 2, 2], &[0.1, 0.0, 0.2, f32::NAN])
+            .unwrap()
+            .into(),
+    }))
+    .await
+    .expect_err("a NaN in a batch");
+    let text = err.to_string();
+    assert!(
+        text.contains("pedestrian_0: ") && text.contains(&env),
+        "{text}"
+    );
     // None of them advanced the env; it and the other trainer's env step on.
     let s = t(c.step(&env, &[[0.1, 0.0], [0.5, 0.5]])).await.unwrap();
     assert_eq!((s.step, s.reward.len()), (1, 2));

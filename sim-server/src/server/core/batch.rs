@@ -44,7 +44,9 @@ impl ServerCore {
         let _turn = self.turns.acquire(&trainer, k as u64);
         let mut envs = lock_in_order(&handles, &order);
         let (n_ext, m) = check_batch_envs(&envs)?;
-        let actions = req.checked_action_rows(n_ext as u32)?;
+        let actions = req
+            .checked_action_rows(n_ext as u32)
+            .map_err(|e| named_batch_agent(e, &req, &envs, n_ext))?;
         for env in &envs {
             env.check_steppable(true)?;
         }
@@ -286,4 +288,38 @@ fn step_chunk(
         }
     }
     (cols, pubs, Ok(()))
+}
+
+/// A batch's non-finite action error with the agent named as the client named it
+/// (`pedestrian_0: actions for env ...`), from the env the error names.
+fn named_batch_agent(
+    e: ErrorReply,
+    req: &BatchStep,
+    envs: &[MutexGuard<'_, Env>],
+    n_ext: usize,
+) -> ErrorReply {
+    if e.code != ErrorCode::NonFiniteAction {
+        return e;
+    }
+    let Some(env_id) = e.env_id.as_deref() else {
+        return e;
+    };
+    let Some(row) = req.env_ids.iter().position(|id| id == env_id) else {
+        return e;
+    };
+    let values = req.actions.to_f64_vec();
+    let per_env = n_ext * 2;
+    let chunk = &values[row * per_env..(row + 1) * per_env];
+    let name = chunk.iter().position(|v| !v.is_finite()).and_then(|i| {
+        envs.iter()
+            .find(|env| env.id == env_id)
+            .and_then(|env| env.spec.external_names.get(i / 2).cloned())
+    });
+    match name {
+        Some(name) => {
+            let message = format!("{name}: {}", e.message);
+            ErrorReply::new(e.code, message).with_env(env_id.to_string())
+        }
+        None => e,
+    }
 }
