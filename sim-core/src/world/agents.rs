@@ -19,6 +19,8 @@ pub(super) struct ExternalTrack {
     /// For a vehicle: the pedestrians in its path at the current step that have been there
     /// since a step when it had room to stop short of them (model.md 2c).
     pub(super) in_path: Vec<AgentId>,
+    /// `in_path` of the step before, while the current one is built.
+    pub(super) in_path_before: Vec<AgentId>,
 }
 
 /// Structure-of-arrays state of the agents present at the current step.

@@ -356,6 +356,7 @@ fn external_tracks(
             goal_distance: 0.0,
             status: None,
             in_path: Vec::new(),
+            in_path_before: Vec::new(),
         });
     }
     Ok(externals)

@@ -99,8 +99,10 @@ impl World {
             let Shape::Rect { length, width } = a.shape[v] else {
                 continue; // a disc-shaped vehicle has no front face
             };
-            let was = std::mem::take(&mut self.externals[k].in_path);
-            let mut now = Vec::with_capacity(was.len());
+            // Both lists live in the track and swap each step: a step allocates nothing here.
+            let track = &mut self.externals[k];
+            std::mem::swap(&mut track.in_path, &mut track.in_path_before);
+            track.in_path.clear();
             for p in 0..a.len() {
                 if a.kind[p] != AgentKind::Pedestrian {
                     continue;
@@ -111,11 +113,10 @@ impl World {
                 else {
                     continue;
                 };
-                if was.contains(&a.id[p]) || room_to_stop(gap, speed, braking) {
-                    now.push(a.id[p]);
+                if track.in_path_before.contains(&a.id[p]) || room_to_stop(gap, speed, braking) {
+                    track.in_path.push(a.id[p]);
                 }
             }
-            self.externals[k].in_path = now;
         }
     }
 

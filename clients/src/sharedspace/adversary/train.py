@@ -73,7 +73,12 @@ class AdversaryWorld:
 
     def make_env(self, seed: int) -> AdversaryEnv:
         return AdversaryEnv(
-            self.driver, self.task, self.cfg.num_envs, seed=seed, client=self.client
+            self.driver,
+            self.task,
+            self.cfg.num_envs,
+            seed=seed,
+            reward_weights=self.cfg.reward_weights,
+            client=self.client,
         )
 
     def outcomes(self, data) -> dict[str, float]:
@@ -91,6 +96,7 @@ class AdversaryWorld:
             len(self.curve_scenes),
             scenarios=self.curve_scenes,
             variation_seeds=[0] * len(self.curve_scenes),
+            reward_weights=self.cfg.reward_weights,
             client=self.client,
         )
         try:
