@@ -2,7 +2,9 @@
 
     # train an adversary of a driver (any policy spec; several: a row's seeds, pooled)
     python -m sharedspace.adversary train --name car_aware --driver car_aware --frames 1048576
-    # score a driver against CR-SFM and against adversaries (label=checkpoint)
+    # score any driver against CR-SFM and every shipped adversary (results/adversary/policies)
+    python -m sharedspace.adversary stress --name my_driver --driver my_pkg.mod:act
+    # ... or against adversaries of your choice (label=checkpoint)
     python -m sharedspace.adversary stress --name car_aware --driver car_aware \\
         --adversary own=results/adversary/runs/car_aware/checkpoints/last.pt
     # animations of three failures it found
@@ -21,7 +23,11 @@ import json
 import sys
 from pathlib import Path
 
+from sharedspace.worlds import REPO
+
 RESULTS = Path("results/adversary")
+#: The shipped adversaries: ``against-DRIVER.pt``, each trained against that driver.
+SHIPPED = REPO / "results" / "adversary" / "policies"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,7 +48,11 @@ def main(argv: list[str] | None = None) -> int:
     st.add_argument("--name", required=True, help="the driver's row name")
     st.add_argument("--driver", nargs="+", required=True, help="policy spec(s), pooled")
     st.add_argument(
-        "--adversary", nargs="*", default=[], metavar="LABEL=CHECKPOINT", help="adversaries"
+        "--adversary",
+        nargs="*",
+        default=None,
+        metavar="LABEL=CHECKPOINT",
+        help="adversaries (default: every shipped one, results/adversary/policies/*.pt)",
     )
     st.add_argument("--out", default=str(RESULTS), help="where the scoring goes")
     sub.add_parser("walking-range", help="measure the CR-SFM pedestrians' walking range")
@@ -79,7 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     from sharedspace.adversary.table import stress_markdown
 
     adversaries: dict[str, str | None] = {"CR-SFM": None}
-    for item in args.adversary:
+    if args.adversary is None:
+        adversaries |= {p.stem: str(p) for p in sorted(SHIPPED.glob("*.pt"))}
+    for item in args.adversary or []:
         label, _, path = item.partition("=")
         if not path:
             ap.error(f"--adversary {item!r}: give LABEL=CHECKPOINT")
