@@ -181,18 +181,10 @@ pub fn rollout_driving(
         EgoDrive::Constant(_) => EpisodeConfig::ego_external(&scenario, model),
     };
     config.vehicle_model = models.vehicles;
-    let pedestrians: Vec<u32> = (0..scenario.agents.len() as u32)
-        .filter(|&id| scenario.agents[id as usize].kind == AgentKind::Pedestrian)
-        .collect();
-    let mut walker_actions = Vec::with_capacity(walkers.len());
-    for w in walkers {
-        let id = *pedestrians.get(w.index).ok_or(RolloutError::NoPedestrian {
-            index: w.index,
-            count: pedestrians.len(),
-        })?;
-        config.external.push(id);
-        walker_actions.push((id, w.action));
-    }
+    let walker_actions = driven_ids(&scenario, walkers)?;
+    config
+        .external
+        .extend(walker_actions.iter().map(|&(id, _)| id));
     let mut world = World::new(scenario.clone(), params, config)?;
     world.set_threads(threads);
     let mut header = header_json(&world, &scenario, &params, models, ego, variation);
@@ -245,6 +237,27 @@ pub fn rollout_driving(
         json!({"type": "end", "reason": reason, "steps": world.step_index(), "metrics": metrics})
     )?;
     Ok(world.step_index())
+}
+
+/// The agent id and action of each driven pedestrian (`pedestrian_{index}` is the scene's
+/// pedestrian number `index` in agent order, as a server names them).
+fn driven_ids(
+    scenario: &Scenario,
+    walkers: &[DrivenPedestrian],
+) -> Result<Vec<(u32, [f64; 2])>, RolloutError> {
+    let pedestrians: Vec<u32> = (0..scenario.agents.len() as u32)
+        .filter(|&id| scenario.agents[id as usize].kind == AgentKind::Pedestrian)
+        .collect();
+    walkers
+        .iter()
+        .map(|w| {
+            let id = *pedestrians.get(w.index).ok_or(RolloutError::NoPedestrian {
+                index: w.index,
+                count: pedestrians.len(),
+            })?;
+            Ok((id, w.action))
+        })
+        .collect()
 }
 
 /// The rollout's first line: the scenario, the models, the parameters, the variation and every
