@@ -61,6 +61,8 @@ class Comparison:
 def _event_key(e: dict) -> tuple:
     if e["event"] == "collision":
         return ("collision", e["a"], e["b"])
+    if e["event"] == "at_fault":
+        return ("at_fault", e["vehicle"], e["pedestrian"])
     return (e["event"], e["agent"])
 
 

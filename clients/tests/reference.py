@@ -17,7 +17,8 @@ built when ``t`` was reached), as ``World::step``:
    record leave; agents recorded from ``t + 1`` enter;
 4. observe at ``t + 1``: beliefs (``u_{t+1}``), clearances, ``psi_{t+1}`` and ``A_{t+1}`` for every
    ordered pair whose centres are at most ``perception_radius`` apart;
-5. events (collisions, arrivals) and the reward terms of every active external agent.
+5. events (collisions, whose fault they are, arrivals) and the reward terms of every active
+   external agent.
 
 Parameters are the ``WorldParams`` of the Rust core as a nested dict (the ``params`` object of a
 rollout header, or any subset of it: missing fields keep model.md's defaults).
@@ -877,6 +878,7 @@ class ReferenceWorld:
         for i, j in zip(ii, jj, strict=True):
             if self.ids[i] < self.ids[j]:
                 events.append(("collision", int(self.ids[i]), int(self.ids[j])))
+        self._judge_faults(events)
         truncated = self.step_index >= self.horizon
         outcomes = []
         for e in self.external:
@@ -894,6 +896,41 @@ class ReferenceWorld:
             "events": events,
             "episode_over": self.over,
         }
+
+    def _judge_faults(self, events: list) -> None:
+        """model.md 2c, from its text: an external vehicle's collision with a pedestrian is its
+        fault when the pedestrian was in its path (ahead of the front face, within half the
+        width plus its radius of the centreline) with room to stop (gap >= v^2 / 2 acc_max) at
+        an earlier step and in the path since, and the vehicle moves at >= 0.5 m/s."""
+        braking = self.params["vehicle"]["acc_max"]
+        for e in self.external:
+            track = self._ext[e]
+            slots = np.flatnonzero(self.ids == e)
+            if not track["active"] or slots.size == 0 or not self.is_vehicle[slots[0]]:
+                continue
+            v = int(slots[0])
+            in_path = track.setdefault("in_path", set())
+            for event in list(events):
+                if event[0] != "collision" or e not in event[1:]:
+                    continue
+                other = event[2] if event[1] == e else event[1]
+                if self.speed[v] >= 0.5 and other in in_path:
+                    events.append(("at_fault", e, other))
+            if not self.is_rect[v]:
+                continue
+            c, s = np.cos(self.heading[v]), np.sin(self.heading[v])
+            d = self.pos - self.pos[v]
+            x = c * d[:, 0] + s * d[:, 1]
+            y = -s * d[:, 0] + c * d[:, 1]
+            half_l, half_w = self.length[v] / 2, self.width[v] / 2
+            r = self.radius
+            ahead = ~self.is_vehicle & (x > half_l) & (np.abs(y) < half_w + r)
+            room = (x - half_l - r) >= self.speed[v] ** 2 / (2 * braking)
+            track["in_path"] = {
+                int(self.ids[k])
+                for k in np.flatnonzero(ahead)
+                if int(self.ids[k]) in in_path or room[k]
+            }
 
     def _move_external(self, i: int, act):
         p = self.params
