@@ -11,19 +11,23 @@ fn rollout(args: &[&str]) -> std::process::Output {
         .expect("run sim-server")
 }
 
-#[test]
-fn rollout_writes_header_steps_and_end() {
-    let out = rollout(&["--scenario", "0", "--model", "cr_sfm", "--av", "0.3,0.1"]);
+/// The JSON lines of a rollout that must succeed.
+fn rollout_lines(args: &[&str]) -> Vec<serde_json::Value> {
+    let out = rollout(args);
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
     let text = String::from_utf8(out.stdout).unwrap();
-    let lines: Vec<serde_json::Value> = text
-        .lines()
+    text.lines()
         .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+        .collect()
+}
+
+#[test]
+fn rollout_writes_header_steps_and_end() {
+    let lines = rollout_lines(&["--scenario", "0", "--model", "cr_sfm", "--av", "0.3,0.1"]);
     assert_eq!(lines[0]["type"], "header");
     assert_eq!(lines[0]["format"], "sharedspace-rollout/1");
     assert_eq!(lines[1]["type"], "step");
@@ -39,17 +43,7 @@ fn rollout_writes_header_steps_and_end() {
 /// every step and speeds up along its heading by `ped_acc_max * dt` per step.
 #[test]
 fn a_driven_pedestrian_is_recorded_as_an_external_agent() {
-    let out = rollout(&["--scenario", "0", "--pedestrian", "0=1,0", "--av", "0,0"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = String::from_utf8(out.stdout).unwrap();
-    let lines: Vec<serde_json::Value> = text
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let lines = rollout_lines(&["--scenario", "0", "--pedestrian", "0=1,0", "--av", "0,0"]);
     let driven = &lines[0]["pedestrians_driven"][0];
     assert_eq!(driven["name"], "pedestrian_0");
     let id = driven["agent"].as_u64().unwrap();
