@@ -53,6 +53,7 @@ __all__ = [
     "RemoteBatchedEnv",
     "blank_step_columns",
     "contract_tensordict",
+    "reset_mask",
     "set_contract_specs",
 ]
 
@@ -86,6 +87,13 @@ def set_contract_specs(env: EnvBase, k: int, m: int) -> None:
         shape=(k,),
         device=dev,
     )
+
+
+def reset_mask(tensordict: TensorDictBase | None, k: int) -> np.ndarray | None:
+    """The ``_reset`` mask of a partial reset of ``k`` sub-envs (None: a full reset)."""
+    if tensordict is None or "_reset" not in tensordict.keys():
+        return None
+    return tensordict.get("_reset").reshape(k).cpu().numpy().astype(bool)
 
 
 def blank_step_columns(k: int) -> dict[str, np.ndarray]:
@@ -336,9 +344,7 @@ class RemoteBatchedEnv(_ServerEnvs):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         t0 = time.perf_counter()
-        mask = None
-        if tensordict is not None and "_reset" in tensordict.keys():
-            mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+        mask = reset_mask(tensordict, self.num_envs)
         todo = [k for k in range(self.num_envs) if mask is None or mask[k] or self._done[k]]
         queries: list[int] = []
         for k in todo:

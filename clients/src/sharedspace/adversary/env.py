@@ -39,6 +39,7 @@ from sharedspace.torchrl_env import (
     _ServerEnvs,
     blank_step_columns,
     contract_tensordict,
+    reset_mask,
     set_contract_specs,
 )
 from sharedspace.wire.requests import EnvSpec
@@ -172,18 +173,15 @@ class AdversaryEnv(_ServerEnvs):
     def _set_seed(self, seed: int | None) -> None:
         self._reseed = 0 if seed is None else int(seed)
 
-    def _take_obs(self, k: int, obs: dict[str, np.ndarray], row: int | None = None) -> None:
-        """Sub-env ``k``'s observations (``row``: the batch row of a step's obs)."""
+    def _take_obs(self, k: int, obs: dict[str, np.ndarray]) -> None:
+        """Sub-env ``k``'s observations from its reset."""
         for j, who in enumerate(("driver", "adversary")[: 2 if self.adversary else 1]):
             for key in (*_OBS, "node_ids"):
-                value = obs[key][j] if row is None else obs[key][row, j]
-                self._obs[who][key][k] = value
+                self._obs[who][key][k] = obs[key][j]
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         t0 = time.perf_counter()
-        mask = None
-        if tensordict is not None and "_reset" in tensordict.keys():
-            mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+        mask = reset_mask(tensordict, self.num_envs)
         todo = [k for k in range(self.num_envs) if mask is None or mask[k] or self._done[k]]
         if todo:
             scen = var = None
@@ -248,8 +246,9 @@ class AdversaryEnv(_ServerEnvs):
             actions[:, 1] = np.where(self._ped_active[:, None], walk, 0.0)
         res = self.vec.step(actions)
         out = blank_step_columns(self.num_envs)
-        for k in range(self.num_envs):
-            self._take_obs(k, res["obs"], row=k)
+        for j, who in enumerate(("driver", "adversary")[: 2 if self.adversary else 1]):
+            for key in (*_OBS, "node_ids"):
+                self._obs[who][key][:] = res["obs"][key][:, j]
         terms = self._adversary_terms(res)
         self.last_reward_terms = terms
         out["reward"] = sum(terms.values()).astype(np.float32).reshape(-1, 1)

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from sharedspace.bench.tasks import REPO, Task, get_task, scenes_fingerprint
+from sharedspace.bench.tasks import REPO, Task, get_task, scenes_fingerprint, versioned
 
 __all__ = [
     "ADVERSARY_REWARD",
@@ -167,10 +167,5 @@ ADVERSARY_TASKS = {
 
 
 def get_adversary_task(name: str = "crowd-adversary") -> AdversaryTask:
-    base, _, version = name.partition("@")
-    if base not in ADVERSARY_TASKS:
-        raise ValueError(f"unknown adversarial task {name!r}: one of {', '.join(ADVERSARY_TASKS)}")
-    task = ADVERSARY_TASKS[base]
-    if version and version != str(task.version):
-        raise ValueError(f"task {base} is at version {task.version}, not {version}")
-    return task
+    """The adversarial task of that name (``name@version`` checks the version too)."""
+    return versioned(name, ADVERSARY_TASKS, ValueError)

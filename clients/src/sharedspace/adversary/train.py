@@ -22,7 +22,8 @@ from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.client import Connection
 from sharedspace.episodes import run_episodes, summarize
 from sharedspace.train.config import TrainConfig, apply_overrides
-from sharedspace.train.metrics import EpisodeTracker, episode_metrics
+from sharedspace.train.loop import OneCar
+from sharedspace.train.loop import train as train_loop
 
 __all__ = ["ADVERSARY_DEFAULTS", "AdversaryWorld", "adversary_config", "serve_task", "train"]
 
@@ -59,13 +60,14 @@ def serve_task(task: AdversaryTask, folder: Path) -> Connection:
     return Connection.resolve(local_pools=[str(task.pool_path())], local_params=str(params))
 
 
-class AdversaryWorld:
-    """The training loop's world (as :class:`~sharedspace.train.loop.OneCar`) of an adversary
-    of ``driver`` on ``task``: its envs on ``client``, its ended episodes, its curve."""
+class AdversaryWorld(OneCar):
+    """The training loop's world of an adversary of ``driver`` on ``task``: its envs on
+    ``client`` and its curve; the ended episodes are counted as :class:`~sharedspace.train.
+    loop.OneCar` counts a car's (the episode keys read as the adversary's outcomes)."""
 
     def __init__(self, cfg: TrainConfig, task: AdversaryTask, driver: Policy, client):
-        self.cfg, self.task, self.driver, self.client = cfg, task, driver, client
-        self.tracker = EpisodeTracker(cfg.num_envs)
+        super().__init__(cfg)
+        self.task, self.driver, self.client = task, driver, client
         pool = json.loads(task.pool_path().read_text())
         self.curve_scenes = [s["name"] for s in pool["scenarios"] if s["split"] == "train"][
             :CURVE_EPISODES
@@ -80,14 +82,6 @@ class AdversaryWorld:
             reward_weights=self.cfg.reward_weights,
             client=self.client,
         )
-
-    def outcomes(self, data) -> dict[str, float]:
-        ended = self.tracker.update(data)
-        out = episode_metrics(ended) | {"train/reward_mean": float(data["next", "reward"].mean())}
-        return out | {"ended": len(ended), "lost": sum(e["lost"] for e in ended)}
-
-    def recent(self) -> list[dict[str, float]]:
-        return self.tracker.recent
 
     def evaluate(self, actor) -> dict[str, Any]:
         env = AdversaryEnv(
@@ -104,9 +98,6 @@ class AdversaryWorld:
         finally:
             env.close()
 
-    def network(self) -> str:
-        return self.cfg.network
-
     def record(self) -> dict[str, Any]:
         return {
             "adversary": {
@@ -117,9 +108,6 @@ class AdversaryWorld:
             },
             "max_agents": self.cfg.max_agents,
         }
-
-    def finish(self, actor, log_dir: Path, summary: dict[str, Any], timing: dict) -> None:
-        """Nothing beyond the checkpoints."""
 
 
 def train(
@@ -132,8 +120,6 @@ def train(
 ) -> dict[str, Any]:
     """Trains an adversary of ``driver`` (a policy spec) for ``frames`` frames into
     ``log_dir``, from its ``checkpoints/last.pt`` when there is one and ``resume``."""
-    from sharedspace.train.loop import train as train_loop
-
     task = get_adversary_task(task) if isinstance(task, str) else task
     cfg = adversary_config(task, [*overrides, f"total_frames={frames}", f"log_dir={Path(log_dir)}"])
     last = Path(log_dir) / "checkpoints" / "last.pt"

@@ -28,7 +28,15 @@ from sharedspace.marl.task import CrossingTask
 from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.worlds import REPO, TABLE2_WORLD, TABLE2G_WORLD
 
-__all__ = ["TASKS", "BenchError", "Task", "get_task", "scenes_fingerprint", "test_scenes"]
+__all__ = [
+    "TASKS",
+    "BenchError",
+    "Task",
+    "get_task",
+    "scenes_fingerprint",
+    "test_scenes",
+    "versioned",
+]
 
 
 class BenchError(ValueError):
@@ -170,10 +178,16 @@ def get_task(name: str | Task) -> Task:
     version too)."""
     if isinstance(name, Task):
         return name
-    base, _, version = str(name).partition("@")
-    if base not in TASKS:
-        raise BenchError(f"unknown task {name!r}: one of {', '.join(TASKS)}")
-    task = TASKS[base]
+    return versioned(str(name), TASKS, BenchError)
+
+
+def versioned(name: str, registry: dict[str, Any], error: type[Exception] = BenchError) -> Any:
+    """The entry ``name`` of a registry of frozen tasks, ``name@version`` checking the
+    version too; ``error`` naming the known ones or the version there is."""
+    base, _, version = name.partition("@")
+    if base not in registry:
+        raise error(f"unknown task {name!r}: one of {', '.join(registry)}")
+    task = registry[base]
     if version and version != str(task.version):
-        raise BenchError(f"task {base} is at version {task.version}, not {version}")
+        raise error(f"task {base} is at version {task.version}, not {version}")
     return task
