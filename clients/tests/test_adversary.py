@@ -186,3 +186,20 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
     assert len(ep.frames) >= 3
     assert any(a.controlled and a.length is None for f in ep.frames for a in f.agents)
     assert write_gif(ep, tmp_path / "ep.gif").stat().st_size > 0
+
+
+def test_bad_adversary_inputs_are_refused_by_name(capsys):
+    from sharedspace.adversary.__main__ import main
+    from sharedspace.adversary.task import get_adversary_task
+
+    with pytest.raises(ValueError, match="until must be 'either' or 'driver'"):
+        AdversaryEnv("car_aware", until="forever")
+    with pytest.raises(ValueError, match=r"unknown terms \['faults'\]"):
+        AdversaryEnv("car_aware", reward_weights={"faults": 1.0})
+    with pytest.raises(ValueError, match="unknown task 'crowd-adversaries'"):
+        get_adversary_task("crowd-adversaries")
+    with pytest.raises(ValueError, match="at version 1, not 2"):
+        get_adversary_task("crowd-adversary@2")
+    with pytest.raises(SystemExit):
+        main(["stress", "--name", "x", "--driver", "car_aware", "--adversary", "own"])
+    assert "--adversary 'own': give LABEL=CHECKPOINT" in capsys.readouterr().err
