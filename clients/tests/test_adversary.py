@@ -49,7 +49,8 @@ def scene(name, car_v, ped, ped_v, split="test"):
 
 def make_task(folder: Path) -> AdversaryTask:
     """``crowd-adversary`` over a hand-made pool: a pedestrian standing 20 m ahead of a car at
-    4 m/s, and one walking into the side of a car at 1 m/s."""
+    4 m/s, one walking into the side of a car at 1 m/s, and one standing 3 m beside the path of a
+    car at 4 m/s, 30 m ahead of it."""
     pool = adversary_pool(
         {
             "version": 1,
@@ -59,6 +60,7 @@ def make_task(folder: Path) -> AdversaryTask:
             "scenarios": [
                 scene("in-the-path", [4.0, 0.0], [20.0, 0.0], [0.0, 0.05]),
                 scene("into-the-side", [1.0, 0.0], [1.0, -3.0], [0.0, 1.5]),
+                scene("off-the-path", [4.0, 0.0], [30.0, 3.0], [0.0, 0.05]),
                 scene("train-0", [4.0, 0.0], [20.0, 0.0], [0.0, 0.05], split="train"),
             ],
         }
@@ -95,7 +97,8 @@ def test_plausible_actions_stay_in_the_walking_range():
 
 def play(task, client, scene_name, command):
     """One episode of ``scene_name`` in variation 0, the driver holding its speed and heading,
-    the adversary commanding ``command``: the env's record and the adversary's rewards."""
+    the adversary commanding ``command`` (a fixed ``[2]``, or a module that writes ``action``):
+    the env's record and the adversary's rewards."""
     import torch
 
     env = AdversaryEnv(
@@ -112,7 +115,10 @@ def play(task, client, scene_name, command):
         td = env.reset()
         rewards = []
         for _ in range(200):
-            td["action"] = torch.tensor([command], dtype=torch.float32)
+            if callable(command):
+                td = command(td)
+            else:
+                td["action"] = torch.tensor([command], dtype=torch.float32)
             out = env.step(td)
             rewards.append(dict(env.last_reward_terms))
             if out["next", "done"].all():
@@ -137,6 +143,27 @@ def test_a_driver_who_drives_into_an_adversary_in_its_path_is_at_fault(sim_serve
             assert rec["driver"] == "collision" and not rec["fault"] and rec["blame"]
             assert rewards[-1]["blame"][0] == task.reward["blame"]
             assert bool(last["episode_collision"].item())
+        finally:
+            client.shutdown()
+
+
+def test_the_intercepting_adversary_walks_into_the_path_of_a_car_that_does_not_brake(
+    sim_server,
+):
+    from sharedspace.adversary.scripted import Intercept
+
+    with tempfile.TemporaryDirectory() as tmp:
+        task = make_task(Path(tmp))
+        client = serve_task(task, Path(tmp)).open()
+        try:
+            jaywalker = Intercept(task.walking_range)
+            rec, rewards, last = play(task, client, "off-the-path", jaywalker)
+            # it steps into the path with room for the car to stop: the car's fault
+            assert rec["driver"] == "collision" and rec["fault"] and not rec["blame"]
+            assert bool(last["episode_success"].item())
+            # standing still it is never in the path, and the car drives past
+            rec, _, _ = play(task, client, "off-the-path", [0.0, 0.0])
+            assert rec["driver"] != "collision" and not rec["fault"]
         finally:
             client.shutdown()
 
@@ -167,7 +194,7 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
     result = stress_row(["car_aware"], {"CR-SFM": None, "own": ckpt}, task, "car_aware")
     table = stress_markdown(result)
     for label in ("CR-SFM", "own"):
-        assert result["conditions"][label]["summary"]["episodes"] == 2 * 4  # scenes x variations
+        assert result["conditions"][label]["summary"]["episodes"] == 3 * 4  # scenes x variations
         assert f"| {label} |" in table
     assert "drop" in result["conditions"]["own"]
 
@@ -180,7 +207,9 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
     client = serve_task(task, tmp_path).open()
     try:
         driver = make_policy(lambda obs: np.zeros(2), task.driving)
-        ep = record_stress_episode(driver, load_adversary(ckpt), task, "in-the-path", 0, client)
+        ep = record_stress_episode(
+            driver, load_adversary(ckpt, task), task, "in-the-path", 0, client
+        )
     finally:
         client.shutdown()
     assert len(ep.frames) >= 3
@@ -203,3 +232,8 @@ def test_bad_adversary_inputs_are_refused_by_name(capsys):
     with pytest.raises(SystemExit):
         main(["stress", "--name", "x", "--driver", "car_aware", "--adversary", "own"])
     assert "--adversary 'own': give LABEL=CHECKPOINT" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["stress", "--name", "x", "--driver", "car_aware", "--adversary", "own=jaywalk"])
+    assert "'jaywalk' is neither a checkpoint file nor a scripted adversary (intercept)" in (
+        capsys.readouterr().err
+    )

@@ -4,9 +4,9 @@
     python -m sharedspace.adversary train --name car_aware --driver car_aware --frames 1048576
     # score any driver against CR-SFM and every shipped adversary (results/adversary/policies)
     python -m sharedspace.adversary stress --name my_driver --driver my_pkg.mod:act
-    # ... or against adversaries of your choice (label=checkpoint)
+    # ... or against adversaries of your choice (label=checkpoint, or label=a scripted one)
     python -m sharedspace.adversary stress --name car_aware --driver car_aware \\
-        --adversary own=results/adversary/runs/car_aware/checkpoints/last.pt
+        --adversary own=results/adversary/runs/car_aware/checkpoints/last.pt jaywalker=intercept
     # animations of three failures it found
     python -m sharedspace.adversary gifs --stress results/adversary/car_aware.json --label own
     # the walking range the adversary is held to
@@ -23,6 +23,7 @@ import json
 import sys
 from pathlib import Path
 
+from sharedspace.adversary.scripted import SCRIPTED_ADVERSARIES
 from sharedspace.worlds import REPO
 
 RESULTS = Path("results/adversary")
@@ -51,8 +52,10 @@ def main(argv: list[str] | None = None) -> int:
         "--adversary",
         nargs="*",
         default=None,
-        metavar="LABEL=CHECKPOINT",
-        help="adversaries (default: every shipped one, results/adversary/policies/*.pt)",
+        metavar="LABEL=ADVERSARY",
+        help="adversaries, each a checkpoint or a scripted one's name ("
+        + ", ".join(SCRIPTED_ADVERSARIES)
+        + "; default: every shipped one, results/adversary/policies/*.pt)",
     )
     st.add_argument("--out", default=str(RESULTS), help="where the scoring goes")
     sub.add_parser("walking-range", help="measure the CR-SFM pedestrians' walking range")
@@ -94,7 +97,12 @@ def main(argv: list[str] | None = None) -> int:
     for item in args.adversary or []:
         label, _, path = item.partition("=")
         if not path:
-            ap.error(f"--adversary {item!r}: give LABEL=CHECKPOINT")
+            ap.error(f"--adversary {item!r}: give LABEL=CHECKPOINT or LABEL=SCRIPT")
+        if path not in SCRIPTED_ADVERSARIES and not Path(path).is_file():
+            ap.error(
+                f"--adversary {item!r}: {path!r} is neither a checkpoint file nor a scripted"
+                f" adversary ({', '.join(SCRIPTED_ADVERSARIES)})"
+            )
         adversaries[label] = path
     result = stress_row(args.driver, adversaries, args.task, args.name)
     out = Path(args.out)

@@ -119,7 +119,7 @@ def write_failures(
     stress scoring's JSON."""
     result = json.loads(Path(result_file).read_text())
     task = get_adversary_task(result["task"])
-    adversary = load_adversary(result["conditions"][label]["adversary"])
+    adversary = load_adversary(result["conditions"][label]["adversary"], task)
     specs = result["driver_specs"]
     written = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -21,6 +21,7 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from sharedspace.adversary.env import AdversaryEnv
+from sharedspace.adversary.scripted import SCRIPTED_ADVERSARIES
 from sharedspace.adversary.task import AdversaryTask, get_adversary_task
 from sharedspace.adversary.train import serve_task
 from sharedspace.bench.policies import Policy, make_policy
@@ -47,11 +48,15 @@ def pooled_driver(specs: Sequence[Any], task: AdversaryTask, name: str = "") -> 
     return Policy(name or made[0].name, {"kind": "pooled", "policies": sources}, act)
 
 
-def load_adversary(path: str | Path) -> nn.Module:
-    """An adversary's actor from its checkpoint (played deterministically)."""
+def load_adversary(spec: str | Path, task: AdversaryTask, dt: float = 0.5) -> nn.Module:
+    """An adversary: a scripted one by name (:data:`~sharedspace.adversary.scripted.
+    SCRIPTED_ADVERSARIES`, held to ``task``'s walking range in a world stepping every ``dt``
+    s), or a learned one's actor from its checkpoint (played deterministically)."""
+    if str(spec) in SCRIPTED_ADVERSARIES:
+        return SCRIPTED_ADVERSARIES[str(spec)](task.walking_range, dt)
     from sharedspace.train.learners import load_checkpoint_actor
 
-    _, actor = load_checkpoint_actor(str(path))
+    _, actor = load_checkpoint_actor(str(spec))
     return actor
 
 
@@ -66,8 +71,9 @@ def play(
     driver: Policy, adversary: str | Path | None, task: AdversaryTask, client
 ) -> list[dict[str, Any]]:
     """Every test episode of ``task`` (scene ``k % S`` in variation ``k // S``) driven by
-    ``driver`` against the adversary checkpoint ``adversary`` (None: the CR-SFM pedestrian):
-    one record each (scene, variation, the driver's outcome, ``fault``, ``blame``)."""
+    ``driver`` against ``adversary`` (a checkpoint or a scripted adversary's name; None: the
+    CR-SFM pedestrian): one record each (scene, variation, the driver's outcome, ``fault``,
+    ``blame``)."""
     pool = json.loads(task.pool_path().read_text())
     scenes = [s["name"] for s in pool["scenarios"] if s["split"] == "test"]
     variations = task.driving.variations
@@ -85,7 +91,9 @@ def play(
         client=client,
     )
     try:
-        run_episodes(env, _Standing() if adversary is None else load_adversary(adversary))
+        run_episodes(
+            env, _Standing() if adversary is None else load_adversary(adversary, task, env.dt)
+        )
         first: dict[tuple[str, int], dict[str, Any]] = {}
         for rec in env.finished:
             first.setdefault((rec["scene"], rec["variation"]), rec)
@@ -100,7 +108,8 @@ def stress_row(
     task: str | AdversaryTask = "crowd-adversary",
     name: str = "",
 ) -> dict[str, Any]:
-    """A driver (its policies pooled) against each of ``adversaries`` (label -> checkpoint,
+    """A driver (its policies pooled) against each of ``adversaries`` (label -> checkpoint or
+    scripted adversary,
     None for CR-SFM): every episode and the summary of each condition."""
     task = get_adversary_task(task) if isinstance(task, str) else task
     out: dict[str, Any] = {"task": task.tag, "fingerprint": task.fingerprint(), "driver": name}
