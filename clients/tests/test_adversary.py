@@ -191,12 +191,34 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
     assert out["counters"]["frames"] >= 512
     ckpt = run / "checkpoints" / "last.pt"
     assert ckpt.is_file()
-    result = stress_row(["car_aware"], {"CR-SFM": None, "own": ckpt}, task, "car_aware")
+    adversaries = {"CR-SFM": None, "own": ckpt, "jaywalker": "intercept"}
+    result = stress_row(["car_aware"], adversaries, task, "car_aware")
     table = stress_markdown(result)
-    for label in ("CR-SFM", "own"):
+    for label in ("CR-SFM", "own", "jaywalker"):
         assert result["conditions"][label]["summary"]["episodes"] == 3 * 4  # scenes x variations
         assert f"| {label} |" in table
     assert "drop" in result["conditions"]["own"]
+
+    # two drivers compared on the pedestrians both met, matched by what they are, not by label
+    from sharedspace.adversary.compare import compare_drivers, compare_markdown
+
+    hold = stress_row(["hold"], {"CR-SFM": None, "intercept": "intercept"}, task, "hold")
+    cmp = compare_drivers(result, hold)
+    assert list(cmp["by"]) == ["CR-SFM", "jaywalker"]
+    rate = {
+        name: {label: cond["summary"]["success"]["rate"] for label, cond in r["conditions"].items()}
+        for name, r in (("car_aware", result), ("hold", hold))
+    }
+    jay = cmp["by"]["jaywalker"]
+    want = rate["car_aware"]["jaywalker"] - rate["hold"]["intercept"]
+    assert jay["success"]["diff"] == pytest.approx(want)
+    want_drop = (rate["car_aware"]["CR-SFM"] - rate["car_aware"]["jaywalker"]) - (
+        rate["hold"]["CR-SFM"] - rate["hold"]["intercept"]
+    )
+    assert jay["drop"]["diff"] == pytest.approx(want_drop)
+    assert "| jaywalker | `intercept` |" in compare_markdown(cmp)
+    with pytest.raises(ValueError, match="different tasks"):
+        compare_drivers(result, {**hold, "fingerprint": "other"})
 
     # an episode of it as pictures: the adversary drawn apart, a GIF written
     from sharedspace.adversary.pictures import record_stress_episode

@@ -7,6 +7,8 @@
     # ... or against adversaries of your choice (label=checkpoint, or label=a scripted one)
     python -m sharedspace.adversary stress --name car_aware --driver car_aware \\
         --adversary own=results/adversary/runs/car_aware/checkpoints/last.pt jaywalker=intercept
+    # two drivers side by side against the pedestrians both met: which is harder to break
+    python -m sharedspace.adversary compare results/adversary/A.json results/adversary/B.json
     # animations of three failures it found
     python -m sharedspace.adversary gifs --stress results/adversary/car_aware.json --label own
     # the walking range the adversary is held to
@@ -59,6 +61,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     st.add_argument("--out", default=str(RESULTS), help="where the scoring goes")
     sub.add_parser("walking-range", help="measure the CR-SFM pedestrians' walking range")
+    co = sub.add_parser("compare", help="two drivers' stress scorings, A - B, paired")
+    co.add_argument("a", help="driver A's stress scoring (JSON)")
+    co.add_argument("b", help="driver B's stress scoring (JSON)")
+    co.add_argument("--json", default=None, help="also write the comparison here")
     gi = sub.add_parser("gifs", help="animations of the failures an adversary found")
     gi.add_argument("--stress", required=True, help="a stress scoring's JSON")
     gi.add_argument("--label", required=True, help="the adversary's label in it")
@@ -71,6 +77,14 @@ def main(argv: list[str] | None = None) -> int:
         from sharedspace.adversary.walking import walking_range
 
         print(json.dumps(walking_range(get_adversary_task(args.task).driving)))
+        return 0
+    if args.command == "compare":
+        from sharedspace.adversary.compare import compare_drivers, compare_markdown
+
+        result = compare_drivers(*(json.loads(Path(f).read_text()) for f in (args.a, args.b)))
+        if args.json:
+            Path(args.json).write_text(json.dumps(result, indent=1))
+        print(compare_markdown(result))
         return 0
     if args.command == "gifs":
         from sharedspace.adversary.pictures import write_failures

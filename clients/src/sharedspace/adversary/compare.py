@@ -1,0 +1,75 @@
+"""Two drivers' stress scorings side by side: which is harder to break.
+
+For every pedestrian both scorings played (the CR-SFM baseline and each adversary, matched by
+checkpoint or script, not by label): the paired difference ``A - B`` in success, episode by
+episode (a row's seeds averaged per episode), and the difference in their success drops,
+``drop_A - drop_B``. A drop is per episode (success against CR-SFM less success against the
+adversary), so the second is paired too. Intervals resample the scenes (docs/RESULTS.md,
+"Adversarial stress test").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from sharedspace.adversary.stress import _by_episode
+from sharedspace.stats import paired_clustered
+
+__all__ = ["compare_drivers", "compare_markdown"]
+
+
+def compare_drivers(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """``A - B`` for every pedestrian both stress scorings (:func:`~sharedspace.adversary.
+    stress.stress_row`) of one task played, matched by what it is (CR-SFM, a checkpoint, a
+    scripted adversary), whatever each scoring labelled it: ``success`` (paired per episode)
+    and, for each adversary, ``drop`` (``drop_A - drop_B``, paired per episode)."""
+    if a["task"] != b["task"] or a["fingerprint"] != b["fingerprint"]:
+        raise ValueError(
+            f"the scorings are of different tasks: {a['task']} ({a['fingerprint']}) and "
+            f"{b['task']} ({b['fingerprint']})"
+        )
+    in_b = {cond["adversary"]: cond for cond in b["conditions"].values()}
+    if None not in in_b or all(c["adversary"] is not None for c in a["conditions"].values()):
+        raise ValueError("each scoring needs its CR-SFM baseline (an adversary of None)")
+    shared = [
+        (label, cond, in_b[cond["adversary"]])
+        for label, cond in a["conditions"].items()
+        if cond["adversary"] in in_b
+    ]
+    base_a = next(_success(c) for _, c, _ in shared if c["adversary"] is None)
+    base_b = _success(in_b[None])
+    out: dict[str, Any] = {"a": a["driver"], "b": b["driver"], "task": a["task"], "by": {}}
+    for label, cond_a, cond_b in shared:
+        sa, sb = _success(cond_a), _success(cond_b)
+        entry: dict[str, Any] = {"adversary": cond_a["adversary"]}
+        entry["success"] = paired_clustered(sa, sb)
+        if cond_a["adversary"] is not None:
+            drop_a = {k: base_a[k] - v for k, v in sa.items() if k in base_a}
+            drop_b = {k: base_b[k] - v for k, v in sb.items() if k in base_b}
+            entry["drop"] = paired_clustered(drop_a, drop_b)
+        out["by"][label] = entry
+    return out
+
+
+def _success(condition: dict[str, Any]) -> dict[tuple[str, int], float]:
+    return _by_episode(condition["episodes"], "success")
+
+
+def compare_markdown(result: dict[str, Any]) -> str:
+    """The comparison as a table: one row per pedestrian."""
+    lines = [
+        f"`{result['a']}` − `{result['b']}` on `{result['task']}`, paired per episode "
+        "(scenes resampled, 95 %):",
+        "",
+        "| pedestrian (A's label) | adversary | success A − B | success drop A − B |",
+        "|---|---|---|---|",
+    ]
+    for label, entry in result["by"].items():
+        cells = [
+            f"{d['diff']:+.3f} [{d['lo']:+.3f}, {d['hi']:+.3f}]" if d else "—"
+            for d in (entry["success"], entry.get("drop"))
+        ]
+        what = entry["adversary"] or "CR-SFM"
+        lines.append(f"| {label} | `{Path(what).name}` | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines) + "\n"
