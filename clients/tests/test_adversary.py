@@ -216,6 +216,10 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
         rate["hold"]["CR-SFM"] - rate["hold"]["intercept"]
     )
     assert jay["drop"]["diff"] == pytest.approx(want_drop)
+    assert cmp["by"]["CR-SFM"]["at_fault"]["diff"] == pytest.approx(
+        result["conditions"]["CR-SFM"]["summary"]["at_fault"]["rate"]
+        - hold["conditions"]["CR-SFM"]["summary"]["at_fault"]["rate"]
+    )
     assert "| jaywalker | `intercept` |" in compare_markdown(cmp)
     with pytest.raises(ValueError, match="different tasks"):
         compare_drivers(result, {**hold, "fingerprint": "other"})

@@ -2,7 +2,8 @@
 
 For every pedestrian both scorings played (the CR-SFM baseline and each adversary, matched by
 checkpoint or script, not by label): the paired difference ``A - B`` in success, episode by
-episode (a row's seeds averaged per episode), and the difference in their success drops,
+episode (a row's seeds averaged per episode), in at-fault collisions with that pedestrian,
+and the difference in their success drops,
 ``drop_A - drop_B``. A drop is per episode (success against CR-SFM less success against the
 adversary), so the second is paired too. Intervals resample the scenes (docs/RESULTS.md,
 "Adversarial stress test").
@@ -22,8 +23,9 @@ __all__ = ["compare_drivers", "compare_markdown"]
 def compare_drivers(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     """``A - B`` for every pedestrian both stress scorings (:func:`~sharedspace.adversary.
     stress.stress_row`) of one task played, matched by what it is (CR-SFM, a checkpoint, a
-    scripted adversary), whatever each scoring labelled it: ``success`` (paired per episode)
-    and, for each adversary, ``drop`` (``drop_A - drop_B``, paired per episode)."""
+    scripted adversary), whatever each scoring labelled it: ``success`` and ``at_fault`` (an
+    at-fault collision with that pedestrian; paired per episode) and, for each adversary,
+    ``drop`` (``drop_A - drop_B``, paired per episode)."""
     if a["task"] != b["task"] or a["fingerprint"] != b["fingerprint"]:
         raise ValueError(
             f"the scorings are of different tasks: {a['task']} ({a['fingerprint']}) and "
@@ -44,6 +46,9 @@ def compare_drivers(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
         sa, sb = _success(cond_a), _success(cond_b)
         entry: dict[str, Any] = {"adversary": cond_a["adversary"]}
         entry["success"] = paired_clustered(sa, sb)
+        entry["at_fault"] = paired_clustered(
+            _by_episode(cond_a["episodes"], "fault"), _by_episode(cond_b["episodes"], "fault")
+        )
         if cond_a["adversary"] is not None:
             drop_a = {k: base_a[k] - v for k, v in sa.items() if k in base_a}
             drop_b = {k: base_b[k] - v for k, v in sb.items() if k in base_b}
@@ -62,14 +67,15 @@ def compare_markdown(result: dict[str, Any]) -> str:
         f"`{result['a']}` − `{result['b']}` on `{result['task']}`, paired per episode "
         "(scenes resampled, 95 %):",
         "",
-        "| pedestrian (A's label) | adversary | success A − B | success drop A − B |",
-        "|---|---|---|---|",
+        "| pedestrian (A's label) | adversary | success A − B | at fault A − B "
+        "| success drop A − B |",
+        "|---|---|---|---|---|",
     ]
     for label, entry in result["by"].items():
         cells = [
             f"{d['diff']:+.3f} [{d['lo']:+.3f}, {d['hi']:+.3f}]" if d else "—"
-            for d in (entry["success"], entry.get("drop"))
+            for d in (entry["success"], entry["at_fault"], entry.get("drop"))
         ]
         what = entry["adversary"] or "CR-SFM"
-        lines.append(f"| {label} | `{Path(what).name}` | {cells[0]} | {cells[1]} |")
+        lines.append(f"| {label} | `{Path(what).name}` | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
