@@ -33,7 +33,7 @@ RESULTS = Path("results/adversary")
 SHIPPED = REPO / "results" / "adversary" / "policies"
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m sharedspace.adversary",
         description=__doc__,
@@ -70,38 +70,44 @@ def main(argv: list[str] | None = None) -> int:
     gi.add_argument("--label", required=True, help="the adversary's label in it")
     gi.add_argument("--count", type=int, default=3, help="failures to draw")
     gi.add_argument("--out", default=str(RESULTS / "gifs"), help="where they go")
-    args = ap.parse_args(argv)
+    return ap
 
-    if args.command == "walking-range":
-        from sharedspace.adversary.task import get_adversary_task
-        from sharedspace.adversary.walking import walking_range
 
-        print(json.dumps(walking_range(get_adversary_task(args.task).driving)))
-        return 0
-    if args.command == "compare":
-        from sharedspace.adversary.compare import compare_drivers, compare_markdown
+def _walking_range(args: argparse.Namespace, ap: argparse.ArgumentParser) -> None:
+    from sharedspace.adversary.task import get_adversary_task
+    from sharedspace.adversary.walking import walking_range
 
-        result = compare_drivers(*(json.loads(Path(f).read_text()) for f in (args.a, args.b)))
-        if args.json:
-            Path(args.json).write_text(json.dumps(result, indent=1))
-        print(compare_markdown(result))
-        return 0
-    if args.command == "gifs":
-        from sharedspace.adversary.pictures import write_failures
+    print(json.dumps(walking_range(get_adversary_task(args.task).driving)))
 
-        for path in write_failures(args.stress, args.label, args.out, args.count):
-            print("wrote", path)
-        return 0
-    if args.command == "train":
-        from sharedspace.adversary.stress import pooled_driver
-        from sharedspace.adversary.task import get_adversary_task
-        from sharedspace.adversary.train import train
 
-        task = get_adversary_task(args.task)
-        driver = pooled_driver(args.driver, task, args.name)
-        out = train(driver, Path(args.out) / args.name, args.frames, args.set, task)
-        print(json.dumps({"counters": out["counters"], "eval": out["eval"]}, default=str))
-        return 0
+def _compare(args: argparse.Namespace, ap: argparse.ArgumentParser) -> None:
+    from sharedspace.adversary.compare import compare_drivers, compare_markdown
+
+    result = compare_drivers(*(json.loads(Path(f).read_text()) for f in (args.a, args.b)))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    print(compare_markdown(result))
+
+
+def _gifs(args: argparse.Namespace, ap: argparse.ArgumentParser) -> None:
+    from sharedspace.adversary.pictures import write_failures
+
+    for path in write_failures(args.stress, args.label, args.out, args.count):
+        print("wrote", path)
+
+
+def _train(args: argparse.Namespace, ap: argparse.ArgumentParser) -> None:
+    from sharedspace.adversary.stress import pooled_driver
+    from sharedspace.adversary.task import get_adversary_task
+    from sharedspace.adversary.train import train
+
+    task = get_adversary_task(args.task)
+    driver = pooled_driver(args.driver, task, args.name)
+    out = train(driver, Path(args.out) / args.name, args.frames, args.set, task)
+    print(json.dumps({"counters": out["counters"], "eval": out["eval"]}, default=str))
+
+
+def _stress(args: argparse.Namespace, ap: argparse.ArgumentParser) -> None:
     from sharedspace.adversary.stress import stress_row
     from sharedspace.adversary.table import stress_markdown
 
@@ -124,6 +130,22 @@ def main(argv: list[str] | None = None) -> int:
     (out / f"{args.name}.json").write_text(json.dumps(result))
     (out / f"{args.name}.md").write_text(stress_markdown(result))
     print(stress_markdown(result))
+
+
+#: Each command's handler, ``(args, parser)``.
+COMMANDS = {
+    "train": _train,
+    "stress": _stress,
+    "compare": _compare,
+    "gifs": _gifs,
+    "walking-range": _walking_range,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = _parser()
+    args = ap.parse_args(argv)
+    COMMANDS[args.command](args, ap)
     return 0
 
 
