@@ -223,6 +223,9 @@ def test_an_adversary_trains_and_a_driver_is_scored_against_it(sim_server, tmp_p
     assert "| jaywalker | `intercept` |" in compare_markdown(cmp)
     with pytest.raises(ValueError, match="different tasks"):
         compare_drivers(result, {**hold, "fingerprint": "other"})
+    no_baseline = {**hold, "conditions": {"intercept": hold["conditions"]["intercept"]}}
+    with pytest.raises(ValueError, match="needs its CR-SFM baseline"):
+        compare_drivers(result, no_baseline)
 
     # an episode of it as pictures: the adversary drawn apart, a GIF written
     from sharedspace.adversary.pictures import record_stress_episode

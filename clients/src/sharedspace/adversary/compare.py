@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from sharedspace.adversary.stress import _by_episode
+from sharedspace.adversary.stress import per_episode
 from sharedspace.stats import paired_clustered
 
 __all__ = ["compare_drivers", "compare_markdown"]
@@ -31,34 +31,25 @@ def compare_drivers(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
             f"the scorings are of different tasks: {a['task']} ({a['fingerprint']}) and "
             f"{b['task']} ({b['fingerprint']})"
         )
-    in_b = {cond["adversary"]: cond for cond in b["conditions"].values()}
-    if None not in in_b or all(c["adversary"] is not None for c in a["conditions"].values()):
+    in_a, in_b = ({cond["adversary"]: cond for cond in r["conditions"].values()} for r in (a, b))
+    if None not in in_a or None not in in_b:
         raise ValueError("each scoring needs its CR-SFM baseline (an adversary of None)")
-    shared = [
-        (label, cond, in_b[cond["adversary"]])
-        for label, cond in a["conditions"].items()
-        if cond["adversary"] in in_b
-    ]
-    base_a = next(_success(c) for _, c, _ in shared if c["adversary"] is None)
-    base_b = _success(in_b[None])
+    base_a, base_b = (per_episode(x[None]["episodes"], "success") for x in (in_a, in_b))
     out: dict[str, Any] = {"a": a["driver"], "b": b["driver"], "task": a["task"], "by": {}}
-    for label, cond_a, cond_b in shared:
-        sa, sb = _success(cond_a), _success(cond_b)
+    for label, cond_a in a["conditions"].items():
+        cond_b = in_b.get(cond_a["adversary"])
+        if cond_b is None:
+            continue
+        sa, sb = (per_episode(c["episodes"], "success") for c in (cond_a, cond_b))
+        fa, fb = (per_episode(c["episodes"], "fault") for c in (cond_a, cond_b))
         entry: dict[str, Any] = {"adversary": cond_a["adversary"]}
-        entry["success"] = paired_clustered(sa, sb)
-        entry["at_fault"] = paired_clustered(
-            _by_episode(cond_a["episodes"], "fault"), _by_episode(cond_b["episodes"], "fault")
-        )
+        entry["success"], entry["at_fault"] = paired_clustered(sa, sb), paired_clustered(fa, fb)
         if cond_a["adversary"] is not None:
             drop_a = {k: base_a[k] - v for k, v in sa.items() if k in base_a}
             drop_b = {k: base_b[k] - v for k, v in sb.items() if k in base_b}
             entry["drop"] = paired_clustered(drop_a, drop_b)
         out["by"][label] = entry
     return out
-
-
-def _success(condition: dict[str, Any]) -> dict[tuple[str, int], float]:
-    return _by_episode(condition["episodes"], "success")
 
 
 def compare_markdown(result: dict[str, Any]) -> str:

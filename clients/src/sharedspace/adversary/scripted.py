@@ -22,6 +22,7 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from sharedspace.names import Feature
+from sharedspace.scripted import VehicleLimits
 
 __all__ = ["SCRIPTED_ADVERSARIES", "Intercept"]
 
@@ -47,7 +48,7 @@ class Intercept(nn.Module):
             an acceleration as a fraction of ``acc_max``.
         dt: the world's step, s.
         half_length, half_width: the driver's footprint (model.md 2c: 4.0 x 1.8 m), m.
-        braking: the driver's braking ``b`` (model.md 2c: ``acc_max``, 2 m/s^2).
+        limits: the driver's limits; its braking ``b`` is their ``acc_max`` (model.md 2c).
         spare: distance kept beyond the braking distance when stepping in, m.
         kerb: how far outside the path band it waits, m.
         inside: how far inside the path band it stands, m.
@@ -57,10 +58,10 @@ class Intercept(nn.Module):
     def __init__(
         self,
         walking: dict[str, float],
-        dt: float = 0.5,
+        dt: float = VehicleLimits.dt,
         half_length: float = 2.0,
         half_width: float = 0.9,
-        braking: float = 2.0,
+        limits: VehicleLimits = VehicleLimits(),  # noqa: B008 - frozen dataclass
         spare: float = 0.5,
         kerb: float = 0.5,
         inside: float = 0.4,
@@ -70,7 +71,7 @@ class Intercept(nn.Module):
         super().__init__()
         self.speed_max, self.acc_max = float(walking["speed_max"]), float(walking["acc_max"])
         self.dt, self.half_length, self.half_width = dt, half_length, half_width
-        self.braking, self.spare, self.kerb, self.inside = braking, spare, kerb, inside
+        self.braking, self.spare, self.kerb, self.inside = limits.acc_max, spare, kerb, inside
         self.distances = np.arange(half_length + 1.0, reach + step / 2, step)
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:

@@ -28,7 +28,14 @@ from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.episodes import run_episodes
 from sharedspace.stats import paired_clustered, wilson
 
-__all__ = ["load_adversary", "play", "pooled_driver", "stress_row", "summarize_stress"]
+__all__ = [
+    "load_adversary",
+    "per_episode",
+    "play",
+    "pooled_driver",
+    "stress_row",
+    "summarize_stress",
+]
 
 
 def pooled_driver(specs: Sequence[Any], task: AdversaryTask, name: str = "") -> Policy:
@@ -158,15 +165,15 @@ def summarize_stress(result: dict[str, Any]) -> dict[str, Any]:
         cond["summary"] = {"episodes": n, **rates}
         if label != base_label:
             cond["drop"] = paired_clustered(
-                _by_episode(base, "success"), _by_episode(eps, "success")
+                per_episode(base, "success"), per_episode(eps, "success")
             )
             cond["fault_rise"] = paired_clustered(
-                _by_episode(eps, "fault"), _by_episode(base, "fault")
+                per_episode(eps, "fault"), per_episode(base, "fault")
             )
     return result
 
 
-def _by_episode(episodes: list[dict[str, Any]], what: str) -> dict[tuple[str, int], float]:
+def per_episode(episodes: list[dict[str, Any]], what: str) -> dict[tuple[str, int], float]:
     """Per (scene, variation), the mean over the pooled policies of success or ``fault``."""
     sums: dict[tuple[str, int], list[float]] = {}
     for e in episodes:
