@@ -31,7 +31,7 @@ port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); p
 endpoint="tcp/127.0.0.1:$port"
 # The validation split the trainer carves from the paper pool's train scenes (task=paper): the
 # server serves it beside the embedded pools, so that the run's curves never touch test scenes.
-validation=$("$py" -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(task="paper", device="cpu").training_pool())')
+validation=$("$py" -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(task="paper", device="cpu").carve_validation())')
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
     --cfg server_id:main --cfg 'params:"params/table2.json5"' \
     --cfg "pools:[\"embedded:hbs-paper\",\"embedded:hbs-general\",\"$validation\"]" > "$out/server.log" 2>&1 &

@@ -11,7 +11,7 @@ export SHAREDSPACE_ENDPOINT="tcp/127.0.0.1:$port"
 mkdir -p out
 # The embedded pools, and the validation split a default trainer config carves from hbs-paper's
 # train scenes (docs/ARCHITECTURE.md, "Validation, not test").
-validation=$(.venv/bin/python -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(device="cpu").training_pool())')
+validation=$(.venv/bin/python -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(device="cpu").carve_validation())')
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$SHAREDSPACE_ENDPOINT\"]" \
     --cfg "pools:[\"embedded:hbs-paper\",\"embedded:hbs-general\",\"$validation\"]" \
     > out/server-$port.log 2>&1 &

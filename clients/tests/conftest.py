@@ -93,7 +93,7 @@ def validation_pools_cfg() -> str:
 
     from sharedspace.train.config import TrainConfig
 
-    carved = TrainConfig(device="cpu").training_pool()
+    carved = TrainConfig(device="cpu").carve_validation()
     return "pools:" + json.dumps(["embedded:hbs-paper", "embedded:hbs-general", carved])
 
 

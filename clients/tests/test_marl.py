@@ -17,7 +17,7 @@ from sharedspace.marl.evaluate import paired_difference, play, scripted_act, sum
 from sharedspace.marl.networks import make_actor
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.marl.train import train
-from sharedspace.train.checkpoint import FORMAT, load_checkpoint
+from sharedspace.train.checkpoint import FORMAT, read_checkpoint
 from sharedspace.train.config import TrainConfig, apply_overrides
 from sharedspace.train.envs import ResidualAction
 
@@ -67,7 +67,7 @@ def test_each_algorithm_trains_against_a_live_server_and_resumes(algorithm, sim_
     losses = {"mappo": "loss_objective", "ippo": "loss_critic", "masac": "loss_qvalue"}
     assert f"train/{losses[algorithm]}" in metrics and "eval/success" in metrics
     assert _frames_logged(tmp_path)[-1] == 192
-    ckpt = load_checkpoint(tmp_path / "checkpoints" / "last.pt")  # every learner's format
+    ckpt = read_checkpoint(tmp_path / "checkpoints" / "last.pt")  # every learner's format
     assert (ckpt["format"], ckpt["algorithm"]) == (FORMAT, algorithm)
     assert ckpt["world"]["reward"]["name"] == "learner" and "task" in ckpt["world"]
     # Resumed with a larger budget, the run goes on from its checkpoint's frames.

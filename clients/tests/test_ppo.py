@@ -13,7 +13,7 @@ pytest.importorskip("torchrl")
 
 from sharedspace.scripted import SCRIPTED  # noqa: E402
 from sharedspace.train import ppo  # noqa: E402
-from sharedspace.train.checkpoint import FORMAT, load_checkpoint  # noqa: E402
+from sharedspace.train.checkpoint import FORMAT, read_checkpoint  # noqa: E402
 from sharedspace.train.config import (  # noqa: E402
     ConfigError,
     TrainConfig,
@@ -76,7 +76,7 @@ def test_ppo_iterations_learn_for_every_network(network, sim_server, tmp_path):
     } <= names
     for r in rows:
         assert torch.isfinite(torch.tensor(float(r["value"]))), r
-    ckpt = load_checkpoint(tmp_path / "checkpoints" / "last.pt")
+    ckpt = read_checkpoint(tmp_path / "checkpoints" / "last.pt")
     assert (ckpt["format"], ckpt["algorithm"], ckpt["network"]) == (FORMAT, "ppo", network)
     assert ckpt["world"]["reward"]["name"] == "learner"
     assert ckpt["world"]["max_agents"] == 5
@@ -88,10 +88,10 @@ def test_ppo_resumes_from_its_checkpoint_and_evaluates(sim_server, tmp_path):
     cfg = load_config(None, [*TINY, *_remote(sim_server), "total_frames=32", f"log_dir={tmp_path}"])
     train(cfg)
     last = tmp_path / "checkpoints" / "last.pt"
-    before = load_checkpoint(last)
+    before = read_checkpoint(last)
     out = train(apply_overrides(cfg, ["total_frames=64"]), resume=str(last))
     assert out["counters"]["frames"] == 64 and out["counters"]["iterations"] == 2
-    after = load_checkpoint(last)
+    after = read_checkpoint(last)
     key = next(k for k in after["actor"] if k.endswith("head.0.weight"))
     assert not torch.equal(before["actor"][key], after["actor"][key])
     loaded_cfg, actor = load_checkpoint_actor(str(last), _remote(sim_server))

@@ -1,6 +1,7 @@
 """A learner's plug-in from outside the package, as a user writes one: a toy network and a toy
 algorithm, each registered once by importing this module. Nothing in ``sharedspace`` names
-them (clients/tests/test_plugins.py trains and scores them).
+them (clients/tests/test_learners.py trains and scores them; test_learner_protocol.py holds
+them to the loop's contract).
 
 - ``toy_mean``: the masked mean of each observation's scaled node features, then one layer;
 - ``toy_pg``: a policy gradient (REINFORCE with the batch's mean reward as baseline) on the

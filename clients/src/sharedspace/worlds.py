@@ -36,6 +36,7 @@ __all__ = [
     "training_task",
     "validation_pool",
     "validation_pool_file",
+    "validation_pool_path",
     "world_params_file",
 ]
 
@@ -177,24 +178,34 @@ def validation_pool(pool: dict[str, Any], n: int, seed: int = 0) -> dict[str, An
     }
 
 
-def validation_pool_file(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:
-    """The file of :func:`validation_pool` for the pool file ``pool`` ("" = hbs-paper), written
-    once under ``out`` (default ``REPO/out/validation``, or ``~/.cache/sharedspace/validation``
-    outside a checkout) and named by the source's content, so that a changed pool gets a new
-    file."""
+def validation_pool_path(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:
+    """Where :func:`validation_pool_file` keeps the carve of the pool file ``pool`` ("" =
+    hbs-paper): under ``out`` (default ``REPO/out/validation``, or
+    ``~/.cache/sharedspace/validation`` outside a checkout), named by the source's content so
+    that a changed pool gets a new file. Reads the source and writes nothing."""
+    source = _pool_source(pool)
+    digest = hashlib.sha256(source.read_bytes()).hexdigest()[:12]
+    name = f"{source.stem}-{digest}-validation-{n}-s{seed}.json"
+    return Path(out or _cache_dir("validation")) / name
+
+
+def _pool_source(pool: str) -> Path:
     source = repo_path(pool) if pool else DEFAULT_POOL_PATH
     if not source.is_file():
         raise FileNotFoundError(
             f"the validation split is carved from a pool file, and {source} is missing"
         )
-    text = source.read_bytes()
-    digest = hashlib.sha256(text).hexdigest()[:12]
-    if not out:
-        out = _cache_dir("validation")
-    path = Path(out) / f"{source.stem}-{digest}-validation-{n}-s{seed}.json"
+    return source
+
+
+def validation_pool_file(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:
+    """The file of :func:`validation_pool` for the pool file ``pool``, at
+    :func:`validation_pool_path`, written there once (when a run starts, not when its config
+    is built)."""
+    path = validation_pool_path(pool, n, seed, out)
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
-        doc = validation_pool(json.loads(text), n, seed)
+        doc = validation_pool(json.loads(_pool_source(pool).read_bytes()), n, seed)
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(doc))
         tmp.replace(path)

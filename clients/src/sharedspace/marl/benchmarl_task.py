@@ -48,7 +48,7 @@ class SharedspaceClass(TaskClass):
     """BenchMARL's view of the crossing task. ``config``: ``endpoint`` and ``prefix`` of the
     server, optional ``task`` (CrossingTask fields), ``base_driver`` (default ``car_aware``, ""
     for absolute actions), ``residual_scale`` (default 2.0) and ``reward_weights`` (default
-    the learners' own, :data:`~sharedspace.marl.config.LEARNER_REWARD`)."""
+    the learners' own, :data:`~sharedspace.train.reward.LEARNER_REWARD`)."""
 
     def _task(self) -> CrossingTask:
         return CrossingTask(**self.config.get("task", {}))

@@ -88,7 +88,7 @@ def learn(
     cfg: TrainConfig, loss, optim, buffer, data: TensorDictBase, target_update, frames: int
 ) -> dict[str, float]:
     """One collected batch: advantages by GAE, then ``ppo_epochs`` passes of minibatches.
-    Returns the last step's losses (``train/loss_*``) and the steps taken."""
+    Returns the last step's losses (``loss_*``) and the steps taken (``gradient_steps``)."""
     with torch.no_grad():
         loss.value_estimator(
             data,
@@ -104,10 +104,8 @@ def learn(
         total.backward()
         nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
         optim.step()
-    losses = {
-        f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")
-    }
-    return losses | {"train/gradient_steps": steps}
+    losses = {k: float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+    return losses | {"gradient_steps": steps}
 
 
 #: The training loop's world and learner: the crossing task's cars, this module's update.

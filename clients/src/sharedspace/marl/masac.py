@@ -112,10 +112,8 @@ def learn(
         optim.step()
         if target_update is not None:
             target_update.step()
-    losses = {
-        f"train/{k}": float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")
-    }
-    return losses | {"train/gradient_steps": steps}
+    losses = {k: float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
+    return losses | {"gradient_steps": steps}
 
 
 #: The training loop's world and learner: the crossing task's cars, this module's update.

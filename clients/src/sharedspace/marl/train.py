@@ -154,8 +154,8 @@ class CarsLearner:
         stats = algo.learn(
             cfg, self.loss, self.optim, self.buffer, data, self.target_update, counters["frames"]
         )
-        counters["updates"] += int(stats.pop("train/gradient_steps"))
-        return {k.removeprefix("train/"): v for k, v in stats.items()}
+        counters["updates"] += int(stats.pop("gradient_steps"))
+        return stats
 
     def state_dict(self) -> dict[str, Any]:
         return self.loss.state_dict()

@@ -36,7 +36,6 @@ __all__ = [
     "FORMAT",
     "NotACheckpoint",
     "describe",
-    "load_checkpoint",
     "read_checkpoint",
     "save_checkpoint",
     "ship",
@@ -166,9 +165,6 @@ def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
     ckpt["network"] = network
     return ckpt
 
-
-#: The name the trainers resume through.
-load_checkpoint = read_checkpoint
 
 
 def ship(ckpt: dict[str, Any], path: str | Path) -> Path:

@@ -7,6 +7,7 @@ import copy
 import dataclasses
 import json
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from sharedspace.worlds import (
     UnknownTask,
     training_task,
     validation_pool_file,
+    validation_pool_path,
     world_params_file,
 )
 
@@ -145,7 +147,9 @@ class TrainConfig:
     max_grad_norm: float = 0.0  # global gradient-norm clip; 0 = the algorithm's (ppo 0.5, 1)
     reward_scale: float = 0.1  # rewards are multiplied by this before GAE (ppo: targets ~1)
     normalize_obs: bool = True  # running mean/std of the node features (FeatureNorm; ppo)
-    update_threads: int = 0  # torch CPU threads while updating (0 = every core: the server idles)
+    update_threads: int = 0  # torch CPU threads while updating (0 = every core)
+    overlap: bool = False  # collect the next batch while updating, one update behind (on-policy,
+    #                        sharedspace.train.overlap); off: it does not pay on 2 cores
     anneal_lr: bool = False  # lr falls linearly to 0 at total_frames (CleanRL, TorchRL sota PPO)
     anneal_start: float = 0.0  # share of total_frames at which that fall starts (0 = at once)
     # --- off-policy: SAC, MASAC
@@ -318,22 +322,37 @@ class TrainConfig:
 
     def training_pool(self) -> str:
         """The pool file the envs draw from: with ``eval_split=validation`` the pool carved
-        from ``scenario_pool``'s train scenes (:func:`sharedspace.worlds.validation_pool_file`:
+        from ``scenario_pool``'s train scenes (:func:`sharedspace.worlds.validation_pool_path`:
         its ``train`` split is trained on, its ``test`` split is the validation split); else
-        ``scenario_pool``."""
+        ``scenario_pool``. Its path only: :meth:`carve_validation` writes it."""
         if self.eval_split != "validation":
             return self.scenario_pool
-        return str(validation_pool_file(self.scenario_pool, self.validation_scenes))
+        return str(validation_pool_path(self.scenario_pool, self.validation_scenes))
+
+    def carve_validation(self) -> str:
+        """Writes the carved validation pool if it is not there yet (when a run, a scoring or
+        a server first needs it, never while the config is built); returns
+        :meth:`training_pool`."""
+        if self.eval_split == "validation":
+            validation_pool_file(self.scenario_pool, self.validation_scenes)
+        return self.training_pool()
 
     def pool_of(self, split: str) -> str:
         """The pool file an env of ``split`` plays (its scenes' indices are that file's): the
-        training pool for ``train`` and ``validation``, ``scenario_pool`` for ``test``."""
+        training pool for ``train`` and ``validation`` (carved now if need be),
+        ``scenario_pool`` for ``test``."""
+        if split in ("train", "validation"):
+            self.carve_validation()
+        return self._pool_path(split)
+
+    def _pool_path(self, split: str) -> str:
         return self.training_pool() if split in ("train", "validation") else self.scenario_pool
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split`` (``validation`` is the
-        validation pool's ``test``), ``seed`` and scene ``variations``."""
-        pool = self.pool_of(split)
+        validation pool's ``test``), ``seed`` and scene ``variations``. Writes nothing: the
+        env's connection (:meth:`connection`) carves the validation pool."""
+        pool = self._pool_path(split)
         return EnvSpec(
             pool=pool or None,
             split="test" if split == "validation" else split,
@@ -348,7 +367,8 @@ class TrainConfig:
     def connection(self) -> Connection:
         """Where the envs live (:meth:`sharedspace.client.Connection.resolve`): the zenoh file,
         else the endpoint, else a local ``sim-server`` of this config's pools (the validation
-        pool too) and parameters; with ``failover``."""
+        pool too, carved now if need be) and parameters; with ``failover``."""
+        self.carve_validation()  # a local server serves it, a client reads its name
         pools, carved = [self.scenario_pool], self.training_pool()
         if carved != self.scenario_pool:  # the pool first: the server's default stays its own
             pools = [self.scenario_pool or str(DEFAULT_POOL_PATH), carved]
@@ -373,7 +393,15 @@ class TrainConfig:
         config of before the one config): renamed fields under their names, retired ones and
         the options of other algorithms dropped (older configs held every option), and values
         equal to the algorithm's defaults left to it again."""
+        return cls(**cls.saved_fields(fields))
+
+    @classmethod
+    def saved_fields(cls, fields: dict[str, Any], algorithm: str | None = None) -> dict[str, Any]:
+        """The fields of a saved config as :meth:`from_dict` takes them (for ``algorithm``, if
+        given, rather than the saved one's), without building the config."""
         fields = {RENAMED_FIELDS.get(k, k): v for k, v in fields.items() if k not in RETIRED_FIELDS}
+        if algorithm:
+            fields["algorithm"] = algorithm
         fields.pop("eval_envs", None)  # configs before the validation split
         if "hidden" in fields or "depth" in fields:  # the multi-car config's MLP
             hidden, depth = fields.pop("hidden", 128), fields.pop("depth", 2)
@@ -393,7 +421,7 @@ class TrainConfig:
             default = algo.defaults.get(name, BASE_DEFAULTS.get(name, unset))
             if name in out and out[name] == default:
                 out[name] = copy.deepcopy(unset)
-        return cls(**out)
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -458,10 +486,9 @@ def parse_value(key: str, text: str, like: Any) -> Any:
 
 
 def apply_overrides(cfg, overrides: list[str] | dict[str, Any]):
-    """A copy of the config dataclass ``cfg`` (:class:`TrainConfig`,
-    :class:`~sharedspace.marl.config.MarlConfig`) with ``key=value`` strings (or a dict)
-    applied; string values are parsed by the field's type (:func:`parse_value`). The one
-    ``--set`` grammar of every learner."""
+    """A copy of the config dataclass ``cfg`` (:class:`TrainConfig`) with ``key=value``
+    strings (or a dict) applied; string values are parsed by the field's type
+    (:func:`parse_value`), as the command line's :func:`load_config` parses them."""
     data = cfg.unresolved() if hasattr(cfg, "unresolved") else cfg.to_dict()
     retired = getattr(cfg, "RETIRED_FIELDS", ())
     items = (
@@ -498,12 +525,69 @@ def add_overrides_argument(
     ap.add_argument("--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE", help=help)
 
 
-def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> TrainConfig:
-    """Defaults, then the TOML/JSON file at ``path`` (flat table of fields), then overrides."""
-    cfg = TrainConfig()
-    if path:
-        cfg = apply_overrides(cfg, _read_table(path))
-    return apply_overrides(cfg, overrides or [])
+def load_config(
+    path: str | Path | None = None,
+    overrides: Sequence[str] | None = None,
+    *,
+    saved: dict[str, Any] | None = None,
+    default_algorithm: str = "",
+) -> TrainConfig:
+    """The command line's config, built once: the defaults, then ``saved`` (a checkpoint's
+    config, when resuming: :meth:`TrainConfig.saved_fields`), then the TOML/JSON file at
+    ``path`` (a flat table of fields), then the ``key=value`` ``overrides``, each over the one
+    before. A new run whose words name no algorithm takes ``default_algorithm`` (``python -m
+    sharedspace.marl``: mappo), else the config's default. An unknown key is a
+    :class:`UnknownFieldError`; an option of another algorithm than the one chosen is a
+    :class:`ConfigError` naming it."""
+    given = _given_fields(_read_table(path)) if path else {}
+    for key, text in _split_overrides(overrides or []):
+        like = given.get(key, (saved or {}).get(key, _field_default(key)))
+        given[key] = parse_value(key, text, like)
+    algorithm = given.get("algorithm") or (
+        None if saved is not None else default_algorithm or TrainConfig.algorithm
+    )
+    base = TrainConfig.saved_fields(saved, algorithm) if saved is not None else {}
+    return TrainConfig(**(base | {"algorithm": algorithm or base["algorithm"]} | given))
+
+
+def _given_fields(table: dict[str, Any]) -> dict[str, Any]:
+    """A user's table of fields, renamed and retired fields mapped; an unknown key refused."""
+    out = {}
+    for key, value in table.items():
+        key = RENAMED_FIELDS.get(key, key)
+        if key in RETIRED_FIELDS:
+            continue
+        _check_key(key)
+        out[key] = value
+    return out
+
+
+def _split_overrides(overrides: Sequence[str]) -> list[tuple[str, str]]:
+    """``KEY=VALUE`` words as (field, text) pairs; a malformed word or an unknown key refused."""
+    out = []
+    for word in overrides:
+        item = word.split("=", 1)
+        if len(item) != 2:
+            raise ConfigError(f"--set {item[0]!r}: expected KEY=VALUE")
+        key = RENAMED_FIELDS.get(item[0].strip(), item[0].strip())
+        if key in RETIRED_FIELDS:
+            continue
+        _check_key(key)
+        out.append((key, item[1]))
+    return out
+
+
+def _field_default(name: str) -> Any:
+    f = TrainConfig.__dataclass_fields__[name]
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
+def _check_key(key: str) -> None:
+    fields = TrainConfig.__dataclass_fields__
+    if key not in fields:
+        raise UnknownFieldError(
+            f"unknown config key {key!r} (expected key one of {sorted(fields)})"
+        )
 
 
 def _read_table(path: str | Path) -> dict[str, Any]:

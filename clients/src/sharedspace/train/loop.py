@@ -2,7 +2,8 @@
 collect a batch, learn from it, log, score on the validation split, checkpoint.
 
 What differs between algorithms lives in two objects their module builds (BenchMARL's split of
-an experiment into algorithm and task, TorchRL's sota scripts' ``make_*`` factories):
+an experiment into algorithm and task, TorchRL's sota scripts' ``make_*`` factories), whose
+contract :mod:`sharedspace.train.protocol` states (``World``, ``Learner``):
 
 - the **world** (``module.make_world(cfg)``): the envs of one car (:class:`OneCar`) or of the
   crossing task's cars (:class:`sharedspace.marl.train.Cars`), how a batch's ended episodes
@@ -41,10 +42,12 @@ from sharedspace.train.metrics import (
     episode_metrics,
     progress_postfix,
 )
+from sharedspace.train.overlap import OverlappedCollector
+from sharedspace.train.protocol import check_stats
 from sharedspace.train.registry import get_algorithm
 from sharedspace.train.run import next_multiple, seed_everything, start_run
 
-__all__ = ["Clock", "OneCar", "make_collector", "train"]
+__all__ = ["Clock", "OneCar", "make_collector", "overlaps", "train"]
 
 
 def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, Any]:
@@ -84,34 +87,36 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
         unit="fr",
         dynamic_ncols=True,
     )
-    for data in collector:
-        clock.collected()
-        counters["frames"] += data.numel()
-        counters["iterations"] += 1
-        outcomes = world.outcomes(data)  # the episodes that ended in the batch
-        counters["episodes"] += int(outcomes.pop("ended"))
-        counters["lost_episodes"] += int(outcomes.pop("lost"))
+    try:
+        for data in collector:
+            clock.collected()
+            counters["frames"] += data.numel()
+            counters["iterations"] += 1
+            outcomes = world.outcomes(data)  # the episodes that ended in the batch
+            counters["episodes"] += int(outcomes.pop("ended"))
+            counters["lost_episodes"] += int(outcomes.pop("lost"))
 
-        stats = learner.step(data, counters)  # its family's update
-        collector.update_policy_weights_()
-        clock.updated()
+            stats = check_stats(learner.step(data, counters))  # its family's update
+            collector.update_policy_weights_()
+            clock.updated()
 
-        metrics = clock.metrics(data.numel()) | {f"train/{k}": v for k, v in stats.items()}
-        metrics |= outcomes | {"train/episodes": counters["episodes"]}
-        logger.log(metrics, counters["frames"])
-        pbar.update(data.numel())
-        pbar.set_postfix(progress_postfix(metrics, world.recent()))
+            metrics = clock.metrics(data.numel()) | {f"train/{k}": v for k, v in stats.items()}
+            metrics |= outcomes | {"train/episodes": counters["episodes"]}
+            metrics["train/updates"] = counters["updates"]
+            logger.log(metrics, counters["frames"])
+            pbar.update(data.numel())
+            pbar.set_postfix(progress_postfix(metrics, world.recent()))
 
-        if cfg.eval_interval and counters["frames"] >= next_eval:  # curves: nothing is chosen
-            next_eval = next_multiple(counters["frames"], cfg.eval_interval)
-            last_eval = _evaluate(world, learner.actor, clock, logger, counters["frames"])
-        if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
-            next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
-            _checkpoint(log_dir, cfg, world, learner, counters)
-        clock.collecting()
-
+            if cfg.eval_interval and counters["frames"] >= next_eval:  # curves: nothing is chosen
+                next_eval = next_multiple(counters["frames"], cfg.eval_interval)
+                last_eval = _evaluate(world, learner.actor, clock, logger, counters["frames"])
+            if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
+                next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
+                _checkpoint(log_dir, cfg, world, learner, counters)
+            clock.collecting()
+    finally:  # an overlapped collector's thread stops with the run, whatever ended it
+        collector.shutdown()
     pbar.close()
-    collector.shutdown()
     _checkpoint(log_dir, cfg, world, learner, counters)
     if cfg.eval_interval and last_eval.get("frames") != counters["frames"]:  # the run's policy
         last_eval = _evaluate(world, learner.actor, clock, logger, counters["frames"])
@@ -122,20 +127,36 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
     return {"counters": counters, "eval": last_eval, "timing": clock.timing}
 
 
-def make_collector(cfg: TrainConfig, env, learner, remaining: int, frames: int) -> Collector:
+def make_collector(
+    cfg: TrainConfig, env, learner, remaining: int, frames: int
+) -> Collector | OverlappedCollector:
     """TorchRL's ``Collector`` of the learner's batches over the ``remaining`` frames (uniform
     random actions first for an off-policy learner's warm-up, ``frames`` into the run);
-    done sub-envs are reset through ``step_and_maybe_reset``."""
-    return Collector(
-        env,
-        learner.actor,
-        frames_per_batch=learner.batch_frames,
-        total_frames=remaining,
-        init_random_frames=max(learner.random_frames - frames, 0),
-        device=cfg.device,
-        env_device="cpu",
-        auto_register_policy_transforms=False,  # the policy is not recurrent
-    )
+    done sub-envs are reset through ``step_and_maybe_reset``. With ``overlap`` (on-policy
+    learners) it collects one batch ahead in a thread while the learner updates, with a copy
+    of the actor one update behind (:class:`~sharedspace.train.overlap.OverlappedCollector`)."""
+
+    def collector(policy) -> Collector:
+        return Collector(
+            env,
+            policy,
+            frames_per_batch=learner.batch_frames,
+            total_frames=remaining,
+            init_random_frames=max(learner.random_frames - frames, 0),
+            device=cfg.device,
+            env_device="cpu",
+            auto_register_policy_transforms=False,  # the policy is not recurrent
+        )
+
+    if overlaps(cfg):
+        return OverlappedCollector(learner.actor, collector)
+    return collector(learner.actor)
+
+
+def overlaps(cfg: TrainConfig) -> bool:
+    """Whether a run of ``cfg`` collects its next batch while it updates: ``overlap`` set, for
+    an on-policy learner (an off-policy one's updates per frame are its recipe)."""
+    return cfg.overlap and get_algorithm(cfg.algorithm).family == "on"
 
 
 def _evaluate(world, actor, clock: Clock, logger: MetricLogger, frames: int) -> dict[str, Any]:

@@ -137,6 +137,10 @@ class PPOUpdate(nn.Module):
             deactivate_vmap=True,  # the encoders trim padding nodes: a data-dependent shape
         )
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
+        # The minibatches' shuffles draw from their own generator: with the overlap, the
+        # collector thread samples actions from torch's global one meanwhile, and a shared
+        # generator would make a run's draws depend on the threads' timing.
+        self.shuffle = torch.Generator(device=cfg.device).manual_seed(torch.initial_seed())
         self.log_prob_key = self.loss.tensor_keys.sample_log_prob
 
     def step(self, data: TensorDictBase, frames: int = 0) -> dict[str, float]:
@@ -159,7 +163,7 @@ class PPOUpdate(nn.Module):
         sums: dict[str, float] = {}
         steps = 0
         for _ in range(cfg.ppo_epochs):
-            perm = torch.randperm(n, device=flat.device)
+            perm = torch.randperm(n, device=flat.device, generator=self.shuffle)
             for start in range(0, n - mb + 1, mb):
                 batch = flat[perm[start : start + mb]]
                 out = self.loss(batch)

@@ -15,8 +15,9 @@ Adding one (docs/ARCHITECTURE.md, "Adding an algorithm")::
 
     register_algorithm(Algorithm("my_algo", module="my_package.my_algo", family="on"))
 
-after which ``python -m sharedspace.train --set algorithm=my_algo`` runs ``my_package.my_algo``'s
-``train`` and ``python -m sharedspace.bench`` plays its checkpoints.
+after which ``python -m sharedspace.train --set algorithm=my_algo`` runs the one loop over
+``my_package.my_algo``'s ``make_world`` and ``make_learner`` (their contract:
+:mod:`sharedspace.train.protocol`) and ``python -m sharedspace.bench`` plays its checkpoints.
 """
 
 from __future__ import annotations
@@ -157,6 +158,7 @@ register_algorithm(
             "reward_scale",
             "normalize_obs",
             "update_threads",
+            "overlap",
             "anneal_lr",
             "anneal_start",
         ),
@@ -189,6 +191,7 @@ _MARL_PPO = (
     "max_grad_norm",
     "share_params",
     "init_scale",
+    "overlap",
 )
 _MARL_SAC = (
     "frames_per_batch",

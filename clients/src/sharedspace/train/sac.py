@@ -127,7 +127,7 @@ class SACLearner:
                 for key, value in out.items():
                     losses.setdefault(key, []).append(float(value.detach()))
         stats = {key: float(np.mean(vals)) for key, vals in losses.items()}
-        return stats | {"updates": counters["updates"], "buffer": len(self.buffer)}
+        return stats | {"buffer": len(self.buffer)}
 
     def state_dict(self) -> dict[str, Any]:
         return self.update.state_dict()
@@ -141,6 +141,7 @@ class SACLearner:
                 "this checkpoint was written by the TorchRL SACLoss learner (before "
                 "2026-12-03); it can be evaluated but not resumed"
             )
+        self.actor.load_state_dict(ckpt["actor"])
         self.update.load_state_dict(ckpt["learner"])
         self.update.load_optimizer_state(ckpt["optimizers"])
         if ckpt.get("buffer_dir") and Path(ckpt["buffer_dir"]).exists():

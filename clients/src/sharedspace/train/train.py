@@ -27,10 +27,9 @@ from typing import Any
 
 from sharedspace.train.config import (
     TrainConfig,
-    _read_table,
     add_overrides_argument,
-    apply_overrides,
     command_parser,
+    load_config,
 )
 
 __all__ = ["train", "main"]
@@ -64,14 +63,13 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     args = ap.parse_args(argv)
     from sharedspace.train.checkpoint import read_checkpoint  # torch
 
-    table = _read_table(args.config) if args.config else {}
     saved = read_checkpoint(args.resume) if isinstance(args.resume, str) else None
-    if saved is not None:  # the checkpoint's config, then the file and the overrides over it
-        cfg = TrainConfig.from_dict(saved["config"])
-    else:
-        first = _named_algorithm(args.set, table, default_algorithm)
-        cfg = TrainConfig.from_dict({"algorithm": first})
-    cfg = apply_overrides(apply_overrides(cfg, table), args.set)
+    cfg = load_config(
+        args.config,
+        args.set,
+        saved=saved["config"] if saved is not None else None,
+        default_algorithm=default_algorithm,
+    )
     resume = args.resume
     if resume is True:  # bare: log_dir's last checkpoint, where there is one
         last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
@@ -79,16 +77,6 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     out = train(cfg, resume)
     print(json.dumps(dict(out), default=float))
     return 0
-
-
-def _named_algorithm(overrides: Sequence[str], table: dict[str, Any], default: str) -> str:
-    """The algorithm a new run's config starts from: the last ``algorithm=`` override, else
-    the config file's, else ``default`` (``python -m sharedspace.marl``: mappo), else the
-    config's default: so that the fields left to the algorithm are filled in for it."""
-    named = [o.split("=", 1)[1].strip() for o in overrides if o.split("=", 1)[0] == "algorithm"]
-    if named:
-        return named[-1]
-    return str(table.get("algorithm") or default or TrainConfig.algorithm)
 
 
 if __name__ == "__main__":
