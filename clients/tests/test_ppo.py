@@ -84,8 +84,10 @@ def test_ppo_iterations_learn_for_every_network(network, sim_server, tmp_path):
     assert norm and all(float(v.min()) > 0 for v in norm.values())
 
 
-def test_ppo_resumes_from_its_checkpoint_and_evaluates(sim_server, tmp_path):
-    cfg = load_config(None, [*TINY, *_remote(sim_server), "total_frames=32", f"log_dir={tmp_path}"])
+@pytest.mark.parametrize("overlap", ["false", "true"])
+def test_ppo_resumes_from_its_checkpoint_and_evaluates(overlap, sim_server, tmp_path):
+    words = [*TINY, *_remote(sim_server), "total_frames=32", f"overlap={overlap}"]
+    cfg = load_config(None, [*words, f"log_dir={tmp_path}"])
     train(cfg)
     last = tmp_path / "checkpoints" / "last.pt"
     before = read_checkpoint(last)

@@ -32,7 +32,9 @@ def _frames_logged(path) -> int:
     return max((int(ln[0]) for ln in lines if len(ln) == 4 and ln[0].isdigit()), default=0)
 
 
-def test_a_ppo_run_survives_the_sigkill_of_its_server(procs, tmp_path):  # noqa: F811
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_ppo_run_survives_the_sigkill_of_its_server(overlap, procs, tmp_path):  # noqa: F811
+    """With collection overlapped too (the collector thread's env fails over)."""
     binary = sim_server_binary()
     if binary is None:
         pytest.skip("sim-server binary not found: set SHAREDSPACE_SIM_SERVER or build it")
@@ -74,6 +76,7 @@ def test_a_ppo_run_survives_the_sigkill_of_its_server(procs, tmp_path):  # noqa:
             "eval_interval=0",
             "checkpoint_interval=0",
             "progress=false",
+            f"overlap={str(overlap).lower()}",
             f"zenoh_config={session}",
             f"server_prefix={prefix}",
             f"log_dir={log_dir}",

@@ -14,8 +14,9 @@ FeatureNorm`, updated after each iteration's update). With ``base_driver`` the p
 residual over that script (:class:`~sharedspace.train.envs.ResidualAction`), starting at it.
 
 Why these defaults (docs/ARCHITECTURE.md, "Learners"): K = 256 and T = 32 give 8 192 fresh
-frames per iteration, enough that 4 epochs of minibatches of 2 048 (16 gradient steps) neither
-starve the update nor spend most of the wall time in it on a 2-core CPU; rewards are scaled by
+frames per iteration; 2 epochs of minibatches of 2 048 (8 gradient steps) reach a driver sooner
+in wall time than 4 did, the update being most of a 2-core iteration (docs/BENCHMARKS.md, "The
+time to a driver"); rewards are scaled by
 0.1 so that value targets are of order 1.
 
 """

@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
 
+from sharedspace.cli import UserError, did_you_mean
+
 __all__ = [
     "ALGORITHMS",
     "Algorithm",
@@ -37,7 +39,7 @@ __all__ = [
 ]
 
 
-class UnknownAlgorithm(ValueError):
+class UnknownAlgorithm(UserError):
     """An algorithm name that no registered algorithm has."""
 
 
@@ -101,7 +103,10 @@ def get_algorithm(name: str, cars: str | None = None) -> Algorithm:
     """The algorithm of ``name``; :class:`UnknownAlgorithm` naming the registered ones (and
     where ``cars`` is given, a clear error for an algorithm of the other kind)."""
     if name not in ALGORITHMS:
-        raise UnknownAlgorithm(f"algorithm must be one of {', '.join(ALGORITHMS)}; not {name!r}")
+        raise UnknownAlgorithm(
+            f"algorithm must be one of {', '.join(ALGORITHMS)}; not {name!r}"
+            + did_you_mean(name, ALGORITHMS)
+        )
     algo = ALGORITHMS[name]
     if cars is not None and algo.cars not in (cars, "any"):
         where = "several cars" if algo.multi_car else "one car"
@@ -164,7 +169,14 @@ register_algorithm(
         ),
         # a validation scoring costs about as much as 40 k frames of PPO-GCN: every 500 k
         # keeps it under a tenth of a run's wall time (docs/BENCHMARKS.md, "Learner")
-        defaults={"num_envs": 256, "reward": "learner", "eval_interval": 524_288},
+        # 2 epochs: the time to a driver (docs/BENCHMARKS.md "The time to a driver"), chosen
+        # on validation
+        defaults={
+            "num_envs": 256,
+            "reward": "learner",
+            "eval_interval": 524_288,
+            "ppo_epochs": 2,
+        },
         doc="PPO on wide batches of envs (clipped ratio, GAE), TorchRL's ClipPPOLoss",
     )
 )
