@@ -20,10 +20,13 @@ import json
 import os
 import signal
 import subprocess
+import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import urlencode
+
+from sharedspace.cli import run_command
 
 from .closing import Closing
 from .local_server import (
@@ -209,4 +212,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command(main))

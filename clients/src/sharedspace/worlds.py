@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sharedspace.cli import UserError, did_you_mean
 from sharedspace.pool import DEFAULT_POOL_PATH
 
 __all__ = [
@@ -76,7 +77,7 @@ TRAINING_VARIATIONS = {
 }
 
 
-class UnknownTask(ValueError):
+class UnknownTask(UserError):
     """A task name with no training world."""
 
 
@@ -120,7 +121,10 @@ TRAINING_TASKS: dict[str, TrainingTask] = {
 def training_task(name: str) -> TrainingTask:
     """The training world of task ``name``."""
     if name not in TRAINING_TASKS:
-        raise UnknownTask(f"task must be one of {', '.join(TRAINING_TASKS)}; not {name!r}")
+        raise UnknownTask(
+            f"task must be one of {', '.join(TRAINING_TASKS)}; not {name!r}"
+            + did_you_mean(name, TRAINING_TASKS)
+        )
     return TRAINING_TASKS[name]
 
 

@@ -322,6 +322,30 @@ impl ServerConfig {
         z.to_string()
     }
 
+    /// Where the server's session is reached, for a person reading its log: `listen ...` (the
+    /// endpoints it listens on) and `connect ...` (a router or peers it joins), as configured.
+    pub fn endpoints_line(&self) -> String {
+        let z: Value = serde_json::from_str(&self.zenoh_json()).unwrap_or_default();
+        let list = |side: &str| -> Vec<String> {
+            z[side]["endpoints"]
+                .as_array()
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|e| e.as_str().map(String::from))
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let mut parts = Vec::new();
+        for side in ["listen", "connect"] {
+            let endpoints = list(side);
+            if !endpoints.is_empty() {
+                parts.push(format!("{side} {}", endpoints.join(",")));
+            }
+        }
+        parts.join("; ")
+    }
+
     /// The configured server id or a fresh `{host}-{pid}-{random}` one.
     pub fn server_id_or_random(&self) -> String {
         if let Some(id) = &self.server_id {

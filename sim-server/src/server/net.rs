@@ -509,10 +509,12 @@ impl Server {
         tasks.push(spawn_sweep(core.clone(), stop_rx));
         // Last: clients find the server by this token, once it answers everything.
         let token = declare_alive_token(&session, &keys, &server_id).await?;
+        // The one line a person starting a server waits for (stderr, at info by default).
         tracing::info!(
             server_id = %server_id,
             prefix = keys.prefix(),
-            zid = %session.zid(),
+            endpoints = %cfg.endpoints_line(),
+            pools = %core.pool_names().join(","),
             "sharedspace server serving"
         );
         Ok(Self {

@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from sharedspace.adversary.scripted import SCRIPTED_ADVERSARIES
+from sharedspace.cli import run_command
 from sharedspace.worlds import REPO
 
 RESULTS = Path("results/adversary")
@@ -150,4 +151,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -21,6 +21,7 @@ from sharedspace.adversary.task import AdversaryTask, get_adversary_task
 from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.client import Connection
 from sharedspace.episodes import run_episodes, summarize
+from sharedspace.train.checkpoint import last_checkpoint
 from sharedspace.train.config import TrainConfig, apply_overrides
 from sharedspace.train.loop import OneCar
 from sharedspace.train.loop import train as train_loop
@@ -122,13 +123,12 @@ def train(
     ``log_dir``, from its ``checkpoints/last.pt`` when there is one and ``resume``."""
     task = get_adversary_task(task) if isinstance(task, str) else task
     cfg = adversary_config(task, [*overrides, f"total_frames={frames}", f"log_dir={Path(log_dir)}"])
-    last = Path(log_dir) / "checkpoints" / "last.pt"
     policy = driver if isinstance(driver, Policy) else make_policy(driver, task.driving)
     with tempfile.TemporaryDirectory() as tmp:
         client = serve_task(task, Path(tmp)).open()
         try:
             world = AdversaryWorld(cfg, task, policy, client)
-            start = str(last) if resume and last.is_file() else None
+            start = last_checkpoint(log_dir) if resume else None
             return train_loop(cfg, resume=start, world=world)
         finally:
             client.shutdown()

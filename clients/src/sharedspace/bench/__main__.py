@@ -9,8 +9,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from sharedspace.bench.leaderboard import legend
 from sharedspace.bench.score import score
 from sharedspace.bench.tasks import TASKS, BenchError
+from sharedspace.cli import run_command
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -48,6 +50,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(result.markdown())
+    print(legend(result.task))
     if args.out:
         path = result.save(args.out)
         print(f"wrote {path} and {path.with_suffix('.md').name}")
@@ -55,4 +58,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedspace.cli import run_command
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.evaluation import evaluate_split
 from sharedspace.train.learners import load_checkpoint_actor
@@ -158,4 +159,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -17,10 +17,40 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.bench.score import Result, compare, load_result
-from sharedspace.bench.tasks import BenchError
+from sharedspace.bench.tasks import REPO, BenchError
+from sharedspace.cli import run_command
 from sharedspace.episodes import STATUSES
 
-__all__ = ["render"]
+__all__ = ["legend", "render"]
+
+#: What the rates are, under every table the bench prints.
+RATES = (
+    "success, collision, timeout: the shares of the task's episodes in which the car reached its "
+    "goal, collided, or ran out of time (they add up to 1); [95 %]: the Wilson interval over "
+    "those episodes."
+)
+#: The rows that give a score its scale: a floor (a car that never moves) and the script.
+SCALE_ROWS = (("hold", "floor, a car that holds still"), ("car_aware", "the car-aware script"))
+
+
+def legend(task: dict[str, Any], folder: Path | None = None) -> str:
+    """The bench's legend for ``task`` (a result's task record): what the rates are, and the
+    task's floor and script success from the shipped results (``results/bench/TASK``, where
+    they are, at the same task version)."""
+    folder = folder or REPO / "results" / "bench" / task["name"]
+    scale = []
+    for name, what in SCALE_ROWS:
+        path = folder / f"{name}.json"
+        if not path.is_file():
+            continue
+        row = load_result(path)
+        if row.task.get("version") == task.get("version"):
+            scale.append(f"`{name}` ({what}) {row.summary['success']['rate']:.3f}")
+    text = RATES
+    if scale:
+        text += f" Success on `{task['name']}@{task['version']}` for scale: " + "; ".join(scale)
+        text += "."
+    return text + "\n"
 
 
 def render(
@@ -62,7 +92,7 @@ def render(
             "the train scenes carved off for it, never the test scenes; * = a row whose runs "
             "trained on those scenes too).",
         ]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n\n" + RATES + "\n"
 
 
 def _validation_cell(v: dict[str, Any] | None) -> str:
@@ -96,4 +126,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

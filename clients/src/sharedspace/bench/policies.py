@@ -35,6 +35,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sharedspace.bench.tasks import REPO, BenchError, Task, scenes_fingerprint, test_scenes
+from sharedspace.cli import did_you_mean
 from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.scripted import SCRIPTED
 
@@ -67,7 +68,7 @@ def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
             return _imported(text, task, name)
         raise BenchError(
             f"policy {text!r}: not a scripted driver ({', '.join(sorted(SCRIPTED))}), "
-            "a checkpoint file (.pt) or module:function"
+            f"a checkpoint file (.pt) or module:function{did_you_mean(text, SCRIPTED)}"
         )
     if isinstance(spec, TensorDictModuleBase):
         act = _module_act(spec, _action_key(task))

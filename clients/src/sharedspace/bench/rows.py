@@ -38,10 +38,12 @@ from sharedspace.bench import leaderboard
 from sharedspace.bench.best import choose_best, validation_variations
 from sharedspace.bench.score import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
+from sharedspace.cli import run_command
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.checkpoint import ship as ship_checkpoint
 from sharedspace.train.networks import NETWORKS as REGISTERED_NETWORKS
 from sharedspace.train.networks import UnknownNetwork, canonical_network
+from sharedspace.train.registry import get_algorithm
 from sharedspace.worlds import TRAINING_TASKS
 
 __all__ = ["ARMS", "NETWORKS", "main"]
@@ -56,8 +58,9 @@ ARMS: dict[str, list[str]] = {
     "scratch": ["anneal_lr=true", "anneal_start=0.5"],
     "residual": ["base_driver=car_aware"],
 }
-#: Frames between validation scorings: a multiple of PPO's batch (256 x 32 frames).
-EVAL_INTERVAL = 524_288
+#: Frames between validation scorings (and checkpoints): PPO's own cadence, a multiple of its
+#: batch (256 x 32 frames).
+EVAL_INTERVAL = get_algorithm("ppo").defaults["eval_interval"]
 #: The single-car tasks a row trains for.
 SINGLE_CAR_TASKS = tuple(n for n, t in TRAINING_TASKS.items() if t.cars == 1)
 
@@ -237,4 +240,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

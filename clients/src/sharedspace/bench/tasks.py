@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sharedspace.cli import UserError, did_you_mean
 from sharedspace.episodes import BENCHMARK_VARIATIONS
 from sharedspace.marl.task import CrossingTask
 from sharedspace.pool import DEFAULT_POOL_PATH
@@ -39,7 +40,7 @@ __all__ = [
 ]
 
 
-class BenchError(ValueError):
+class BenchError(UserError):
     """Input the benchmark refuses before any episode is played: an unknown task, a policy it
     cannot play, a checkpoint of another world, a reference of another task version."""
 
@@ -186,7 +187,8 @@ def versioned(name: str, registry: dict[str, Any], error: type[Exception] = Benc
     version too; ``error`` naming the known ones or the version there is."""
     base, _, version = name.partition("@")
     if base not in registry:
-        raise error(f"unknown task {name!r}: one of {', '.join(registry)}")
+        close = did_you_mean(base, registry)
+        raise error(f"unknown task {name!r}: one of {', '.join(registry)}{close}")
     task = registry[base]
     if version and version != str(task.version):
         raise error(f"task {base} is at version {task.version}, not {version}")

@@ -2,6 +2,7 @@
 
 import sys
 
+from sharedspace.cli import run_command
 from sharedspace.marl.train import main
 
-sys.exit(main())
+sys.exit(run_command(main))

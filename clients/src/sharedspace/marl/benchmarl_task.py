@@ -32,6 +32,7 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Compose
 
+from sharedspace.cli import run_command
 from sharedspace.client import Connection
 from sharedspace.marl.task import CrossingTask, FlatObservation, make_env
 from sharedspace.torchrl_multiagent import AGENT_OUTCOME_KEYS
@@ -257,4 +258,4 @@ class _ObservationThen:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

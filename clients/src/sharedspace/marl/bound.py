@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
+from sharedspace.cli import run_command
 from sharedspace.client import Connection, SimClient
 from sharedspace.marl.evaluate import play
 from sharedspace.marl.task import CrossingTask
@@ -200,4 +201,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

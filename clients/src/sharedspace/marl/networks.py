@@ -8,6 +8,8 @@ GCN over each car's own risk graph in front of every car's MLP), one encoder per
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
@@ -16,7 +18,7 @@ from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal
 from sharedspace.marl.task import CarObservation, CrossingTask
 from sharedspace.names import NODE_FEATURES
 from sharedspace.train.config import TrainConfig
-from sharedspace.train.networks import get_network
+from sharedspace.train.networks import NetworkConfig, get_network
 
 __all__ = ["ACTION", "GROUP", "OBS", "agents_mlp", "make_actor", "observation"]
 
@@ -34,29 +36,21 @@ def observation(cfg: TrainConfig | None = None, task: CrossingTask | None = None
         return TensorDictModule(
             CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
         )
-    encoder = get_network(cfg.network).make_encoder(_encoder_options(cfg, task), None)
+    encoder = get_network(cfg.network).make_encoder(_car_network(cfg, task), None)
     # an encoder maps [*, M, F] to [*, D]: over the group, every car's [*, A, M, F] at once
     return TensorDictModule(encoder, in_keys=CAR_KEYS, out_keys=[OBS])
 
 
-def _encoder_options(cfg: TrainConfig, task: CrossingTask):
-    """What a registered network's ``make_encoder`` reads, for one car of ``task``."""
-    from types import SimpleNamespace
-
-    return SimpleNamespace(
-        max_agents=task.max_agents,
-        gcn_hidden=cfg.gcn_hidden,
-        gcn_layers=cfg.gcn_layers,
-        readout=cfg.readout,
-        device="cpu",
-    )
+def _car_network(cfg: TrainConfig, task: CrossingTask) -> NetworkConfig:
+    """The network part of ``cfg`` for one car of ``task``."""
+    return dataclasses.replace(cfg.network_config(), max_agents=task.max_agents, device="cpu")
 
 
 def observation_size(cfg: TrainConfig, task: CrossingTask) -> int:
     """The length of one car's :func:`observation` vector."""
     if not cfg.network:
         return task.max_agents * (NODE_FEATURES + 1)
-    encoder = get_network(cfg.network).make_encoder(_encoder_options(cfg, task), None)
+    encoder = get_network(cfg.network).make_encoder(_car_network(cfg, task), None)
     return int(encoder.out_features)
 
 

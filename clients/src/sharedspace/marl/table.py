@@ -20,6 +20,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from sharedspace.cli import run_command
 from sharedspace.client import Connection
 from sharedspace.local_server import LocalServer
 from sharedspace.marl.evaluate import paired_difference, play, scripted_act, summarize
@@ -136,4 +137,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -34,9 +34,11 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import TransformedEnv
 
+from sharedspace.cli import run_command
 from sharedspace.marl.evaluate import STATUSES, play, policy_act, summarize
 from sharedspace.marl.networks import GROUP, make_actor
 from sharedspace.marl.task import CrossingTask, make_env
+from sharedspace.train.checkpoint import last_checkpoint
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import ResidualAction
 from sharedspace.train.loop import train as train_loop
@@ -188,8 +190,7 @@ def train(
     training loop; ``resume``: a checkpoint, or True for ``log_dir``'s last one. Returns the
     final scoring's per-car summary (on ``eval_split``)."""
     if resume is True:
-        last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
-        resume = str(last) if last.is_file() else None
+        resume = last_checkpoint(cfg.log_dir)
     world = Cars(cfg, task)
     out = train_loop(cfg, resume or None, world=world)
     if not world.summary:  # nothing left to train: the last run's record
@@ -207,4 +208,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

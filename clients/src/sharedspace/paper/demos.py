@@ -37,6 +37,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.envs.utils import step_mdp
 
+from sharedspace.cli import run_command
 from sharedspace.paper.drivers import make_driver
 from sharedspace.paper.planner import Cell, cell_name, open_loop_search
 from sharedspace.pool import load_pool, split_indices
@@ -325,4 +326,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -28,6 +28,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from sharedspace.cli import run_command
 from sharedspace.scene_plot import Frame, draw_scene, scene_rgb
 from sharedspace.train.config import add_overrides_argument, command_parser
 
@@ -254,4 +255,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from sharedspace.cli import run_command
 from sharedspace.episodes import BENCHMARK_VARIATIONS, variation_batches
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.pool import load_pool, recorded_headings, split_indices
@@ -244,4 +245,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -28,6 +28,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
+from sharedspace.cli import run_command
 from sharedspace.episodes import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
 from sharedspace.names import Feature
 from sharedspace.pool import load_pool, split_indices
@@ -327,4 +328,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from sharedspace.cli import run_command
 from sharedspace.local_server import rollout  # noqa: E402
 from sharedspace.models import DEFAULT_MODEL  # noqa: E402
 from sharedspace.pool import load_pool  # noqa: E402
@@ -223,4 +224,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -24,10 +24,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 from sharedspace import worlds
+from sharedspace.cli import run_command
 from sharedspace.pool import DEFAULT_POOL_PATH
 
 __all__ = ["paper_plus_general", "record_ids", "validation_pool"]
@@ -97,4 +99,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command(main))

@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedspace.cli import run_command
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.paper.evaluate import (
     BENCHMARK_VARIATIONS,
@@ -400,4 +401,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from sharedspace.cli import run_command
 from sharedspace.paper.drivers import DRIVERS, make_driver, reachability
 from sharedspace.paper.evaluate import (
     COLUMNS,
@@ -633,4 +634,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -23,6 +23,7 @@ from typing import Any
 
 from tensordict.nn import TensorDictModule
 
+from sharedspace.cli import run_command
 from sharedspace.paper.demos import TRAINING_VARIATIONS
 from sharedspace.paper.drivers import CarAwareDriver
 from sharedspace.paper.evaluate import play_variations
@@ -95,4 +96,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -23,16 +23,19 @@ from __future__ import annotations
 
 import importlib
 import json
+import pickle
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from sharedspace.cli import UserError
 from sharedspace.names import NODE_FEATURES
 from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_network
 from sharedspace.train.registry import ALGORITHMS, get_algorithm
 
 __all__ = [
+    "last_checkpoint",
     "FORMAT",
     "NotACheckpoint",
     "describe",
@@ -113,7 +116,14 @@ def plugin_modules(algorithm: str, network: str) -> list[str]:
     return sorted({m for m in found if m and not m.startswith("sharedspace.")})
 
 
-class NotACheckpoint(ValueError):
+def last_checkpoint(log_dir: str | Path) -> str | None:
+    """The checkpoint a bare ``--resume`` continues from: ``log_dir/checkpoints/last.pt`` if a
+    run wrote one there, else None (a fresh run). The one resume path of every trainer."""
+    last = Path(log_dir) / "checkpoints" / "last.pt"
+    return str(last) if last.is_file() else None
+
+
+class NotACheckpoint(UserError):
     """A file that no sharedspace learner wrote."""
 
 
@@ -131,7 +141,11 @@ def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise NotACheckpoint(f"{path}: no such checkpoint")
-    ckpt = torch.load(path, map_location=device, weights_only=False)
+    try:
+        ckpt = torch.load(path, map_location=device, weights_only=False)
+    except (pickle.UnpicklingError, EOFError, RuntimeError, ValueError, AttributeError) as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise NotACheckpoint(f"{path} is not a sharedspace checkpoint ({first})") from err
     beside = path.parent / "config.json"
     if isinstance(ckpt, dict) and "actor" not in ckpt and beside.is_file():
         run = json.loads(beside.read_text())

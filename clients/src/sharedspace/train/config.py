@@ -12,10 +12,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sharedspace.cli import UserError, did_you_mean
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
 from sharedspace.pool import DEFAULT_POOL_PATH
-from sharedspace.train.networks import UnknownNetwork, canonical_network, get_network
+from sharedspace.train.networks import (
+    NetworkConfig,
+    UnknownNetwork,
+    canonical_network,
+    get_network,
+)
 from sharedspace.train.registry import (
     ALGORITHMS,
     UnknownAlgorithm,
@@ -41,7 +47,7 @@ __all__ = [
 ]
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError):
     """A config field with a wrong value, or an option of the other algorithm; the message
     names the field."""
 
@@ -69,6 +75,7 @@ AUTO_FIELDS: dict[str, Any] = {
     "base_driver": "auto",
     "residual_scale": 0.0,
     "minibatch_size": 0,
+    "ppo_epochs": 0,
     "max_grad_norm": 0.0,
     "frames_per_batch": 0,
     "utd_ratio": 0.0,
@@ -85,6 +92,7 @@ BASE_DEFAULTS: dict[str, Any] = {
     "base_driver": "",
     "residual_scale": 1.0,
     "minibatch_size": 2048,
+    "ppo_epochs": 4,
     "max_grad_norm": 0.5,
     "utd_ratio": 0.5,
     "buffer_size": 200_000,
@@ -138,7 +146,7 @@ class TrainConfig:
     #                              the algorithm's (1 one car, 2 several); needs base_driver
     # --- on-policy: PPO, MAPPO, IPPO (docs/ARCHITECTURE.md "Learners" says why these values)
     rollout_steps: int = 32  # T, steps of every sub-env per iteration: batch = num_envs * T
-    ppo_epochs: int = 4  # passes over each batch
+    ppo_epochs: int = 0  # passes over each batch; 0 = the algorithm's (ppo 2, mappo/ippo 4)
     minibatch_size: int = 0  # frames per gradient step; 0 = the algorithm's (ppo 2048, 512)
     clip_epsilon: float = 0.2  # PPO's ratio clip
     entropy_coeff: float = 0.0  # entropy bonus weight (the TanhNormal's entropy is estimated)
@@ -307,6 +315,17 @@ class TrainConfig:
     def world_reward_weights(self) -> dict[str, float]:
         """The weights sent with the envs: the named reward's, then ``reward_weights``."""
         return {**REWARDS[self.reward], **self.reward_weights}
+
+    def network_config(self) -> NetworkConfig:
+        """The part of this config a network's encoder is built from."""
+        return NetworkConfig(
+            network=self.network,
+            max_agents=self.max_agents,
+            gcn_hidden=self.gcn_hidden,
+            gcn_layers=self.gcn_layers,
+            readout=self.readout,
+            device=self.device,
+        )
 
     def world(self) -> dict[str, Any]:
         """What a checkpoint records of the world it was trained in: the task (if any), pool
@@ -502,9 +521,7 @@ def apply_overrides(cfg, overrides: list[str] | dict[str, Any]):
         if key in retired:
             continue
         if key not in data:
-            raise UnknownFieldError(
-                f"unknown config key {key!r} (expected key one of {sorted(data)})"
-            )
+            raise UnknownFieldError(unknown_key(key, data))
         data[key] = parse_value(key, value, data[key]) if isinstance(value, str) else value
     return type(cfg)(**data)  # strict: an option of another algorithm is named, not dropped
 
@@ -585,9 +602,15 @@ def _field_default(name: str) -> Any:
 def _check_key(key: str) -> None:
     fields = TrainConfig.__dataclass_fields__
     if key not in fields:
-        raise UnknownFieldError(
-            f"unknown config key {key!r} (expected key one of {sorted(fields)})"
-        )
+        raise UnknownFieldError(unknown_key(key, fields))
+
+
+def unknown_key(key: str, known) -> str:
+    """The message of an unknown config key: the closest known one, where one is close."""
+    return (
+        f"unknown config key {key!r}{did_you_mean(key, known)}; "
+        "`python -m sharedspace.train --help` lists every key"
+    )
 
 
 def _read_table(path: str | Path) -> dict[str, Any]:

@@ -29,8 +29,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from sharedspace.cli import UserError, did_you_mean
 from sharedspace.train.registry import ALGORITHMS
 
 if TYPE_CHECKING:  # torch is imported where a network is built, not where one is named
@@ -41,6 +42,7 @@ if TYPE_CHECKING:  # torch is imported where a network is built, not where one i
 __all__ = [
     "NETWORKS",
     "Network",
+    "NetworkConfig",
     "UnknownNetwork",
     "canonical_network",
     "get_network",
@@ -49,8 +51,21 @@ __all__ = [
 ]
 
 
-class UnknownNetwork(ValueError):
+class UnknownNetwork(UserError):
     """A network name that no registered network has."""
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """What a network's encoder is built from: the part of a run's config a network reads
+    (``TrainConfig.network_config()``; the multi-car learners give one car's)."""
+
+    network: str = "gcn_risk"  # a registered network
+    max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
+    gcn_hidden: int = 64  # width of each GCN layer's output
+    gcn_layers: int = 2  # number of GCN layers (ignored by mlp)
+    readout: str = "ego_mean"  # graph readout: "ego" (node 0) | "ego_mean" (node 0 ++ mean)
+    device: str = "cpu"  # torch device the encoder is put on
 
 
 @dataclass(frozen=True)
@@ -59,9 +74,10 @@ class Network:
 
     name: str  # what ``--set network=...`` and a checkpoint call it
     label: str  # the row label of any algorithm's learner with it (e.g. "GCN-Cog")
-    #: ``(cfg, norm) -> encoder``: ``cfg`` carries ``max_agents``, ``gcn_hidden``,
-    #: ``gcn_layers`` and ``readout``; ``norm`` is the feature normalisation to hold, or None
-    make_encoder: Callable[[Any, FeatureNorm | None], nn.Module]
+    #: ``(cfg, norm) -> encoder``: ``cfg`` is a :class:`NetworkConfig` (``max_agents``,
+    #: ``gcn_hidden``, ``gcn_layers``, ``readout``); ``norm`` is the feature normalisation to
+    #: hold, or None
+    make_encoder: Callable[[NetworkConfig, FeatureNorm | None], nn.Module]
     aliases: tuple[str, ...] = ()  # older names, accepted wherever a name is
     sac_label: str = ""  # the paper's label of its SAC row (S-SAC, G-SAC-NoCog, G-SAC-Cog)
     fused_sac: bool = False  # SAC's fused update (train/update.py) knows this encoder
@@ -92,7 +108,9 @@ def canonical_network(name: str) -> str:
         known = ", ".join(
             f"{n} ({', '.join(e.aliases)})" if e.aliases else n for n, e in NETWORKS.items()
         )
-        raise UnknownNetwork(f"network must be one of {known}; not {name!r}")
+        raise UnknownNetwork(
+            f"network must be one of {known}; not {name!r}" + did_you_mean(name, _ALIASES)
+        )
     return _ALIASES[name]
 
 
@@ -113,8 +131,8 @@ def network_label(name: str, algorithm: str = "") -> str:
     return net.sac_label if paper and net.sac_label else net.label
 
 
-def _graph_encoder(graph: str | None) -> Callable[[Any, FeatureNorm | None], nn.Module]:
-    def make(cfg, norm: FeatureNorm | None) -> GraphEncoder:
+def _graph_encoder(graph: str | None) -> Callable[[NetworkConfig, FeatureNorm | None], nn.Module]:
+    def make(cfg: NetworkConfig, norm: FeatureNorm | None) -> GraphEncoder:
         from sharedspace.train.gcn import GraphEncoder
 
         return GraphEncoder(

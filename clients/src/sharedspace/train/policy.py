@@ -27,8 +27,11 @@ RESIDUAL_INIT_SCALE = 0.1
 
 def make_encoder(cfg: TrainConfig, norm: FeatureNorm | None = None) -> nn.Module:
     """The encoder of the registered network ``cfg.network``
-    (:mod:`sharedspace.train.networks`), with ``norm`` applied to its node features if given."""
-    return get_network(cfg.network).make_encoder(cfg, norm).to(cfg.device)
+    (:mod:`sharedspace.train.networks`), built from the config's network part
+    (:meth:`~sharedspace.train.config.TrainConfig.network_config`), with ``norm`` applied to its
+    node features if given."""
+    net = cfg.network_config()
+    return get_network(net.network).make_encoder(net, norm).to(net.device)
 
 
 class ActorParams(nn.Module):

@@ -40,6 +40,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
+from sharedspace.cli import UserError
 from sharedspace.names import FEATURE_NAMES, REWARD_TERMS, Feature
 from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.scripted import SCRIPTED
@@ -87,7 +88,7 @@ MIRRORED_FEATURES = (Feature.REL_Y, Feature.REL_VY, Feature.HEADING_DIFF, Featur
 MIRRORED_ACTION = 1
 
 
-class PriorDataError(ValueError):
+class PriorDataError(UserError):
     """A prior dataset that cannot serve this trainer: not a dataset, another format version,
     or recorded in another world (the message names each differing field)."""
 

@@ -22,9 +22,9 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
+from sharedspace.cli import run_command
 from sharedspace.train.config import (
     TrainConfig,
     add_overrides_argument,
@@ -61,7 +61,7 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
         "bare: from log_dir's last checkpoint, if there is one",
     )
     args = ap.parse_args(argv)
-    from sharedspace.train.checkpoint import read_checkpoint  # torch
+    from sharedspace.train.checkpoint import last_checkpoint, read_checkpoint  # torch
 
     saved = read_checkpoint(args.resume) if isinstance(args.resume, str) else None
     cfg = load_config(
@@ -72,12 +72,25 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     )
     resume = args.resume
     if resume is True:  # bare: log_dir's last checkpoint, where there is one
-        last = Path(cfg.log_dir) / "checkpoints" / "last.pt"
-        resume = str(last) if last.is_file() else None
-    out = train(cfg, resume)
-    print(json.dumps(dict(out), default=float))
+        resume = last_checkpoint(cfg.log_dir)
+    out = dict(train(cfg, resume)) | {"log_dir": cfg.log_dir, "eval_split": cfg.eval_split}
+    print(summary_line(out), flush=True)
+    print(json.dumps(out, default=float))
     return 0
 
 
+def summary_line(out: dict[str, Any]) -> str:
+    """What a finished run says to a person: where it wrote, and its last scoring's split."""
+    line = f"run written to {out['log_dir']} (config.json, metrics.csv, checkpoints/last.pt)"
+    scoring = out.get("eval") or {}
+    if "success" in scoring:
+        rates = ", ".join(f"{k} {scoring[k]:.3f}" for k in ("success", "collision", "timeout"))
+        split = out["eval_split"]
+        if split == "validation":
+            split += " (train scenes carved off, never trained on)"
+        line += f"; last scoring on the {split} split: {rates}"
+    return line
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main))

@@ -280,6 +280,11 @@ impl ServerCore {
         v
     }
 
+    /// The names of the pools it serves, the default first.
+    pub fn pool_names(&self) -> Vec<&str> {
+        self.pools.iter().map(|p| p.name.as_str()).collect()
+    }
+
     pub fn info(&self) -> ServerInfo {
         ServerInfo {
             protocol_version: PROTOCOL_VERSION,

@@ -1,0 +1,46 @@
+"""How every command line meets a user's mistake: one line that names it on stderr, exit status
+2, no traceback. ``--debug`` on the command line (or ``SHAREDSPACE_DEBUG=1``) shows the
+traceback instead.
+
+A user's mistake is a :class:`UserError` (a wrong config key or value, an unknown task,
+network, algorithm or driver, a file that is not a checkpoint: each package's own error class
+derives from it) or a file that is not there. Anything else is a defect and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import sys
+from collections.abc import Callable, Iterable, Sequence
+
+__all__ = ["UserError", "did_you_mean", "run_command"]
+
+
+class UserError(ValueError):
+    """A mistake in what a user asked for; its message names what was wrong."""
+
+
+def did_you_mean(name: str, choices: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the choice closest to ``name``, or "" when none is close."""
+    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def run_command(main: Callable[[Sequence[str] | None], int], argv: Sequence[str] | None = None):
+    """``main(argv)`` with a user's mistake turned into one line and exit status 2; returns
+    ``main``'s status otherwise. ``--debug`` (removed before ``main`` sees the words) or
+    ``SHAREDSPACE_DEBUG=1`` lets the traceback through."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in words or os.environ.get("SHAREDSPACE_DEBUG", "") not in ("", "0")
+    words = [w for w in words if w != "--debug"]
+    try:
+        return main(words)
+    except (UserError, FileNotFoundError) as err:
+        if debug:
+            raise
+        text = str(err.args[0]) if isinstance(err, KeyError) and err.args else str(err)
+        first = text.strip().splitlines()[0] if text.strip() else type(err).__name__
+        print(f"error: {first}", file=sys.stderr)
+        return 2

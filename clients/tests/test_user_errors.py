@@ -1,0 +1,65 @@
+"""A user's mistake on a command line is one line that names it, exit status 2, no traceback;
+``--debug`` shows the traceback. Each command runs as a user types it (a fresh process)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _run(*words: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, *words], cwd=cwd, capture_output=True, text=True, timeout=120
+    )
+
+
+def _one_line(out: subprocess.CompletedProcess, *needles: str) -> str:
+    assert out.returncode == 2, (out.returncode, out.stderr)
+    assert "Traceback" not in out.stderr, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), out.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    "words, needles",
+    [
+        (["netwrok=mlp"], ["unknown config key 'netwrok'", "did you mean 'network'"]),
+        (["task=crwod"], ["task must be one of", "did you mean 'crowd'"]),
+        (["algorithm=ppo", "network=gcn_rsk"], ["network must be one of", "'gcn_risk'"]),
+        (["algorithm=mapo"], ["algorithm must be one of", "did you mean 'mappo'"]),
+        (["algorithm=sac", "rollout_steps=5"], ["rollout_steps is an option of algorithm=ppo"]),
+        (["seed=abc"], ["--set seed=abc"]),
+    ],
+)
+def test_a_wrong_training_word_is_one_line(words, needles):
+    _one_line(_run("-m", "sharedspace.train", "--set", *words), *needles)
+
+
+def test_a_file_that_is_not_a_checkpoint_is_refused_by_name(tmp_path):
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"\x80\x04not a pickle at all" * 10)
+    line = _one_line(_run("-m", "sharedspace.bench", "paper", "--policy", str(junk)))
+    assert str(junk) in line and "not a sharedspace checkpoint" in line
+    line = _one_line(_run("-m", "sharedspace.train", "--resume", str(junk)))
+    assert str(junk) in line
+
+
+def test_a_typo_in_a_task_or_driver_of_the_bench_suggests_the_name():
+    _one_line(_run("-m", "sharedspace.bench", "crwod", "--policy", "hold"), "did you mean 'crowd'")
+    _one_line(
+        _run("-m", "sharedspace.bench", "paper", "--policy", "car_awar"),
+        "did you mean 'car_aware'",
+    )
+
+
+def test_debug_shows_the_traceback():
+    out = _run("-m", "sharedspace.train", "--debug", "--set", "netwrok=mlp")
+    assert out.returncode != 0 and "Traceback" in out.stderr and "netwrok" in out.stderr
