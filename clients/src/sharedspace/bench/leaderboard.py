@@ -29,8 +29,12 @@ RATES = (
     "goal, collided, or ran out of time (they add up to 1); [95 %]: the Wilson interval over "
     "those episodes."
 )
-#: The rows that give a score its scale: a floor (a car that never moves) and the script.
-SCALE_ROWS = (("hold", "floor, a car that holds still"), ("car_aware", "the car-aware script"))
+#: The rows that give a score its scale: the floor (a car that does nothing: it keeps its
+#: initial speed and heading, action [0, 0]) and the car-aware script.
+SCALE_ROWS = (
+    ("hold", "floor: does nothing, keeps its speed and heading"),
+    ("car_aware", "the car-aware script"),
+)
 
 
 def legend(task: dict[str, Any], folder: Path | None = None) -> str:
