@@ -12,6 +12,8 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from test_ppo import TINY as PPO_TINY  # noqa: E402
+
 from sharedspace.train import ppo  # noqa: E402
 from sharedspace.train.config import load_config  # noqa: E402
 from sharedspace.train.loop import make_collector, overlaps  # noqa: E402
@@ -19,21 +21,8 @@ from sharedspace.train.overlap import OverlappedCollector  # noqa: E402
 from sharedspace.train.policy import OBS_KEYS  # noqa: E402
 from sharedspace.train.train import train  # noqa: E402
 
-TINY = [
-    "algorithm=ppo",
-    "network=gcn_risk",
-    "num_envs=4",
-    "max_agents=5",
-    "rollout_steps=8",
-    "minibatch_size=16",
-    "ppo_epochs=2",
-    "hidden_sizes=16,16",
-    "gcn_hidden=8",
-    "eval_interval=0",
-    "checkpoint_interval=0",
-    "progress=false",
-    "eval_split=test",
-]
+#: test_ppo's tiny PPO, on the test split (no carve to serve) with the risk graph
+TINY = [*PPO_TINY, "network=gcn_risk", "eval_split=test"]
 
 
 def _config(sim_server, tmp_path, *more: str):
