@@ -40,7 +40,6 @@ def run_command(main: Callable[[Sequence[str] | None], int], argv: Sequence[str]
     except (UserError, FileNotFoundError) as err:
         if debug:
             raise
-        text = str(err.args[0]) if isinstance(err, KeyError) and err.args else str(err)
-        first = text.strip().splitlines()[0] if text.strip() else type(err).__name__
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         print(f"error: {first}", file=sys.stderr)
         return 2

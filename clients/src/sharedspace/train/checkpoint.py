@@ -35,10 +35,10 @@ from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_netwo
 from sharedspace.train.registry import ALGORITHMS, get_algorithm
 
 __all__ = [
-    "last_checkpoint",
     "FORMAT",
     "NotACheckpoint",
     "describe",
+    "last_checkpoint",
     "read_checkpoint",
     "save_checkpoint",
     "ship",
@@ -178,7 +178,6 @@ def read_checkpoint(path: str | Path, device: str = "cpu") -> dict[str, Any]:
         pass  # a multi-car network's description, or a network this process has not registered
     ckpt["network"] = network
     return ckpt
-
 
 
 def ship(ckpt: dict[str, Any], path: str | Path) -> Path:

@@ -349,29 +349,24 @@ class TrainConfig:
         return str(validation_pool_path(self.scenario_pool, self.validation_scenes))
 
     def carve_validation(self) -> str:
-        """Writes the carved validation pool if it is not there yet (when a run, a scoring or
-        a server first needs it, never while the config is built); returns
-        :meth:`training_pool`."""
-        if self.eval_split == "validation":
-            validation_pool_file(self.scenario_pool, self.validation_scenes)
-        return self.training_pool()
+        """:meth:`training_pool`, the carved validation pool written first if it is not there
+        yet: when a run, a scoring or a server first needs it, never while the config is
+        built."""
+        if self.eval_split != "validation":
+            return self.scenario_pool
+        return str(validation_pool_file(self.scenario_pool, self.validation_scenes))
 
     def pool_of(self, split: str) -> str:
         """The pool file an env of ``split`` plays (its scenes' indices are that file's): the
         training pool for ``train`` and ``validation`` (carved now if need be),
         ``scenario_pool`` for ``test``."""
-        if split in ("train", "validation"):
-            self.carve_validation()
-        return self._pool_path(split)
-
-    def _pool_path(self, split: str) -> str:
-        return self.training_pool() if split in ("train", "validation") else self.scenario_pool
+        return self.carve_validation() if split in ("train", "validation") else self.scenario_pool
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
         """The envs this config trains or evaluates on: ``split`` (``validation`` is the
         validation pool's ``test``), ``seed`` and scene ``variations``. Writes nothing: the
         env's connection (:meth:`connection`) carves the validation pool."""
-        pool = self._pool_path(split)
+        pool = self.training_pool() if split in ("train", "validation") else self.scenario_pool
         return EnvSpec(
             pool=pool or None,
             split="test" if split == "validation" else split,
@@ -387,8 +382,8 @@ class TrainConfig:
         """Where the envs live (:meth:`sharedspace.client.Connection.resolve`): the zenoh file,
         else the endpoint, else a local ``sim-server`` of this config's pools (the validation
         pool too, carved now if need be) and parameters; with ``failover``."""
-        self.carve_validation()  # a local server serves it, a client reads its name
-        pools, carved = [self.scenario_pool], self.training_pool()
+        carved = self.carve_validation()  # a local server serves it, a client reads its name
+        pools = [self.scenario_pool]
         if carved != self.scenario_pool:  # the pool first: the server's default stays its own
             pools = [self.scenario_pool or str(DEFAULT_POOL_PATH), carved]
         params = self.server_params or None
@@ -453,8 +448,9 @@ class TrainConfig:
 
 
 def declared_default(cfg, name: str) -> Any:
-    """The default a config dataclass declares for its field ``name`` (a fresh copy)."""
-    f = type(cfg).__dataclass_fields__[name]
+    """The default a config dataclass (or an instance of it) declares for its field ``name``
+    (a fresh copy)."""
+    f = cfg.__dataclass_fields__[name]
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
@@ -508,20 +504,16 @@ def apply_overrides(cfg, overrides: list[str] | dict[str, Any]):
     """A copy of the config dataclass ``cfg`` (:class:`TrainConfig`) with ``key=value``
     strings (or a dict) applied; string values are parsed by the field's type
     (:func:`parse_value`), as the command line's :func:`load_config` parses them."""
-    data = cfg.unresolved() if hasattr(cfg, "unresolved") else cfg.to_dict()
-    retired = getattr(cfg, "RETIRED_FIELDS", ())
+    data = cfg.unresolved()
     items = (
         overrides.items() if isinstance(overrides, dict) else (o.split("=", 1) for o in overrides)
     )
     for item in items:
         if len(item) != 2:
             raise ConfigError(f"--set {item[0]!r}: expected KEY=VALUE")
-        key, value = item[0].strip(), item[1]
-        key = getattr(cfg, "RENAMED_FIELDS", {}).get(key, key)
-        if key in retired:
+        key, value = _field_name(item[0].strip()), item[1]
+        if key is None:  # a retired field
             continue
-        if key not in data:
-            raise UnknownFieldError(unknown_key(key, data))
         data[key] = parse_value(key, value, data[key]) if isinstance(value, str) else value
     return type(cfg)(**data)  # strict: an option of another algorithm is named, not dropped
 
@@ -558,7 +550,7 @@ def load_config(
     :class:`ConfigError` naming it."""
     given = _given_fields(_read_table(path)) if path else {}
     for key, text in _split_overrides(overrides or []):
-        like = given.get(key, (saved or {}).get(key, _field_default(key)))
+        like = given.get(key, (saved or {}).get(key, declared_default(TrainConfig, key)))
         given[key] = parse_value(key, text, like)
     algorithm = given.get("algorithm") or (
         None if saved is not None else default_algorithm or TrainConfig.algorithm
@@ -568,49 +560,38 @@ def load_config(
 
 
 def _given_fields(table: dict[str, Any]) -> dict[str, Any]:
-    """A user's table of fields, renamed and retired fields mapped; an unknown key refused."""
-    out = {}
-    for key, value in table.items():
-        key = RENAMED_FIELDS.get(key, key)
-        if key in RETIRED_FIELDS:
-            continue
-        _check_key(key)
-        out[key] = value
-    return out
+    """A user's table of fields under their fields' names (:func:`_field_name`)."""
+    named = ((_field_name(key), value) for key, value in table.items())
+    return {key: value for key, value in named if key is not None}
 
 
 def _split_overrides(overrides: Sequence[str]) -> list[tuple[str, str]]:
-    """``KEY=VALUE`` words as (field, text) pairs; a malformed word or an unknown key refused."""
+    """``KEY=VALUE`` words as (field, text) pairs (:func:`_field_name`); a malformed word
+    refused."""
     out = []
     for word in overrides:
         item = word.split("=", 1)
         if len(item) != 2:
             raise ConfigError(f"--set {item[0]!r}: expected KEY=VALUE")
-        key = RENAMED_FIELDS.get(item[0].strip(), item[0].strip())
-        if key in RETIRED_FIELDS:
-            continue
-        _check_key(key)
-        out.append((key, item[1]))
+        key = _field_name(item[0].strip())
+        if key is not None:
+            out.append((key, item[1]))
     return out
 
 
-def _field_default(name: str) -> Any:
-    f = TrainConfig.__dataclass_fields__[name]
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-
-
-def _check_key(key: str) -> None:
-    fields = TrainConfig.__dataclass_fields__
-    if key not in fields:
-        raise UnknownFieldError(unknown_key(key, fields))
-
-
-def unknown_key(key: str, known) -> str:
-    """The message of an unknown config key: the closest known one, where one is close."""
-    return (
-        f"unknown config key {key!r}{did_you_mean(key, known)}; "
-        "`python -m sharedspace.train --help` lists every key"
-    )
+def _field_name(key: str) -> str | None:
+    """``key`` as a field of :class:`TrainConfig`: a renamed field under its new name, None for
+    a retired one; an unknown key is an :class:`UnknownFieldError`."""
+    key = RENAMED_FIELDS.get(key, key)
+    if key in RETIRED_FIELDS:
+        return None
+    known = TrainConfig.__dataclass_fields__
+    if key not in known:
+        raise UnknownFieldError(
+            f"unknown config key {key!r}{did_you_mean(key, known)}; "
+            "`python -m sharedspace.train --help` lists every key"
+        )
+    return key
 
 
 def _read_table(path: str | Path) -> dict[str, Any]:
