@@ -33,21 +33,31 @@ import tempfile
 import time
 from pathlib import Path
 
+from soak import cpu_s  # benchmarks/, beside this script
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Both codes play against the same server: this checkout's release build unless set.
 SERVER = os.environ.get(
     "SHAREDSPACE_SIM_SERVER", str(ROOT / "target" / "release" / "sim-server")
 )
-TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of ``pid`` (0.0 once it is gone)."""
+    """:func:`soak.cpu_s`, or 0.0 once the process is gone (a run's server ends with it)."""
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return cpu_s(pid)
     except OSError:
         return 0.0
-    return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime
+
+
+def code_env(src: str) -> dict[str, str]:
+    """The environment of a trainer process that runs the code of ``src`` (first on
+    ``PYTHONPATH``) against :data:`SERVER`."""
+    return os.environ | {
+        "PYTHONPATH": src,
+        "PYTHONUNBUFFERED": "1",
+        "SHAREDSPACE_SIM_SERVER": SERVER,
+    }
 
 
 def children(pid: int) -> list[int]:
@@ -65,11 +75,7 @@ def one_run(
     src: str, network: str, frames: int, more: list[str], log_dir: Path
 ) -> dict:
     """One training run of ``src``'s code; its rate and CPU shares."""
-    env = os.environ | {
-        "PYTHONPATH": src,
-        "PYTHONUNBUFFERED": "1",
-        "SHAREDSPACE_SIM_SERVER": SERVER,
-    }
+    env = code_env(src)
     args = [
         "task=crowd",
         "algorithm=ppo",

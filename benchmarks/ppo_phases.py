@@ -16,7 +16,6 @@ import json
 import os
 import statistics
 import time
-from pathlib import Path
 
 import torch
 
@@ -24,21 +23,13 @@ from sharedspace.train import ppo
 from sharedspace.train.config import load_config
 from sharedspace.train.loop import make_collector
 
-TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_of(pid: int) -> float:
-    """User + system CPU seconds of ``pid``."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
+from overlap_ab import children  # benchmarks/, beside this script
+from soak import cpu_s as cpu_of
 
 
 def server_pids() -> list[int]:
     """This process's children: the local sim-server the run started."""
-    out = []
-    for task in Path(f"/proc/{os.getpid()}/task").glob("*"):
-        out += [int(c) for c in (task / "children").read_text().split()]
-    return out
+    return children(os.getpid())
 
 
 class Meter:

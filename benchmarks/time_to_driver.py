@@ -38,11 +38,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-#: Both codes play against the same server: this checkout's release build unless set.
-SERVER = os.environ.get(
-    "SHAREDSPACE_SIM_SERVER", str(ROOT / "target" / "release" / "sim-server")
-)
+from overlap_ab import ROOT, code_env  # benchmarks/, beside this script
+
 RECIPE = [
     "task=crowd",
     "algorithm=ppo",
@@ -80,11 +77,7 @@ def curve(metrics: Path) -> list[dict]:
 
 def one_run(src: str, seed: int, args, log_dir: Path, settings: list[str]) -> dict:
     """Trains until the threshold or the cap; the run's curve and where it crossed."""
-    env = os.environ | {
-        "PYTHONPATH": src,
-        "PYTHONUNBUFFERED": "1",
-        "SHAREDSPACE_SIM_SERVER": SERVER,
-    }
+    env = code_env(src)
     more = [f"seed={seed}", f"eval_interval={args.eval_interval}", f"log_dir={log_dir}"]
     cmd = [
         sys.executable,
@@ -180,8 +173,14 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     done = json.loads(out.read_text()) if out.is_file() else {"runs": {}}
-    done["recipe"] = RECIPE + [f"eval_interval={args.eval_interval}", *args.set]
-    done["after_settings"] = args.after_set
+    recipe = RECIPE + [f"eval_interval={args.eval_interval}", *args.set]
+    kept = (done.get("recipe", recipe), done.get("after_settings", args.after_set))
+    if kept != (recipe, args.after_set):  # resuming: its runs must be of the same settings
+        raise SystemExit(
+            f"{out} keeps runs of other settings ({' '.join(kept[0])}; after: "
+            f"{' '.join(kept[1]) or 'none'}): give the same ones, or another --out"
+        )
+    done["recipe"], done["after_settings"] = recipe, args.after_set
     codes = {"before": args.before, "after": args.after}
     settings = {"before": args.set, "after": args.set + args.after_set}
     for i, seed in enumerate(args.seeds):
