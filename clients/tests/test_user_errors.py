@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -63,3 +65,48 @@ def test_a_typo_in_a_task_or_driver_of_the_bench_suggests_the_name():
 def test_debug_shows_the_traceback():
     out = _run("-m", "sharedspace.train", "--debug", "--set", "netwrok=mlp")
     assert out.returncode != 0 and "Traceback" in out.stderr and "netwrok" in out.stderr
+
+
+def test_a_config_file_missing_or_with_an_unknown_key_is_one_line(tmp_path):
+    missing = tmp_path / "none.toml"
+    _one_line(_run("-m", "sharedspace.train", "--config", str(missing)), str(missing))
+    table = tmp_path / "mine.toml"
+    table.write_text('netwrok = "mlp"\n')
+    _one_line(
+        _run("-m", "sharedspace.train", "--config", str(table)), "did you mean 'network'"
+    )
+    _one_line(_run("-m", "sharedspace.train", "--set", "seed"), "expected KEY=VALUE")
+
+
+def test_the_debug_variable_shows_the_traceback_too():
+    out = subprocess.run(
+        [sys.executable, "-m", "sharedspace.train", "--set", "netwrok=mlp"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=os.environ | {"SHAREDSPACE_DEBUG": "1"},
+    )
+    assert out.returncode != 0 and "Traceback" in out.stderr
+
+
+def test_the_time_to_a_driver_resumes_only_its_own_settings(tmp_path):
+    """benchmarks/time_to_driver.py: the shipped runs give back their published summary, and
+    a rerun with other settings is refused rather than mixed in."""
+    shipped = REPO / "results" / "time_to_driver" / "ppo_epochs2.json"
+    out = tmp_path / "ttd.json"
+    out.write_bytes(shipped.read_bytes())
+    script = str(REPO / "benchmarks" / "time_to_driver.py")
+    same = _run(script, "--before", "x", "--after-set", "ppo_epochs=2", "--out", str(out))
+    assert same.returncode == 0, same.stderr
+    assert json.loads(out.read_text())["summary"] == json.loads(shipped.read_text())["summary"]
+    other = _run(script, "--before", "x", "--out", str(out))
+    assert other.returncode == 1 and "keeps runs of other settings" in other.stderr
+    assert json.loads(out.read_text())["after_settings"] == ["ppo_epochs=2"]
+
+
+def test_a_trainer_pointed_where_no_server_answers_is_one_line(sim_server):
+    """A deployment's mistake: the right endpoint, a key prefix nobody serves."""
+    words = ["algorithm=ppo", "total_frames=64", "progress=false", "eval_interval=0"]
+    words += [f"server_endpoint={sim_server.endpoint}", "server_prefix=nobodyserves"]
+    _one_line(_run("-m", "sharedspace.train", "--set", *words), "prefix 'nobodyserves'")

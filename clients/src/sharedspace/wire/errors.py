@@ -8,6 +8,8 @@ code (an unknown code gives a plain :class:`ServerError`, as the spec treats it 
 
 from __future__ import annotations
 
+from sharedspace.cli import UserError
+
 
 class SharedspaceError(Exception):
     """Base class of every sharedspace client error."""
@@ -17,8 +19,9 @@ class ProtocolError(SharedspaceError):
     """A payload that does not follow the wire protocol (undecodable, bad envelope, bad array)."""
 
 
-class NoServer(SharedspaceError):
-    """No server answered at ``endpoint`` within ``timeout`` seconds."""
+class NoServer(SharedspaceError, UserError):
+    """No server answered at ``endpoint`` within ``timeout`` seconds: most often a wrong
+    endpoint or key prefix, so a command line says it in one line (:mod:`sharedspace.cli`)."""
 
     def __init__(self, endpoint: str, timeout: float | None = None, message: str | None = None):
         self.endpoint = endpoint
