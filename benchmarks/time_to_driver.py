@@ -40,6 +40,8 @@ from pathlib import Path
 
 from overlap_ab import ROOT, code_env  # benchmarks/, beside this script
 
+from sharedspace.train.config import load_config
+
 RECIPE = [
     "task=crowd",
     "algorithm=ppo",
@@ -181,6 +183,8 @@ def main() -> None:
             f"{' '.join(kept[1]) or 'none'}): give the same ones, or another --out"
         )
     done["recipe"], done["after_settings"] = recipe, args.after_set
+    # what "validation" is: the carve of the task's train scenes, named by its pool's content
+    done["validation_pool"] = Path(load_config(None, RECIPE).training_pool()).name
     codes = {"before": args.before, "after": args.after}
     settings = {"before": args.set, "after": args.set + args.after_set}
     for i, seed in enumerate(args.seeds):
