@@ -197,6 +197,15 @@ def test_env_spec_holds_the_fields_of_the_rust_create_env():
             "seed": 3,
             "scenes": 4,
         },
+        composed={
+            "scenes": 1000,
+            "seed": 7,
+            "source": "hbs-paper",
+            "hold_out": ["hbs-car1116"],
+            "pedestrians": 3,
+            "shares": {"crossing": 0.5},
+            "other_cars": False,
+        },
         variations={
             "position_sigma": 0.25,
             "start_offset_steps": 1,
@@ -227,6 +236,8 @@ def test_env_spec_holds_the_fields_of_the_rust_create_env():
         ({"variations": {"positon_sigma": 0.5}}, "positon_sigma"),
         ({"synthetic": {"layout": "grid"}}, "EnvSpec.synthetic"),
         ({"synthetic": {"routes": "ring"}}, "EnvSpec.synthetic"),
+        ({"composed": {"scenes": 0}}, "EnvSpec.composed"),
+        ({"composed": {"shares": {"crosing": 1.0}}}, "crosing"),
     ],
 )
 def test_an_ill_typed_env_field_is_refused_where_it_is_written(fields, names):

@@ -117,6 +117,7 @@ pub fn create_env() -> CreateEnv {
         autoreset: true,
         realtime_factor: 1.0,
         synthetic: None,
+        composed: None,
         variations: None,
         vehicle_model: None,
     }
@@ -141,6 +142,15 @@ pub fn create_env_full() -> CreateEnv {
             density: 0.5,
             seed: 3,
             scenes: 4,
+        }),
+        composed: Some(ComposedScenes {
+            scenes: Some(1000),
+            seed: 7,
+            source: Some("hbs-paper".to_string()),
+            hold_out: vec!["hbs-car1116".to_string()],
+            pedestrians: Some(3),
+            shares: BTreeMap::from([("crossing".to_string(), 0.5)]),
+            other_cars: false,
         }),
         variations: Some(VariationSpec {
             position_sigma: 0.25,

@@ -7,9 +7,11 @@
 //!   JSON, see `FORMAT.md`) with a validating loader whose errors name file, scenario, agent and
 //!   field.
 //! - [`synthetic`]: seeded synthetic scenarios (`crossing`, `counter_flow`, `random`) of any size.
+//! - [`composed`]: seeded scenes composed from the recorded parts of a pool's train scenes.
 //! - [`embedded`]: the paper-like pool compiled into the binary.
 //! - [`footprint`]: the agents' footprints and the overlap checks shared by all of the above.
 
+pub mod composed;
 pub mod embedded;
 pub mod footprint;
 pub mod hbs;

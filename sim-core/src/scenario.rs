@@ -12,7 +12,7 @@ use crate::params::VehicleModel;
 pub const SCENARIO_FORMAT_VERSION: u32 = 1;
 
 /// What kind of road user an agent is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AgentKind {
     Pedestrian,

@@ -16,6 +16,7 @@ sees the task's test scenes. The trainer's curves (``eval/*``) are drawn on it b
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import random
@@ -180,6 +181,23 @@ def validation_pool(pool: dict[str, Any], n: int, seed: int = 0) -> dict[str, An
         ),
         "scenarios": scenes,
     }
+
+
+def held_out_scenes(pool: str, n: int, seed: int = 0) -> tuple[str, tuple[str, ...]]:
+    """The name of the pool file ``pool`` ("" = hbs-paper) and the names of the ``n`` train
+    scenes :func:`validation_pool` carves from it as validation scenes (none for ``n = 0``):
+    what a composed scene is never made of (``CreateEnv.composed.hold_out``). Reads the file
+    once per process and writes nothing."""
+    return _held_out_scenes(str(_pool_source(pool)), n, seed)
+
+
+@functools.lru_cache(maxsize=8)
+def _held_out_scenes(source: str, n: int, seed: int) -> tuple[str, tuple[str, ...]]:
+    doc = json.loads(Path(source).read_bytes())
+    if n == 0:
+        return doc["name"], ()
+    held = {s["name"] for s in validation_pool(doc, n, seed)["scenarios"] if s["split"] == "test"}
+    return doc["name"], tuple(s["name"] for s in doc["scenarios"] if s["name"] in held)
 
 
 def validation_pool_path(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:

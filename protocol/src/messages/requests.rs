@@ -87,6 +87,10 @@ pub struct CreateEnv {
     /// Generated scenes instead of a pool (nil: draw from `pool`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub synthetic: Option<SyntheticScenes>,
+    /// Scenes composed from the recorded parts of a pool's train scenes, drawn beside (or
+    /// instead of) the pool's (nil: none; SPEC 5.2.2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub composed: Option<ComposedScenes>,
     /// Seeded scene variations, one drawn per episode (nil: the pool entry's, if it has
     /// one, else none; SPEC 5.3).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -136,6 +140,45 @@ impl Default for SyntheticScenes {
     }
 }
 
+/// `CreateEnv.composed` (SPEC 5.2.2): scenes the server composes from the recorded parts of
+/// the train scenes of `source` (the scenarios crate's `composed` module), scene `i` named
+/// `composed-s{seed}-{i}`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ComposedScenes {
+    /// Composed scenes `0..scenes`, drawn beside the split's recorded scenes (each episode one
+    /// of the `recorded + scenes`, uniformly); nil: a fresh composed scene every episode.
+    pub scenes: Option<u64>,
+    /// The generator's seed.
+    pub seed: u64,
+    /// The served pool whose train scenes give the parts (nil: the request's `pool`).
+    pub source: Option<String>,
+    /// Scenes of `source` whose agents never enter a composed scene (a validation split); the
+    /// agents of its test scenes never do either.
+    pub hold_out: Vec<String>,
+    /// Pedestrians per scene (nil: as many as the route's recorded scene had).
+    pub pedestrians: Option<u32>,
+    /// The weights of the pedestrians' roles by name (`crossing`, `along`, `oncoming`,
+    /// `background`); a role not named keeps its default (the recorded share).
+    pub shares: BTreeMap<String, f64>,
+    /// Whether the route's recorded other cars come along.
+    pub other_cars: bool,
+}
+
+impl Default for ComposedScenes {
+    fn default() -> Self {
+        Self {
+            scenes: None,
+            seed: 0,
+            source: None,
+            hold_out: Vec::new(),
+            pedestrians: None,
+            shares: BTreeMap::new(),
+            other_cars: true,
+        }
+    }
+}
+
 impl CreateEnv {
     /// A request with every optional field at its default.
     pub fn new(client_id: impl Into<String>) -> Self {
@@ -156,6 +199,7 @@ impl CreateEnv {
             autoreset: false,
             realtime_factor: default_realtime_factor(),
             synthetic: None,
+            composed: None,
             variations: None,
             vehicle_model: None,
         }

@@ -13,12 +13,17 @@
 //! re-seeds the generator and starts a fresh permutation. So a trainer's sequence of scenarios
 //! depends only on (pool, split, external agents, seed, env index, resets with seeds), never on
 //! other trainers or on timing.
+//!
+//! **Composed scenes** (`CreateEnv.composed`, [`Composed`]): each episode is one of the
+//! candidates and the `scenes` composed scenes uniformly (drawn from a stream of the env's seed
+//! apart from the permutations), or a fresh composed scene (unlimited `scenes`).
 
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use protocol::{PoolSummary, ScenarioSummary};
+use scenarios::composed::{ComposeConfig, Parts};
 use scenarios::synthetic::SplitMix64;
 use serde::{Deserialize, Serialize};
 use sim_core::params::{VehicleModel, WorldParams};
@@ -234,7 +239,7 @@ impl std::fmt::Display for AgentsNeeded {
 #[derive(Debug)]
 pub struct ServedPool {
     pub name: String,
-    pub scenarios: Vec<ServedScenario>,
+    pub scenarios: Vec<Arc<ServedScenario>>,
     /// Scene variations of the envs on this pool that send none of their own.
     pub variations: Option<VariationSpec>,
     /// How the vehicles nobody controls move in the envs on this pool that do not say (the pool
@@ -246,10 +251,10 @@ pub struct ServedPool {
 impl ServedPool {
     pub fn new(pool: ScenarioPool) -> Self {
         let vehicle_model = pool.vehicle_model;
-        let scenarios: Vec<ServedScenario> = pool
+        let scenarios: Vec<Arc<ServedScenario>> = pool
             .scenarios
             .into_iter()
-            .map(ServedScenario::new)
+            .map(|s| Arc::new(ServedScenario::new(s)))
             .collect();
         let by_name = scenarios
             .iter()
@@ -317,6 +322,51 @@ impl ServedPool {
                     },
                 })
                 .collect(),
+        }
+    }
+}
+
+/// What an episode plays: a pool's scenario (its index) or a composed scene (its index).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EpisodeDraw {
+    Recorded(usize),
+    Composed(u64),
+}
+
+/// The composed scenes of the envs of one `CreateEnv` (`CreateEnv.composed`): the parts, the
+/// generator's configuration and how many scenes.
+#[derive(Debug)]
+pub struct Composed {
+    pub parts: Arc<Parts>,
+    pub config: ComposeConfig,
+    /// Scenes `0..n` beside the recorded candidates; `None`: a fresh one every episode.
+    pub scenes: Option<u64>,
+}
+
+impl Composed {
+    /// Composed scene `index`.
+    pub fn scene(&self, index: u64) -> Scenario {
+        self.parts.compose(&self.config, index)
+    }
+
+    /// The index of the composed scene called `name`, if it is one of these.
+    pub fn index_of(&self, name: &str) -> Option<u64> {
+        let (seed, index) = Parts::parse_scene_name(name)?;
+        (seed == self.config.seed && self.scenes.is_none_or(|n| index < n)).then_some(index)
+    }
+
+    /// The next episode's scene: uniformly one of the `recorded` candidates and the `scenes`
+    /// composed ones, or a fresh composed one (an index drawn from all of `u64`).
+    pub fn draw(&self, recorded: &[usize], rng: &mut SplitMix64) -> EpisodeDraw {
+        let Some(n) = self.scenes else {
+            return EpisodeDraw::Composed(rng.next_u64());
+        };
+        let r = recorded.len() as u64;
+        let k = rng.next_u64() % (r + n);
+        if k < r {
+            EpisodeDraw::Recorded(recorded[k as usize])
+        } else {
+            EpisodeDraw::Composed(k - r)
         }
     }
 }

@@ -29,9 +29,10 @@ from sharedspace.train.registry import (
     get_algorithm,
 )
 from sharedspace.train.reward import REWARDS
-from sharedspace.wire import EnvSpec
+from sharedspace.wire import ComposedScenes, EnvSpec
 from sharedspace.worlds import (
     UnknownTask,
+    held_out_scenes,
     training_task,
     validation_pool_file,
     validation_pool_path,
@@ -134,6 +135,10 @@ class TrainConfig:
     variations: dict[str, Any] = field(
         default_factory=dict
     )  # scene variations of the training envs (SPEC 5.2.1; JSON on --set); {} = none
+    scenes: int = 0  # composed scenes the training envs draw beside the recorded train scenes
+    #                  (SPEC 5.2.2, from their recorded parts, never a validation or test
+    #                  scene's); 0 = none; -1 = a fresh one every episode, no recorded ones
+    scenes_seed: int = 0  # the composed scenes' generator seed (the same scenes for every seed)
     vehicle_model: str = ""  # cars nobody controls: replay | idm (reactive); "" = the pool's
     reward: str = ""  # named reward (sharedspace.train.reward): world | learner; "" = the
     #                   algorithm's (sac world; ppo and multi-car learner)
@@ -305,6 +310,11 @@ class TrainConfig:
                     f"network {self.network}: algorithm {self.algorithm}'s fused update knows "
                     "the built-in encoders only (gcn_risk, gcn_uniform, mlp)"
                 )
+        if self.scenes < -1 or self.scenes_seed < 0:
+            raise ConfigError(
+                f"scenes must be -1 (a fresh one every episode), 0 (none) or a count, not "
+                f"{self.scenes}; scenes_seed at least 0, not {self.scenes_seed}"
+            )
         names = ("total_frames", "num_envs", "rollout_steps", "ppo_epochs", "minibatch_size")
         names += ("validation_scenes", "validation_variations")
         for name in names:
@@ -334,6 +344,8 @@ class TrainConfig:
         keys = ("task", "scenario_pool", "server_params", "max_agents", "pedestrian_model")
         out: dict[str, Any] = {k: getattr(self, k) for k in keys}
         out |= {"vehicle_model": self.vehicle_model, "variations": dict(self.variations)}
+        if self.scenes:
+            out["composed"] = {"scenes": self.scenes, "seed": self.scenes_seed}
         out["reward"] = {"name": self.reward, "weights": self.world_reward_weights}
         if self.eval_split == "validation":
             out["validation"] = {"scenes": self.validation_scenes, "seed": 0}
@@ -367,6 +379,7 @@ class TrainConfig:
         validation pool's ``test``), ``seed`` and scene ``variations``. Writes nothing: the
         env's connection (:meth:`connection`) carves the validation pool."""
         pool = self.training_pool() if split in ("train", "validation") else self.scenario_pool
+        composed = self.composed_scenes() if split == "train" else None
         return EnvSpec(
             pool=pool or None,
             split="test" if split == "validation" else split,
@@ -376,6 +389,22 @@ class TrainConfig:
             variations=variations or None,
             vehicle_model=self.vehicle_model or None,
             reward_weights=self.world_reward_weights,
+            composed=composed,
+        )
+
+    def composed_scenes(self) -> ComposedScenes | None:
+        """The training envs' composed scenes (``scenes``): made from the train scenes of
+        ``scenario_pool`` less the validation split (its test scenes never enter either);
+        None for ``scenes=0``. Reads the pool file (the scenes' names) and writes nothing."""
+        if self.scenes == 0:
+            return None
+        held = self.validation_scenes if self.eval_split == "validation" else 0
+        source, hold_out = held_out_scenes(self.scenario_pool, held)
+        return ComposedScenes(
+            scenes=None if self.scenes < 0 else self.scenes,
+            seed=self.scenes_seed,
+            source=source,
+            hold_out=hold_out,
         )
 
     def connection(self) -> Connection:

@@ -12,7 +12,7 @@ Nothing here opens a connection: :mod:`sharedspace.client` sends these bytes.
 from .envelope import ARRAY_DTYPES, PADDING_ID, PROTOCOL_VERSION, decode, encode
 from .errors import ProtocolError, ServerError, SharedspaceError
 from .replies import decode_result
-from .requests import EnvSpec, SyntheticScenes, VariationSpec
+from .requests import ComposedScenes, EnvSpec, SyntheticScenes, VariationSpec
 
 __all__ = [
     "ARRAY_DTYPES",
@@ -23,6 +23,7 @@ __all__ = [
     "ServerError",
     "SharedspaceError",
     "SyntheticScenes",
+    "ComposedScenes",
     "VariationSpec",
     "decode",
     "decode_result",

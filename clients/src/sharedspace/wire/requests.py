@@ -30,6 +30,7 @@ __all__ = [
     "Checked",
     "EnvSpec",
     "SyntheticScenes",
+    "ComposedScenes",
     "VariationSpec",
     "info_request",
     "create_env",
@@ -103,6 +104,27 @@ class SyntheticScenes(Checked):
     scenes: Annotated[int, msgspec.Meta(ge=1)] = 1
 
 
+class ComposedScenes(Checked):
+    """``CreateEnv.composed`` (SPEC 5.2.2): scenes the server composes from the recorded parts
+    of a pool's train scenes, scene ``i`` named ``composed-s{seed}-{i}``."""
+
+    #: Composed scenes ``0..scenes`` drawn beside the split's recorded ones (each episode one of
+    #: the ``recorded + scenes`` uniformly); None: a fresh composed scene every episode.
+    scenes: Annotated[int, msgspec.Meta(ge=1)] | None = None
+    #: The generator's seed.
+    seed: _NonNegative = 0
+    #: The served pool whose train scenes give the parts (None: the request's ``pool``).
+    source: str | None = None
+    #: Scenes of ``source`` whose agents never enter a composed scene (a validation split).
+    hold_out: tuple[str, ...] = ()
+    #: Pedestrians per scene (None: as many as the route's recorded scene had).
+    pedestrians: _NonNegative | None = None
+    #: Weights of the pedestrians' roles by name; a role not named keeps its recorded share.
+    shares: dict[Literal["crossing", "along", "oncoming", "background"], float] = {}
+    #: Whether the route's recorded other cars come along.
+    other_cars: bool = True
+
+
 class VariationSpec(Checked):
     """``CreateEnv.variations`` (SPEC 5.2.1, sim-core ``VariationSpec``): seeded scene
     variations, one drawn per episode. The server checks the ranges."""
@@ -152,6 +174,8 @@ class EnvSpec(Checked):
     realtime_factor: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     #: Generated scenes instead of a pool's.
     synthetic: SyntheticScenes | None = None
+    #: Scenes composed from the recorded parts of a pool's train scenes.
+    composed: ComposedScenes | None = None
     #: Seeded scene variations, one per episode (None: the pool's, if it has some).
     variations: VariationSpec | None = None
     #: How the cars nobody controls move (:data:`sharedspace.models.VEHICLE_MODELS`; None:
@@ -165,7 +189,7 @@ class EnvSpec(Checked):
 
 
 #: ``CreateEnv`` fields the server omits when nil (``skip_serializing_if``), as the client does.
-_OMITTED_WHEN_NONE = ("synthetic", "variations", "vehicle_model")
+_OMITTED_WHEN_NONE = ("synthetic", "composed", "variations", "vehicle_model")
 
 
 # --------------------------------------------------------------------------------------------

@@ -276,7 +276,7 @@ fn step_chunk(
         };
         cols.push_env(&BatchEnvRef {
             episode: meta.episode,
-            scenario: env.scenario_name(meta.scenario),
+            scenario: &meta.scenario,
             step: meta.step,
             t: meta.t,
             action_clipped: env.action_clipped(),

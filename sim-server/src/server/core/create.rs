@@ -1,9 +1,11 @@
 //! `CreateEnv`: the request's pool (a served one, or synthetic scenes), its parameter
 //! overrides, and the new envs in the registry.
 
+use protocol::ComposedScenes;
+use scenarios::composed::{ComposeConfig, Parts, Role, RoleShares};
 use sim_core::params::OverlayError;
 
-use crate::server::pools::{AgentsNeeded, ExternalAgent};
+use crate::server::pools::{AgentsNeeded, Composed, ExternalAgent};
 
 use super::{
     bad, decode, lock, make_env_id, validate_env_id, ActionSpace, Arc, BTreeMap, CreateEnv,
@@ -114,6 +116,7 @@ impl ServerCore {
         )?;
         let externals = external_agents(&req.external_agents)?;
         let split = split_of(req.split);
+        let composed = self.composed_of(req.composed.as_ref(), &pool, split, &externals)?;
         let (candidates, pinned) = episode_candidates(&pool, split, &externals, &req.scenario)?;
         let spec = Arc::new(EnvSpec {
             client_id: req.client_id.clone(),
@@ -121,6 +124,7 @@ impl ServerCore {
             split,
             candidates: Arc::new(candidates),
             pinned,
+            composed,
             model: req.pedestrian_model,
             params,
             external_names: req.external_agents.clone(),
@@ -156,6 +160,94 @@ impl ServerCore {
         Ok((created, realtime))
     }
 
+    /// The composed scenes of a request (`CreateEnv.composed`), checked: train envs driving
+    /// `vehicle_0` alone, a served source pool, held-out scenes it has, shares by known names.
+    fn composed_of(
+        &self,
+        req: Option<&ComposedScenes>,
+        pool: &ServedPool,
+        split: Split,
+        externals: &[ExternalAgent],
+    ) -> Result<Option<Arc<Composed>>, ErrorReply> {
+        let Some(c) = req else {
+            return Ok(None);
+        };
+        if split != Split::Train {
+            return Err(bad(
+                "composed scenes are train scenes: send split train with them",
+            ));
+        }
+        let need = AgentsNeeded::of(externals);
+        if need.vehicles > 1 || need.pedestrians > 0 {
+            return Err(bad(format!(
+                "composed scenes have one car a client drives, vehicle_0; external_agents needs {need}"
+            )));
+        }
+        if c.scenes == Some(0) {
+            return Err(bad(
+                "composed.scenes must be at least 1 (nil: a fresh scene every episode)",
+            ));
+        }
+        let mut shares = RoleShares::default();
+        for (name, &weight) in &c.shares {
+            let role: Role = name
+                .parse()
+                .map_err(|e| bad(format!("composed.shares: {e}")))?;
+            match role {
+                Role::Crossing => shares.crossing = weight,
+                Role::Along => shares.along = weight,
+                Role::Oncoming => shares.oncoming = weight,
+                Role::Background => shares.background = weight,
+            }
+        }
+        let config = ComposeConfig {
+            seed: c.seed,
+            pedestrians: c.pedestrians,
+            shares,
+            other_cars: c.other_cars,
+        };
+        config
+            .validate()
+            .map_err(|e| bad(format!("composed: {e}")))?;
+        let source_name = c.source.as_deref().unwrap_or(&pool.name);
+        let source = self.pool_named(Some(source_name)).ok_or_else(|| {
+            let names: Vec<&str> = self.pools.iter().map(|p| p.name.as_str()).collect();
+            bad(format!(
+                "composed.source {source_name:?}: this server has no such pool; it has: {}",
+                names.join(", ")
+            ))
+        })?;
+        let parts = self.composed_parts(&source, &c.hold_out)?;
+        Ok(Some(Arc::new(Composed {
+            parts,
+            config,
+            scenes: c.scenes,
+        })))
+    }
+
+    /// The parts of `source`'s train scenes less `hold_out`, taken apart on the first request
+    /// that asks for them.
+    fn composed_parts(
+        &self,
+        source: &ServedPool,
+        hold_out: &[String],
+    ) -> Result<Arc<Parts>, ErrorReply> {
+        let mut held = hold_out.to_vec();
+        held.sort();
+        held.dedup();
+        let key = (source.name.clone(), held);
+        if let Some(parts) = lock(&self.composed_parts).get(&key) {
+            return Ok(parts.clone());
+        }
+        let scenes: Vec<&sim_core::scenario::Scenario> =
+            source.scenarios.iter().map(|s| &*s.scenario).collect();
+        let parts = Parts::of_scenes(&source.name, &scenes, &key.1)
+            .map_err(|e| bad(format!("composed: {e}")))?;
+        let parts = Arc::new(parts);
+        lock(&self.composed_parts).insert(key, parts.clone());
+        Ok(parts)
+    }
+
     /// `count` and `max_agents` within the server's limits.
     fn check_create_limits(&self, req: &CreateEnv) -> Result<(), ErrorReply> {
         let lim = self.limits;
@@ -184,6 +276,11 @@ impl ServerCore {
                 return Err(bad(format!(
                     "synthetic scenes and pool {name:?} exclude each other: send one"
                 )))
+            }
+            (Some(_), None) if req.composed.is_some() => {
+                return Err(bad(
+                    "synthetic and composed scenes exclude each other: send one",
+                ))
             }
             (Some(syn), None) => Some(Arc::new(synthetic_pool(syn, split_of(req.split))?)),
             (None, _) => self.pool_named(req.pool.as_deref()),

@@ -1,5 +1,5 @@
 use super::*;
-use protocol::{decode, F64Array, Reply, ResetResult, StepResult};
+use protocol::{decode, ComposedScenes, F64Array, Reply, ResetResult, StepResult};
 
 fn core(limits: Limits) -> ServerCore {
     ServerCore::new(
@@ -406,4 +406,112 @@ fn threaded_batch_equals_single_steps() {
         events += r.events.len();
     }
     assert!(resets > 0 && events > 0, "{resets} resets, {events} events");
+}
+
+/// The `ResetResult` of resetting env `id` to scenario `name`.
+fn reset_to(c: &ServerCore, id: &str, name: &str) -> Result<ResetResult, ErrorReply> {
+    let req = Reset {
+        scenario: Some(name.into()),
+        ..Reset::default()
+    };
+    decode::<Reply<ResetResult>>(&c.handle_reset(id, &encode(&req), Gates::NONE).reply)
+        .unwrap()
+        .into_result()
+}
+
+#[test]
+fn composed_scenes_are_drawn_beside_the_recorded_ones_and_named_by_seed_and_index() {
+    let c = core(Limits::default());
+    let mut req = CreateEnv::new("composed");
+    req.count = 1;
+    req.composed = Some(ComposedScenes {
+        scenes: Some(1000),
+        seed: 5,
+        hold_out: vec!["hbs-car1116".into()],
+        ..ComposedScenes::default()
+    });
+    let id = &create(&c, &req).env_ids[0];
+    let names: Vec<String> = (0..60).map(|_| reset(&c, id).scenario).collect();
+    let composed = names
+        .iter()
+        .filter(|n| n.starts_with("composed-s5-"))
+        .count();
+    // 59 recorded train scenes beside 1 000 composed ones: nearly every draw is composed.
+    assert!(composed >= 50, "{names:?}");
+    assert!(names.iter().any(|n| n.starts_with("hbs-car")) || composed == 60);
+    // A composed scene by name is the same scene every time; one past `scenes` is not there.
+    let a = reset_to(&c, id, "composed-s5-17").unwrap();
+    let b = reset_to(&c, id, "composed-s5-17").unwrap();
+    assert_eq!((a.scenario.as_str(), a.agents.len()), ("composed-s5-17", 4));
+    assert_eq!(a.obs, b.obs);
+    let r = step(&c, id, &[[0.5, 0.0]]);
+    assert_eq!(r.scenario, "composed-s5-17");
+    let e = reset_to(&c, id, "composed-s5-1000").unwrap_err();
+    assert!(e.message.contains("no scenario"), "{e}");
+    // Unlimited: a fresh scene every episode, none recorded.
+    req.composed.as_mut().unwrap().scenes = None;
+    let id = &create(&c, &req).env_ids[0];
+    let names: BTreeSet<String> = (0..40).map(|_| reset(&c, id).scenario).collect();
+    assert_eq!(names.len(), 40);
+    assert!(names.iter().all(|n| n.starts_with("composed-s5-")));
+}
+
+#[test]
+fn a_composed_request_that_cannot_be_served_is_refused_by_name() {
+    let c = core(Limits::default());
+    let mut req = CreateEnv::new("composed");
+    req.composed = Some(ComposedScenes::default());
+    create(&c, &req);
+    let load = c.load();
+    type Change = Box<dyn Fn(&mut CreateEnv)>;
+    let cases: Vec<(Change, &str)> = vec![
+        (Box::new(|r| r.split = WireSplit::Test), "split train"),
+        (
+            Box::new(|r| r.external_agents = vec!["vehicle_0".into(), "vehicle_1".into()]),
+            "vehicle_0",
+        ),
+        (
+            Box::new(|r| r.composed.as_mut().unwrap().scenes = Some(0)),
+            "composed.scenes",
+        ),
+        (
+            Box::new(|r| r.composed.as_mut().unwrap().source = Some("hbs-papr".into())),
+            "composed.source \"hbs-papr\"",
+        ),
+        (
+            Box::new(|r| r.composed.as_mut().unwrap().hold_out = vec!["hbs-car0".into()]),
+            "hbs-car0",
+        ),
+        (
+            Box::new(|r| {
+                r.composed
+                    .as_mut()
+                    .unwrap()
+                    .shares
+                    .insert("crosing".into(), 1.0);
+            }),
+            "crosing",
+        ),
+        (
+            Box::new(|r| {
+                r.composed
+                    .as_mut()
+                    .unwrap()
+                    .shares
+                    .insert("along".into(), -1.0);
+            }),
+            "along",
+        ),
+        (
+            Box::new(|r| r.synthetic = Some(SyntheticScenes::default())),
+            "exclude each other",
+        ),
+    ];
+    for (change, needle) in cases {
+        let mut bad_req = req.clone();
+        change(&mut bad_req);
+        let e = err_of(&c.handle_create(&encode(&bad_req), Instant::now()).reply);
+        assert!(e.message.contains(needle), "{needle}: {e}");
+    }
+    assert_eq!(c.load(), load);
 }

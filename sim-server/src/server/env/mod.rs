@@ -22,7 +22,10 @@ use sim_core::world::{
 
 use protocol::wire::{BatchArrays, BatchColumns, BatchReset, ObsRef};
 
-use super::pools::{AgentsNeeded, ExternalAgent, ScenarioSequence, ServedPool, ServedScenario};
+use super::pools::{
+    AgentsNeeded, Composed, EpisodeDraw, ExternalAgent, ScenarioSequence, ServedPool,
+    ServedScenario,
+};
 
 mod buffers;
 mod publish;
@@ -33,6 +36,8 @@ pub use publish::{Gates, Publication, Watch};
 /// The stream of an env's variation seeds, apart from its scenario sequence (an arbitrary
 /// constant: "variation" in ASCII).
 const VARIATION_STREAM: u64 = 0x7661_7269_6174_696f;
+/// The stream of an env's composed-scene draws (an arbitrary constant: "composed" in ASCII).
+const COMPOSED_STREAM: u64 = 0x636f_6d70_6f73_6564;
 
 /// The configuration shared by the envs of one `CreateEnv`.
 #[derive(Debug)]
@@ -43,6 +48,9 @@ pub struct EnvSpec {
     /// Scenario indices an episode may be drawn from.
     pub candidates: Arc<Vec<usize>>,
     pub pinned: Option<usize>,
+    /// Scenes composed from the recorded parts of a pool's train scenes, drawn beside the
+    /// candidates or instead of them (`CreateEnv.composed`).
+    pub composed: Option<Arc<Composed>>,
     pub model: PedestrianModel,
     pub params: WorldParams,
     /// External agent names (`vehicle_{k}`, `pedestrian_{k}`) in action order.
@@ -78,8 +86,8 @@ impl EnvSpec {
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepMeta {
     pub episode: u64,
-    /// Index of the stepped episode's scenario in the env's pool (see [`Env::scenario_name`]).
-    pub scenario: usize,
+    /// The name of the stepped episode's scenario.
+    pub scenario: Arc<str>,
     pub step: u32,
     pub t: f64,
     /// With [`Env::action_clipped`], the step's [`StepInfo`].
@@ -101,9 +109,13 @@ pub struct Env {
     variation_seeds: SplitMix64,
     /// The current episode's variation, if the env has variations.
     variation: Option<Variation>,
+    /// The draws of the env's composed scenes (seeded with the env's seed on a stream of its
+    /// own).
+    composed_draws: SplitMix64,
     episode: u64,
     world: Option<World>,
-    scenario: usize,
+    /// The current episode's scenario (a pool's, or a composed one).
+    served: Arc<ServedScenario>,
     /// Agent ids of the external agents in the current episode, in action order.
     ext_ids: Vec<AgentId>,
     returns: Vec<f64>,
@@ -181,10 +193,11 @@ impl Env {
             seq: ScenarioSequence::new(spec.candidates.clone(), seed),
             variation_seeds: SplitMix64::new(derive_seed(seed, VARIATION_STREAM)),
             variation: None,
+            composed_draws: SplitMix64::new(derive_seed(seed, COMPOSED_STREAM)),
+            served: spec.pool.scenarios[spec.candidates.first().copied().unwrap_or(0)].clone(),
             spec,
             episode: 0,
             world: None,
-            scenario: 0,
             ext_ids: Vec::new(),
             returns: vec![0.0; n],
             held: vec![[0.0; 2]; n],
@@ -200,6 +213,7 @@ impl Env {
     fn reseed(&mut self, seed: u64) {
         self.seq.reseed(seed);
         self.variation_seeds = SplitMix64::new(derive_seed(seed, VARIATION_STREAM));
+        self.composed_draws = SplitMix64::new(derive_seed(seed, COMPOSED_STREAM));
     }
 
     pub fn episode(&self) -> u64 {
@@ -215,9 +229,9 @@ impl Env {
         &self.clipped
     }
 
-    /// The name of scenario `idx` of this env's pool (as in [`StepMeta::scenario`]).
-    pub fn scenario_name(&self, idx: usize) -> &Arc<str> {
-        &self.spec.pool.scenarios[idx].name
+    /// The name of the current episode's scenario.
+    pub fn scenario_name(&self) -> &Arc<str> {
+        &self.served.name
     }
 
     /// Starts a new episode (`Reset`). Publications of the first state go to `pubs`.
@@ -247,9 +261,21 @@ impl Env {
             )
             .with_env(self.id.clone()));
         }
-        let idx = self.next_scenario(seed, scenario)?;
+        let draw = self.next_scenario(seed, scenario)?;
         let spec = self.spec.clone();
-        let served = &spec.pool.scenarios[idx];
+        let served = match draw {
+            EpisodeDraw::Recorded(i) => spec.pool.scenarios[i].clone(),
+            EpisodeDraw::Composed(i) => Arc::new(ServedScenario::new(
+                spec.composed
+                    .as_ref()
+                    .expect("drawn only with composed scenes")
+                    .scene(i),
+            )),
+        };
+        let cache_slot = match draw {
+            EpisodeDraw::Recorded(i) => Some(i),
+            EpisodeDraw::Composed(_) => None,
+        };
         let ext_ids: Vec<AgentId> = spec
             .externals
             .iter()
@@ -270,10 +296,10 @@ impl Env {
             let seed = variation.unwrap_or_else(|| self.variation_seeds.next_u64());
             v.draw(&served.scenario, &spec.params, seed)
         });
-        let world = self.episode_world(idx, variation.as_ref(), config)?;
+        let world = self.episode_world(&served, cache_slot, variation.as_ref(), config)?;
         self.world = Some(world);
         self.variation = variation;
-        self.scenario = idx;
+        self.served = served;
         self.ext_ids = ext_ids;
         self.episode += 1;
         self.returns.iter_mut().for_each(|r| *r = 0.0);
@@ -282,22 +308,40 @@ impl Env {
         Ok(())
     }
 
-    /// The pool index of the next episode's scenario: the one named (among the env's
-    /// candidates), else the pinned one, else the next of the env's sequence (re-seeded first
-    /// when a `seed` is given).
+    /// The next episode's scenario: the one named (among the env's candidates, or a composed
+    /// scene of its generator), else the pinned one, else the next draw of the env's sequence
+    /// (re-seeded first when a `seed` is given).
     fn next_scenario(
         &mut self,
         seed: Option<u64>,
         scenario: Option<&str>,
-    ) -> Result<usize, ErrorReply> {
+    ) -> Result<EpisodeDraw, ErrorReply> {
         let spec = self.spec.clone();
-        let pool = &spec.pool;
         let Some(name) = scenario else {
             if let Some(seed) = seed {
                 self.reseed(seed);
             }
-            return Ok(spec.pinned.unwrap_or_else(|| self.seq.next_scenario()));
+            return Ok(match (spec.pinned, &spec.composed) {
+                (Some(i), _) => EpisodeDraw::Recorded(i),
+                (None, Some(c)) => c.draw(&spec.candidates, &mut self.composed_draws),
+                (None, None) => EpisodeDraw::Recorded(self.seq.next_scenario()),
+            });
         };
+        let named = spec.composed.as_ref().and_then(|c| c.index_of(name));
+        let draw = match named {
+            Some(i) => EpisodeDraw::Composed(i),
+            None => EpisodeDraw::Recorded(self.candidate_named(name)?),
+        };
+        if let Some(seed) = seed {
+            self.reseed(seed);
+        }
+        Ok(draw)
+    }
+
+    /// The pool index of candidate scenario `name`.
+    fn candidate_named(&self, name: &str) -> Result<usize, ErrorReply> {
+        let spec = &self.spec;
+        let pool = &spec.pool;
         let Some(i) = pool.find(name) else {
             return Err(ErrorReply::new(
                 ErrorCode::BadRequest,
@@ -317,24 +361,22 @@ impl Env {
             )
             .with_env(self.id.clone()));
         }
-        if let Some(seed) = seed {
-            self.reseed(seed);
-        }
         Ok(i)
     }
 
-    /// The world of an episode of scenario `idx`: built from the variation's scene, or a copy
-    /// of the scenario's cached fresh world (built and cached on its first episode).
+    /// The world of an episode of `served`: built from the variation's scene, or a copy of
+    /// the cached fresh world of pool scenario `cache_slot` (built and cached on its first
+    /// episode), or built afresh (a composed scene).
     fn episode_world(
         &mut self,
-        idx: usize,
+        served: &ServedScenario,
+        cache_slot: Option<usize>,
         variation: Option<&Variation>,
         config: EpisodeConfig,
     ) -> Result<World, ErrorReply> {
         let spec = self.spec.clone();
-        let served = &spec.pool.scenarios[idx];
-        let cached = spec.fresh_worlds.get(idx).and_then(OnceLock::get);
-        Ok(match (variation, cached) {
+        let slot = cache_slot.and_then(|i| spec.fresh_worlds.get(i));
+        Ok(match (variation, slot.and_then(OnceLock::get)) {
             (Some(v), _) => World::new(
                 Arc::new(v.apply(&served.scenario)),
                 v.apply_params(&spec.params),
@@ -361,7 +403,7 @@ impl Env {
                     ErrorReply::new(ErrorCode::Internal, format!("cannot start episode: {e}"))
                         .with_env(self.id.clone())
                 })?;
-                if let Some(cell) = spec.fresh_worlds.get(idx) {
+                if let Some(cell) = slot {
                     let _ = cell.set(w.clone());
                 }
                 w
@@ -386,7 +428,7 @@ impl Env {
     pub fn reset_result(&mut self) -> Result<ResetResult, ErrorReply> {
         self.fill_reset_obs();
         let world = self.world.as_ref().expect("reset_result after a reset");
-        let served = &self.spec.pool.scenarios[self.scenario];
+        let served = &self.served;
         let agents = agent_descs(world, served, &self.ext_ids);
         let obs = self.reset_obs.obs();
         Ok(ResetResult {
@@ -410,7 +452,7 @@ impl Env {
             .world
             .as_ref()
             .expect("push_reset_columns after a reset");
-        let served = &self.spec.pool.scenarios[self.scenario];
+        let served = &self.served;
         cols.push_reset(BatchReset {
             episode: self.episode,
             scenario: &served.scenario.name,
@@ -470,7 +512,7 @@ impl Env {
             self.publish_state(gates, &events, Some(slots), pubs);
         }
         let meta_episode = self.episode;
-        let scenario = self.scenario;
+        let scenario = self.served.name.clone();
         let reset = over && self.spec.autoreset;
         if reset {
             self.start_episode(None, None, None)?;
@@ -606,7 +648,7 @@ impl Env {
         Ok(StepResult {
             env_id: self.id.clone(),
             episode: meta.episode,
-            scenario: self.scenario_name(meta.scenario).to_string(),
+            scenario: meta.scenario.to_string(),
             step: meta.step,
             t: meta.t,
             obs: buf.obs()?,

@@ -174,7 +174,7 @@ impl Env {
             positions: F64Array::new(vec![n, 2], &pos).expect("shape"),
             velocities: F64Array::new(vec![n, 2], &vel).expect("shape"),
             headings: F64Array::from_slice(&hd),
-            scenario: self.scenario_name(self.scenario).to_string(),
+            scenario: self.scenario_name().to_string(),
             sizes: Some(F64Array::new(vec![n, 2], &sizes).expect("shape")),
             goals: Some(F64Array::new(vec![n, 2], &goals).expect("shape")),
             external: Some(U8Array::from_slice(&external)),
