@@ -30,7 +30,8 @@ def test_a_pettingzoo_env_on_composed_scenes_passes_the_api_test(sim_client):
         # A composed scene by name is the same scene again.
         first, _ = env.reset(options={"scenario": "composed-s3-42"})
         again, _ = env.reset(options={"scenario": "composed-s3-42"})
-        np.testing.assert_array_equal(first["vehicle_0"]["features"], again["vehicle_0"]["features"])
+        features = first["vehicle_0"]["features"], again["vehicle_0"]["features"]
+        np.testing.assert_array_equal(*features)
     finally:
         env.close()
 

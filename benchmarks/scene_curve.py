@@ -1,0 +1,101 @@
+"""The generalisation curve's runs: PPO from scratch on a task's recorded train scenes and on
+composed scenes beside them (``scenes=N``, SPEC 5.2.2), one run per arm and seed, resumable.
+
+    .venv/bin/python benchmarks/scene_curve.py --task paper --arms recorded,n1000,unlimited \\
+        --seeds 0 --frames 3145728 --network gcn_uniform
+
+Each run trains with the bench's from-scratch recipe (``sharedspace.bench.rows``: the learning
+rate held for half the run, then annealed to 0) and scores on the validation split carved from
+the recorded train scenes as it goes. A run lives in ``results/scenes/runs/<task>-<arm>-s<seed>``
+(config, metrics.csv, checkpoints); one cut short (a session's end) resumes from its last
+checkpoint on the next call, and a finished one (``done.json``: its last line and its wall
+seconds, summed over the calls) is skipped. Nothing here reads a test scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+RUNS = REPO / "results" / "scenes" / "runs"
+
+#: The arms: the overrides each adds to the recipe.
+ARMS: dict[str, list[str]] = {
+    "recorded": [],
+    "n1000": ["scenes=1000"],
+    "n10000": ["scenes=10000"],
+    "unlimited": ["scenes=-1"],
+}
+
+#: The bench's from-scratch recipe (sharedspace.bench.rows: SCRATCH and its run settings).
+RECIPE = [
+    "algorithm=ppo",
+    "anneal_lr=true",
+    "anneal_start=0.5",
+    "update_threads=1",
+    "checkpoint_interval=524288",
+    "validation_variations=80",
+    "progress=false",
+]
+
+
+def run_one(task: str, arm: str, seed: int, frames: int, network: str) -> dict:
+    """Trains (or resumes, or skips) one run; its ``done.json``."""
+    log_dir = RUNS / f"{task}-{arm}-s{seed}"
+    done = log_dir / "done.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    wall = log_dir / "wall.json"
+    spent = json.loads(wall.read_text())["seconds"] if wall.is_file() else 0.0
+    overrides = [
+        *RECIPE,
+        f"task={task}",
+        f"network={network}",
+        f"seed={seed}",
+        f"total_frames={frames}",
+        f"log_dir={log_dir.relative_to(REPO)}",
+        *ARMS[arm],
+    ]
+    cmd = [sys.executable, "-m", "sharedspace.train", "--set", *overrides]
+    if (log_dir / "checkpoints").is_dir():
+        cmd.append("--resume")
+    print(f"[scene_curve] {' '.join(cmd[1:])}", flush=True)
+    start = time.monotonic()
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    spent += time.monotonic() - start
+    wall.write_text(json.dumps({"seconds": spent}))
+    (log_dir / "train.log").open("a").write(proc.stdout + proc.stderr)
+    if proc.returncode != 0:
+        raise SystemExit(f"{log_dir.name}: exit {proc.returncode}; see {log_dir}/train.log")
+    last = json.loads(proc.stdout.strip().splitlines()[-1])
+    out = {"arm": arm, "seed": seed, "task": task, "wall_seconds": spent, "result": last}
+    done.write_text(json.dumps(out, indent=1))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--task", default="paper")
+    ap.add_argument("--arms", default="recorded,n1000,unlimited")
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--frames", type=int, default=3_145_728)
+    ap.add_argument("--network", default="gcn_uniform")
+    args = ap.parse_args()
+    arms = args.arms.split(",")
+    for arm in arms:
+        if arm not in ARMS:
+            raise SystemExit(f"unknown arm {arm!r}: one of {', '.join(ARMS)}")
+    for seed in (int(s) for s in args.seeds.split(",")):
+        for arm in arms:
+            out = run_one(args.task, arm, seed, args.frames, args.network)
+            print(json.dumps(out), flush=True)
+
+
+if __name__ == "__main__":
+    main()
