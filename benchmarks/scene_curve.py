@@ -9,7 +9,13 @@ rate held for half the run, then annealed to 0) and scores on the validation spl
 the recorded train scenes as it goes. A run lives in ``results/scenes/runs/<task>-<arm>-s<seed>``
 (config, metrics.csv, checkpoints); one cut short (a session's end) resumes from its last
 checkpoint on the next call, and a finished one (``done.json``: its last line and its wall
-seconds, summed over the calls) is skipped. Nothing here reads a test scene.
+seconds, summed over the calls) is skipped. Nothing in the training reads a test scene.
+
+``--report`` scores each finished run's last checkpoint on the recorded train scenes (each once,
+as recorded: what it fits), the validation split (its last scoring, in the trainer's variations)
+and the bench task's test scenes (``python -m sharedspace.bench TASK``, reported beside, never
+chosen on), pooled per arm, into ``results/scenes/curve-<task>.json``; ``score.json`` in a run's
+directory keeps its scores.
 """
 
 from __future__ import annotations
@@ -79,6 +85,62 @@ def run_one(task: str, arm: str, seed: int, frames: int, network: str) -> dict:
     return out
 
 
+def score_run(log_dir: Path, task: str) -> dict:
+    """A finished run's last checkpoint on the recorded train scenes, the validation split and
+    the bench task's test scenes (kept in the run's ``score.json``)."""
+    kept = log_dir / "score.json"
+    if kept.is_file():
+        return json.loads(kept.read_text())
+    from sharedspace.bench.score import score
+    from sharedspace.train.checkpoint import last_checkpoint
+    from sharedspace.train.evaluation import evaluate_split
+    from sharedspace.train.learners import load_checkpoint_actor
+
+    ckpt = last_checkpoint(str(log_dir))
+    cfg, actor = load_checkpoint_actor(ckpt)
+    out = {"checkpoint": str(Path(ckpt).relative_to(REPO))}
+    for split in ("train", "validation"):
+        summary = evaluate_split(cfg, actor, split)["summary"]
+        out[split] = {k: summary[k] for k in ("episodes", "success", "collision", "timeout")}
+    test = score(task, [ckpt], name=log_dir.name)
+    out["test"] = {
+        "episodes": test.summary["episodes"],
+        **{k: test.summary[k]["rate"] for k in ("success", "collision", "timeout")},
+    }
+    kept.write_text(json.dumps(out, indent=1))
+    return out
+
+
+def report(task: str) -> None:
+    """Every finished run of ``task`` scored, pooled per arm, and a markdown table."""
+    arms: dict[str, list[dict]] = {}
+    for done in sorted(RUNS.glob(f"{task}-*-s*/done.json")):
+        run = json.loads(done.read_text())
+        run["score"] = score_run(done.parent, task)
+        arms.setdefault(run["arm"], []).append(run)
+    rows = {}
+    print("| arm | seeds | frames | wall (min/run) | train scenes | validation | test success / collision |")
+    print("|---|---|---|---|---|---|---|")
+    for arm, runs in arms.items():
+        mean = lambda split, key: sum(r["score"][split][key] for r in runs) / len(runs)  # noqa: E731
+        rows[arm] = {
+            "seeds": [r["seed"] for r in runs],
+            "frames": runs[0]["result"]["counters"]["frames"],
+            "wall_min": sum(r["wall_seconds"] for r in runs) / len(runs) / 60,
+            **{
+                split: {k: mean(split, k) for k in ("success", "collision", "timeout")}
+                for split in ("train", "validation", "test")
+            },
+        }
+        r = rows[arm]
+        print(
+            f"| {arm} | {len(runs)} | {r['frames']} | {r['wall_min']:.1f} | "
+            f"{r['train']['success']:.3f} | {r['validation']['success']:.3f} | "
+            f"{r['test']['success']:.3f} / {r['test']['collision']:.3f} |"
+        )
+    (REPO / "results" / "scenes" / f"curve-{task}.json").write_text(json.dumps(rows, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", default="paper")
@@ -86,7 +148,11 @@ def main() -> None:
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--frames", type=int, default=3_145_728)
     ap.add_argument("--network", default="gcn_uniform")
+    ap.add_argument("--report", action="store_true", help="score the finished runs instead")
     args = ap.parse_args()
+    if args.report:
+        report(args.task)
+        return
     arms = args.arms.split(",")
     for arm in arms:
         if arm not in ARMS:
