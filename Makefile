@@ -74,7 +74,7 @@ WHEEL_MAX_GLIBC := 2.17
 # `python -m sharedspace.viewer` needs no checkout.
 PAGE_IN_PACKAGE := clients/src/sharedspace/viewer_page
 # ... and the paper's scenario pool (what the server embeds as hbs-paper), so that an installed
-# trainer carves its validation split from it (sharedspace.worlds.validation_pool_file).
+# trainer carves its validation split from it (sharedspace.worlds.held_out_scenes).
 POOL_IN_PACKAGE := clients/src/sharedspace/pool_data
 wheel: $(WHEEL_TOOLS) $(VIEWER_PAGE) ## the server's wheel (manylinux2014) and sdist, and the Python package's wheel (with the viewer's page), in dist/
 	rm -f $(DIST)/sharedspace*.whl $(DIST)/sharedspace_server-*.tar.gz

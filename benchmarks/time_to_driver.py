@@ -41,6 +41,7 @@ from pathlib import Path
 from overlap_ab import ROOT, code_env  # benchmarks/, beside this script
 
 from sharedspace.train.config import load_config
+from sharedspace.worlds import validation_label
 
 RECIPE = [
     "task=crowd",
@@ -184,7 +185,8 @@ def main() -> None:
         )
     done["recipe"], done["after_settings"] = recipe, args.after_set
     # what "validation" is: the carve of the task's train scenes, named by its pool's content
-    done["validation_pool"] = Path(load_config(None, RECIPE).training_pool()).name
+    cfg = load_config(None, RECIPE)
+    done["validation_pool"] = validation_label(cfg.scenario_pool, cfg.validation_scenes) + ".json"
     codes = {"before": args.before, "after": args.after}
     settings = {"before": args.set, "after": args.set + args.after_set}
     for i, seed in enumerate(args.seeds):

@@ -29,12 +29,11 @@ mkdir -p "$out"
 
 port=$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 endpoint="tcp/127.0.0.1:$port"
-# The validation split the trainer carves from the paper pool's train scenes (task=paper): the
-# server serves it beside the embedded pools, so that the run's curves never touch test scenes.
-validation=$("$py" -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(task="paper", device="cpu").carve_validation())')
+# The embedded pools: the trainer's validation split (task=paper) is a selection of the paper
+# pool's train scenes it asks for by name, so that the run's curves never touch test scenes.
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$endpoint\"]" \
     --cfg server_id:main --cfg 'params:"params/table2.json5"' \
-    --cfg "pools:[\"embedded:hbs-paper\",\"embedded:hbs-general\",\"$validation\"]" > "$out/server.log" 2>&1 &
+    --cfg 'pools:["embedded:hbs-paper","embedded:hbs-general"]' > "$out/server.log" 2>&1 &
 server_pid=$!
 trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT
 echo "== sim-server serving on $endpoint (log: $out/server.log)"

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs a command next to a fresh `sim-server serve` on a free loopback port, then stops the
 # server. The command sees the endpoint in $SHAREDSPACE_ENDPOINT (prefix `sharedspace`). The server
-# serves the embedded pools and the validation pool of a default trainer config.
+# serves the embedded pools (a trainer's validation split is a selection of their train scenes
+# it asks for by name).
 # Usage: scripts/with_server.sh COMMAND [ARGS...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -9,11 +10,8 @@ server=target/release/sim-server
 port=$(.venv/bin/python -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 export SHAREDSPACE_ENDPOINT="tcp/127.0.0.1:$port"
 mkdir -p out
-# The embedded pools, and the validation split a default trainer config carves from hbs-paper's
-# train scenes (docs/ARCHITECTURE.md, "Validation, not test").
-validation=$(.venv/bin/python -c 'from sharedspace.train.config import TrainConfig; print(TrainConfig(device="cpu").carve_validation())')
 RUST_LOG=${RUST_LOG:-warn} "$server" serve --cfg "zenoh/listen/endpoints:[\"$SHAREDSPACE_ENDPOINT\"]" \
-    --cfg "pools:[\"embedded:hbs-paper\",\"embedded:hbs-general\",\"$validation\"]" \
+    --cfg 'pools:["embedded:hbs-paper","embedded:hbs-general"]' \
     > out/server-$port.log 2>&1 &
 server_pid=$!
 trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EXIT

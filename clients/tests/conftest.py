@@ -85,18 +85,6 @@ def start_server(prefix: str, server_id: str, *extra_cfg: str) -> SimServer:
     return SimServer(binary, prefix, server_id, *extra_cfg)
 
 
-def validation_pools_cfg() -> str:
-    """The ``pools`` setting of a server that serves what a default trainer config asks of a
-    remote server: the embedded pools (hbs-paper the default) and the validation pool carved
-    from hbs-paper's train scenes (:func:`sharedspace.worlds.validation_pool_file`)."""
-    import json
-
-    from sharedspace.train.config import TrainConfig
-
-    carved = TrainConfig(device="cpu").carve_validation()
-    return "pools:" + json.dumps(["embedded:hbs-paper", "embedded:hbs-general", carved])
-
-
 def unique_prefix() -> str:
     return f"sstest{os.getpid()}x{uuid.uuid4().hex[:6]}"
 
@@ -104,8 +92,8 @@ def unique_prefix() -> str:
 @pytest.fixture(scope="session")
 def sim_server():
     """One live server for the session (its own random port and key prefix), serving the
-    embedded pools and the validation split a default trainer config carves from hbs-paper."""
-    server = start_server(unique_prefix(), "srv0", validation_pools_cfg())
+    embedded pools (a trainer's validation split is asked of it by name: CreateEnv.exclude)."""
+    server = start_server(unique_prefix(), "srv0")
     yield server
     server.stop()
 

@@ -54,8 +54,8 @@ def test_scenes_compose_from_the_train_scenes_less_the_validation_split():
     cfg = TrainConfig(algorithm="ppo", task="paper", scenes=1000, device="cpu")
     composed = cfg.env_spec("train", 0).composed
     assert (composed.scenes, composed.source) == (1000, "hbs-paper")
-    carved = json.loads(open(cfg.carve_validation()).read())
-    validation = {s["name"] for s in carved["scenarios"] if s["split"] == "test"}
+    pool = cfg.pool_scenes()
+    validation = {pool[i]["name"] for i in cfg.scene_indices("validation")}
     assert set(composed.hold_out) == validation and len(validation) == cfg.validation_scenes
     # Validation and test envs play recorded scenes only.
     assert cfg.env_spec("validation", 0).composed is None

@@ -1,11 +1,11 @@
 """Building a config does nothing else: for every task and algorithm family, from the dataclass
-or from the command line's words, no file is written (not the validation carve, not under the
-working directory, not under HOME) and no server is asked; the carve is written when a run
-first needs it."""
+or from the command line's words, no file is written (not under the working directory, not
+under HOME, not in the package's cache) and no server is asked. The validation carve is a
+selection of the pool's train scenes by name, never a file: the training envs exclude it and
+the validation envs play it."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -47,20 +47,25 @@ def test_building_a_config_writes_nothing(task, algorithm, empty_places):
     TrainConfig(algorithm=algorithm, task=task, device="cpu")
     cfg.env_spec("train", 0, cfg.variations)
     cfg.env_spec("validation", 0)
-    assert cfg.training_pool()  # its path is known
     assert _files(cwd) == _files(home) == _files(carve) == []
-    # a run's first need writes it, where the path said
-    if cfg.eval_split == "validation" and cfg.scenario_pool is not None:
-        path = cfg.carve_validation()
-        assert Path(path).is_file() and Path(path).parent == carve / "validation"
-        assert cfg.pool_of("validation") == path
 
 
-def test_the_carve_is_written_once_and_not_again(empty_places):
-    _, _, carve = empty_places
+def test_the_validation_carve_is_a_seeded_selection_of_the_train_scenes_asked_by_name():
+    import random
+
     cfg = TrainConfig(algorithm="ppo", task="paper", device="cpu")
-    path = Path(cfg.carve_validation())
-    stamp = path.stat().st_mtime_ns
-    os.utime(path, ns=(stamp - 10**9, stamp - 10**9))
-    assert Path(cfg.carve_validation()) == path
-    assert path.stat().st_mtime_ns == stamp - 10**9  # read, not rewritten
+    pool = cfg.pool_scenes()
+    train = [s["name"] for s in pool if s["split"] == "train"]
+    sampled = set(random.Random(0).sample(train, cfg.validation_scenes))
+    held = cfg.validation_names()
+    assert set(held) == sampled and list(held) == [n for n in train if n in sampled]
+    # train less validation, the validation split and the test scenes partition the pool
+    parts = [cfg.scene_indices(split) for split in ("train", "validation", "test")]
+    assert sorted(i for part in parts for i in part) == list(range(len(pool)))
+    assert [pool[i]["name"] for i in parts[1]] == list(held)
+    # the training envs exclude it, the others do not; eval_split=test carves nothing
+    assert cfg.env_spec("train", 0).exclude == held
+    assert cfg.env_spec("validation", 0).exclude == () == cfg.env_spec("test", 0).exclude
+    assert cfg.env_spec("validation", 0).split == "train"
+    plain = TrainConfig(algorithm="ppo", task="paper", eval_split="test", device="cpu")
+    assert plain.validation_names() == () and plain.scene_indices("validation") == []

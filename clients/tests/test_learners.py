@@ -279,7 +279,7 @@ def test_every_refusal_of_the_registries_and_the_reader_names_what_was_wrong(tmp
     from sharedspace.train.checkpoint import NotACheckpoint
     from sharedspace.train.networks import Network, register_network
     from sharedspace.train.registry import Algorithm, register_algorithm
-    from sharedspace.worlds import validation_pool_file
+    from sharedspace.worlds import held_out_scenes
 
     with pytest.raises(ValueError, match="'s_sac' is taken by network 'mlp'"):
         register_network(Network("other", "Other", lambda cfg, norm: None, aliases=("s_sac",)))
@@ -303,4 +303,4 @@ def test_every_refusal_of_the_registries_and_the_reader_names_what_was_wrong(tmp
         make_policy(nobody, get_task("crowd"))
 
     with pytest.raises(FileNotFoundError, match="carved from a pool file"):
-        validation_pool_file(str(tmp_path / "no-pool.json"), 12)
+        held_out_scenes(str(tmp_path / "no-pool.json"), 12)

@@ -117,6 +117,7 @@ pub fn create_env() -> CreateEnv {
         autoreset: true,
         realtime_factor: 1.0,
         synthetic: None,
+        exclude: Vec::new(),
         composed: None,
         variations: None,
         vehicle_model: None,
@@ -143,6 +144,7 @@ pub fn create_env_full() -> CreateEnv {
             seed: 3,
             scenes: 4,
         }),
+        exclude: vec!["hbs-car1130".to_string()],
         composed: Some(ComposedScenes {
             scenes: Some(1000),
             seed: 7,

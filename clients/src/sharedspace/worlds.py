@@ -8,10 +8,11 @@ training variations. A checkpoint trained so records the task, and ``python -m s
 TASK --policy CKPT`` scores it with no other flag.
 
 **Validation.** Nothing is chosen on test scenes. :func:`validation_pool` carves
-``validation_scenes`` of a pool's train scenes (drawn by a fixed seed) into a pool file of its
-own (``out/validation/``): their split is ``test``, the rest ``train``, and the original test
-scenes are left out, so a run trained on its train split and scored on its ``test`` split never
-sees the task's test scenes. The trainer's curves (``eval/*``) are drawn on it by default.
+``validation_scenes`` of a pool's train scenes (drawn by a fixed seed) off as the validation
+split, and :func:`held_out_scenes` names them: a trainer's envs draw the other train scenes
+(``CreateEnv.exclude``) and its validation envs play those by name, so a run never sees the
+task's test scenes, and any server of the pool serves every trainer's carve. The trainer's
+curves (``eval/*``) are drawn on it by default.
 """
 
 from __future__ import annotations
@@ -35,10 +36,10 @@ __all__ = [
     "TRAINING_VARIATIONS",
     "TrainingTask",
     "UnknownTask",
+    "held_out_scenes",
     "training_task",
     "validation_pool",
-    "validation_pool_file",
-    "validation_pool_path",
+    "validation_label",
     "world_params_file",
 ]
 
@@ -200,15 +201,13 @@ def _held_out_scenes(source: str, n: int, seed: int) -> tuple[str, tuple[str, ..
     return doc["name"], tuple(s["name"] for s in doc["scenarios"] if s["name"] in held)
 
 
-def validation_pool_path(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:
-    """Where :func:`validation_pool_file` keeps the carve of the pool file ``pool`` ("" =
-    hbs-paper): under ``out`` (default ``REPO/out/validation``, or
-    ``~/.cache/sharedspace/validation`` outside a checkout), named by the source's content so
-    that a changed pool gets a new file. Reads the source and writes nothing."""
+def validation_label(pool: str, n: int, seed: int = 0) -> str:
+    """A name for the carve of ``n`` validation scenes of the pool file ``pool`` ("" =
+    hbs-paper) with ``seed``, by the source's content, so that a changed pool gets a new one
+    (what a result records of the validation split it was scored on)."""
     source = _pool_source(pool)
     digest = hashlib.sha256(source.read_bytes()).hexdigest()[:12]
-    name = f"{source.stem}-{digest}-validation-{n}-s{seed}.json"
-    return Path(out or _cache_dir("validation")) / name
+    return f"{source.stem}-{digest}-validation-{n}-s{seed}"
 
 
 def _pool_source(pool: str) -> Path:
@@ -218,17 +217,3 @@ def _pool_source(pool: str) -> Path:
             f"the validation split is carved from a pool file, and {source} is missing"
         )
     return source
-
-
-def validation_pool_file(pool: str, n: int, seed: int = 0, out: str | Path = "") -> Path:
-    """The file of :func:`validation_pool` for the pool file ``pool``, at
-    :func:`validation_pool_path`, written there once (when a run starts, not when its config
-    is built)."""
-    path = validation_pool_path(pool, n, seed, out)
-    if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        doc = validation_pool(json.loads(_pool_source(pool).read_bytes()), n, seed)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(doc))
-        tmp.replace(path)
-    return path

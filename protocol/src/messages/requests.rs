@@ -87,6 +87,10 @@ pub struct CreateEnv {
     /// Generated scenes instead of a pool (nil: draw from `pool`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub synthetic: Option<SyntheticScenes>,
+    /// Scenarios of the split never drawn, by name: a validation split the trainer holds out
+    /// (empty: none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub exclude: Vec<String>,
     /// Scenes composed from the recorded parts of a pool's train scenes, drawn beside (or
     /// instead of) the pool's (nil: none; SPEC 5.2.2).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -199,6 +203,7 @@ impl CreateEnv {
             autoreset: false,
             realtime_factor: default_realtime_factor(),
             synthetic: None,
+            exclude: Vec::new(),
             composed: None,
             variations: None,
             vehicle_model: None,

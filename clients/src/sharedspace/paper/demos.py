@@ -40,7 +40,6 @@ from torchrl.envs.utils import step_mdp
 from sharedspace.cli import run_command
 from sharedspace.paper.drivers import make_driver
 from sharedspace.paper.planner import Cell, cell_name, open_loop_search
-from sharedspace.pool import load_pool, split_indices
 from sharedspace.train.config import (
     TrainConfig,
     add_overrides_argument,
@@ -175,11 +174,11 @@ def record_demos(
     log=print,
 ) -> tuple[TensorDict, dict[str, dict[str, Any]]]:
     """Every source of ``recipe`` on the train split of ``cfg``'s world (without the scenes
-    carved off as its validation split, :meth:`TrainConfig.training_pool`); returns the
+    carved off as its validation split, :meth:`TrainConfig.scene_indices`); returns the
     transitions (labelled with their ``source`` code, episodes numbered across sources) and
     the per-source summary of the header."""
-    pool = load_pool(cfg.pool_of("train") or None)  # the validation scenes left out
-    names = [pool[i]["name"] for i in split_indices(pool, "train")]
+    pool = cfg.pool_scenes()
+    names = [pool[i]["name"] for i in cfg.scene_indices("train")]  # the validation split left out
     parts: list[TensorDict] = []
     sources: dict[str, dict[str, Any]] = {}
     failed: dict[str, list[dict[str, Any]]] = {}  # source -> its episodes that did not arrive

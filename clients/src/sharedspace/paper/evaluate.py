@@ -32,7 +32,7 @@ import numpy as np
 from sharedspace.cli import run_command
 from sharedspace.episodes import BENCHMARK_VARIATIONS, variation_batches
 from sharedspace.paper.drivers import DRIVERS, make_driver
-from sharedspace.pool import load_pool, recorded_headings, split_indices
+from sharedspace.pool import load_pool, recorded_headings
 from sharedspace.stats import wilson
 from sharedspace.train.config import (
     TrainConfig,
@@ -140,8 +140,7 @@ def play_variations(
     (scenario, variation), each record with its ``variation`` seed. Envs of whole variations
     (:func:`sharedspace.episodes.variation_batches`). ``fresh_policy()``, if given, makes the
     policy anew for each env (a driver that counts its steps)."""
-    pool = load_pool(cfg.pool_of(split) or None)
-    n = len(split_indices(pool, split))
+    n = len(cfg.scene_indices(split))
     episodes: list[dict[str, Any]] = []
     for seeds in variation_batches(n, variations, first):
         env = make_env(
@@ -212,8 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
         actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver
     result = evaluate_policy(cfg, actor, args.split, args.variations, args.variation_spec)
-    pool = load_pool(cfg.pool_of(args.split) or None)
-    human = human_episodes(pool, split_indices(pool, args.split))
+    human = human_episodes(cfg.pool_scenes(), cfg.scene_indices(args.split))
     rows = {name: result["summary"]}
     if args.variations <= 0:  # the record is the recorded scene's, not a variation's
         rows["human"] = summarize(human)

@@ -15,7 +15,7 @@ from typing import Any
 from sharedspace.cli import UserError, did_you_mean
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
-from sharedspace.pool import DEFAULT_POOL_PATH
+from sharedspace.pool import load_pool, split_indices
 from sharedspace.train.networks import (
     NetworkConfig,
     UnknownNetwork,
@@ -34,8 +34,6 @@ from sharedspace.worlds import (
     UnknownTask,
     held_out_scenes,
     training_task,
-    validation_pool_file,
-    validation_pool_path,
     world_params_file,
 )
 
@@ -351,45 +349,47 @@ class TrainConfig:
             out["validation"] = {"scenes": self.validation_scenes, "seed": 0}
         return out
 
-    def training_pool(self) -> str:
-        """The pool file the envs draw from: with ``eval_split=validation`` the pool carved
-        from ``scenario_pool``'s train scenes (:func:`sharedspace.worlds.validation_pool_path`:
-        its ``train`` split is trained on, its ``test`` split is the validation split); else
-        ``scenario_pool``. Its path only: :meth:`carve_validation` writes it."""
+    def validation_names(self) -> tuple[str, ...]:
+        """The train scenes of ``scenario_pool`` carved off as the validation split, in pool
+        order (:func:`sharedspace.worlds.validation_pool`: ``random.Random(0).sample``); none
+        with ``eval_split=test``. The training envs never draw them (``CreateEnv.exclude``), so
+        any server of the pool serves every trainer's carve. Reads the pool file once per
+        process and writes nothing."""
         if self.eval_split != "validation":
-            return self.scenario_pool
-        return str(validation_pool_path(self.scenario_pool, self.validation_scenes))
+            return ()
+        return held_out_scenes(self.scenario_pool, self.validation_scenes)[1]
 
-    def carve_validation(self) -> str:
-        """:meth:`training_pool`, the carved validation pool written first if it is not there
-        yet: when a run, a scoring or a server first needs it, never while the config is
-        built."""
-        if self.eval_split != "validation":
-            return self.scenario_pool
-        return str(validation_pool_file(self.scenario_pool, self.validation_scenes))
+    def pool_scenes(self) -> list[dict[str, Any]]:
+        """``scenario_pool``'s scenes in pool order: what an env's ``scenario_index`` indexes."""
+        return load_pool(self.scenario_pool or None)
 
-    def pool_of(self, split: str) -> str:
-        """The pool file an env of ``split`` plays (its scenes' indices are that file's): the
-        training pool for ``train`` and ``validation`` (carved now if need be),
-        ``scenario_pool`` for ``test``."""
-        return self.carve_validation() if split in ("train", "validation") else self.scenario_pool
+    def scene_indices(self, split: str) -> list[int]:
+        """Indices into :meth:`pool_scenes` of the recorded scenes an env of ``split`` plays:
+        the train scenes less the validation split (``train``), the validation split, or the
+        test scenes."""
+        pool = self.pool_scenes()
+        if split == "test":
+            return split_indices(pool, "test")
+        held = set(self.validation_names())
+        keep = split == "validation"
+        return [i for i in split_indices(pool, "train") if (pool[i]["name"] in held) == keep]
 
     def env_spec(self, split: str, seed: int, variations: dict[str, Any] | None = None) -> EnvSpec:
-        """The envs this config trains or evaluates on: ``split`` (``validation`` is the
-        validation pool's ``test``), ``seed`` and scene ``variations``. Writes nothing: the
-        env's connection (:meth:`connection`) carves the validation pool."""
-        pool = self.training_pool() if split in ("train", "validation") else self.scenario_pool
-        composed = self.composed_scenes() if split == "train" else None
+        """The envs this config trains or evaluates on: ``split`` (``train`` draws the pool's
+        train scenes less the validation split; ``validation`` envs play the validation scenes
+        by name, :func:`sharedspace.train.envs.make_env`), ``seed`` and scene ``variations``.
+        Writes nothing."""
         return EnvSpec(
-            pool=pool or None,
-            split="test" if split == "validation" else split,
+            pool=self.scenario_pool or None,
+            split="test" if split == "test" else "train",
             seed=seed,
             pedestrian_model=self.pedestrian_model,
             max_agents=self.max_agents,
             variations=variations or None,
             vehicle_model=self.vehicle_model or None,
             reward_weights=self.world_reward_weights,
-            composed=composed,
+            exclude=self.validation_names() if split == "train" else (),
+            composed=self.composed_scenes() if split == "train" else None,
         )
 
     def composed_scenes(self) -> ComposedScenes | None:
@@ -409,12 +409,9 @@ class TrainConfig:
 
     def connection(self) -> Connection:
         """Where the envs live (:meth:`sharedspace.client.Connection.resolve`): the zenoh file,
-        else the endpoint, else a local ``sim-server`` of this config's pools (the validation
-        pool too, carved now if need be) and parameters; with ``failover``."""
-        carved = self.carve_validation()  # a local server serves it, a client reads its name
+        else the endpoint, else a local ``sim-server`` of this config's pool (the server's
+        embedded pools for the default) and parameters; with ``failover``."""
         pools = [self.scenario_pool]
-        if carved != self.scenario_pool:  # the pool first: the server's default stays its own
-            pools = [self.scenario_pool or str(DEFAULT_POOL_PATH), carved]
         params = self.server_params or None
         if params and self.task and params == training_task(self.task).server_params:
             params = str(world_params_file(training_task(self.task)))  # found outside a checkout

@@ -10,8 +10,6 @@ from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from sharedspace.scripted import SCRIPTED
-from sharedspace.train.config import ConfigError
-from sharedspace.wire.errors import BadRequest
 
 __all__ = ["ResidualAction", "make_env"]
 
@@ -31,29 +29,25 @@ def make_env(
     (an endpoint, a zenoh file, or a ``sim-server`` this process starts). ``variations`` (and
     fixed ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1; the trainer passes
     ``cfg.variations`` for its training env only. ``scenarios``: sub-env ``k`` plays
-    ``scenarios[k]`` (scenes of ``split``), in sequential order. With ``cfg.base_driver`` the
-    policy's action is a residual over that script (:class:`ResidualAction`)."""
+    ``scenarios[k]`` (scenes of ``split``), in sequential order; a ``validation`` env, and a
+    sequential ``train`` one, play :meth:`TrainConfig.scene_indices`'s scenes by name. With
+    ``cfg.base_driver`` the policy's action is a residual over that script
+    (:class:`ResidualAction`)."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
     spec = cfg.env_spec(split, cfg.seed if seed is None else seed, variations)
-    try:
-        env = RemoteBatchedEnv(
-            spec,
-            num_envs or cfg.num_envs,
-            scenario_order=scenario_order,
-            scenarios=scenarios,
-            variation_seeds=variation_seeds,
-            client=cfg.connection(),
-        )
-    except BadRequest as err:
-        if "unknown pool" in str(err) and spec.pool == cfg.training_pool() != cfg.scenario_pool:
-            raise ConfigError(
-                f"eval_split=validation: the server does not serve the validation pool carved "
-                f"from the train scenes ({spec.pool}); serve it beside the others (`sim-server "
-                f"serve --cfg 'pools:[..., \"{spec.pool}\"]'`, docs/ARCHITECTURE.md "
-                '"Validation, not test"), or set eval_split=test'
-            ) from err
-        raise
+    if scenarios is None and split != "test":
+        if split == "validation" or scenario_order == "sequential":  # by name, in pool order
+            pool = cfg.pool_scenes()
+            scenarios = [pool[i]["name"] for i in cfg.scene_indices(split)]
+    env = RemoteBatchedEnv(
+        spec,
+        num_envs or cfg.num_envs,
+        scenario_order=scenario_order,
+        scenarios=scenarios,
+        variation_seeds=variation_seeds,
+        client=cfg.connection(),
+    )
     if not cfg.base_driver:
         return env
     return TransformedEnv(env, ResidualAction(cfg.base_driver, scale=cfg.residual_scale))

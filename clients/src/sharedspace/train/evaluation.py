@@ -22,7 +22,6 @@ from sharedspace.episodes import (
     summarize,
     variation_batches,
 )
-from sharedspace.pool import load_pool, split_indices
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import make_env
 
@@ -41,8 +40,7 @@ def evaluate_split(cfg: TrainConfig, actor, split: str = "test") -> dict[str, An
     per-episode records and the summary."""
     if split == "validation":
         return _evaluate_validation(cfg, actor)
-    pool = load_pool(cfg.pool_of(split) or None)
-    n = len(split_indices(pool, split))
+    n = len(cfg.scene_indices(split))
     env = make_env(cfg, split=split, num_envs=n, seed=cfg.seed, scenario_order="sequential")
     try:
         episodes = run_episodes(env, actor)

@@ -174,6 +174,8 @@ class EnvSpec(Checked):
     realtime_factor: Annotated[float, msgspec.Meta(gt=0)] = 1.0
     #: Generated scenes instead of a pool's.
     synthetic: SyntheticScenes | None = None
+    #: Scenarios of the split never drawn, by name (a validation split held out).
+    exclude: tuple[str, ...] = ()
     #: Scenes composed from the recorded parts of a pool's train scenes.
     composed: ComposedScenes | None = None
     #: Seeded scene variations, one per episode (None: the pool's, if it has some).
@@ -209,6 +211,8 @@ def create_env(
     for key in _OMITTED_WHEN_NONE:
         if fields[key] is None:
             del fields[key]
+    if not fields["exclude"]:  # omitted when empty, as the server does
+        del fields["exclude"]
     return head | fields
 
 

@@ -117,7 +117,8 @@ impl ServerCore {
         let externals = external_agents(&req.external_agents)?;
         let split = split_of(req.split);
         let composed = self.composed_of(req.composed.as_ref(), &pool, split, &externals)?;
-        let (candidates, pinned) = episode_candidates(&pool, split, &externals, &req.scenario)?;
+        let (candidates, pinned) =
+            episode_candidates(&pool, split, &externals, &req.scenario, &req.exclude)?;
         let spec = Arc::new(EnvSpec {
             client_id: req.client_id.clone(),
             pool: pool.clone(),
@@ -366,9 +367,24 @@ fn episode_candidates(
     split: Split,
     externals: &[ExternalAgent],
     scenario: &Option<String>,
+    exclude: &[String],
 ) -> Result<(Vec<usize>, Option<usize>), ErrorReply> {
     let need = AgentsNeeded::of(externals);
-    let candidates = pool.candidates(split, need);
+    let mut excluded = Vec::with_capacity(exclude.len());
+    for name in exclude {
+        let i = pool.find(name).ok_or_else(|| {
+            bad(format!(
+                "exclude: no scenario {name:?} in pool {:?}",
+                pool.name
+            ))
+        })?;
+        excluded.push(i);
+    }
+    let candidates: Vec<usize> = pool
+        .candidates(split, need)
+        .into_iter()
+        .filter(|i| !excluded.contains(i))
+        .collect();
     let pinned = match scenario {
         None => None,
         Some(name) => {
@@ -377,7 +393,8 @@ fn episode_candidates(
                 .ok_or_else(|| bad(format!("no scenario {name:?} in pool {:?}", pool.name)))?;
             if !candidates.contains(&i) {
                 return Err(bad(format!(
-                    "scenario {name:?} is not in split {:?} of pool {:?} or has fewer than {need}",
+                    "scenario {name:?} is not in split {:?} of pool {:?}, has fewer than {need} \
+                     or is excluded",
                     split, pool.name
                 )));
             }
@@ -386,8 +403,9 @@ fn episode_candidates(
     };
     if candidates.is_empty() {
         return Err(bad(format!(
-            "split {split:?} of pool {:?} has no scenario with {need}",
-            pool.name
+            "split {split:?} of pool {:?} has no scenario with {need} (less {} excluded)",
+            pool.name,
+            excluded.len()
         )));
     }
     Ok((candidates, pinned))

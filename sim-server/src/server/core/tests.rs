@@ -515,3 +515,25 @@ fn a_composed_request_that_cannot_be_served_is_refused_by_name() {
     }
     assert_eq!(c.load(), load);
 }
+
+#[test]
+fn excluded_scenarios_are_never_drawn_and_the_rest_keep_their_order() {
+    let c = core(Limits::default());
+    let held = ["hbs-car1116".to_string(), "hbs-car1130".to_string()];
+    let mut req = CreateEnv::new("held");
+    req.exclude = held.to_vec();
+    let id = &create(&c, &req).env_ids[0];
+    let drawn: BTreeSet<String> = (0..200).map(|_| reset(&c, id).scenario).collect();
+    assert!(drawn.iter().all(|n| !held.contains(n)), "{drawn:?}");
+    assert_eq!(drawn.len(), 59 - 2, "every other train scene is drawn");
+    let e = reset_to(&c, id, "hbs-car1116").unwrap_err();
+    assert!(e.message.contains("candidates"), "{e}");
+    let mut unknown = req.clone();
+    unknown.exclude = vec!["hbs-car0".into()];
+    let e = err_of(&c.handle_create(&encode(&unknown), Instant::now()).reply);
+    assert!(e.message.contains("exclude: no scenario \"hbs-car0\""), "{e}");
+    let mut pinned = req.clone();
+    pinned.scenario = Some("hbs-car1130".into());
+    let e = err_of(&c.handle_create(&encode(&pinned), Instant::now()).reply);
+    assert!(e.message.contains("excluded"), "{e}");
+}
