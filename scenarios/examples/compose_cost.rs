@@ -46,7 +46,10 @@ fn main() {
         build += clock.elapsed().as_secs_f64();
         let clock = Instant::now();
         while !world.is_over() {
-            let actions: Vec<_> = world.active_externals().map(|id| (id, [0.3, 0.0])).collect();
+            let actions: Vec<_> = world
+                .active_externals()
+                .map(|id| (id, [0.3, 0.0]))
+                .collect();
             world.step(&actions).expect("a step");
             steps += 1;
         }

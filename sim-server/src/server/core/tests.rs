@@ -531,7 +531,10 @@ fn excluded_scenarios_are_never_drawn_and_the_rest_keep_their_order() {
     let mut unknown = req.clone();
     unknown.exclude = vec!["hbs-car0".into()];
     let e = err_of(&c.handle_create(&encode(&unknown), Instant::now()).reply);
-    assert!(e.message.contains("exclude: no scenario \"hbs-car0\""), "{e}");
+    assert!(
+        e.message.contains("exclude: no scenario \"hbs-car0\""),
+        "{e}"
+    );
     let mut pinned = req.clone();
     pinned.scenario = Some("hbs-car1130".into());
     let e = err_of(&c.handle_create(&encode(&pinned), Instant::now()).reply);
