@@ -251,23 +251,28 @@ def test_a_shipped_multi_car_checkpoint_scores_as_published():
     assert policy.source["algorithm"] in ("mappo", "ippo", "masac")
 
 
-def test_a_remote_server_without_the_validation_pool_is_named(server_factory, tmp_path):
-    """The validation split is a pool file of its own: a server that does not serve it is a
-    ConfigError that says which file to serve, or to score on the test split instead."""
-    server = server_factory(unique_prefix(), "noval")  # the embedded pools only
-    cfg = load_config(
-        None,
-        [
-            "algorithm=ppo",
-            "num_envs=2",
-            "total_frames=32",
-            f"server_endpoint={server.endpoint}",
-            f"server_prefix={server.prefix}",
-            f"log_dir={tmp_path}",
-        ],
-    )
-    with pytest.raises(ConfigError, match="does not serve the validation pool .*eval_split=test"):
-        train(cfg)
+def test_a_server_of_the_pool_alone_serves_a_trainer_and_one_without_it_is_named(
+    server_factory, tmp_path
+):
+    """The validation split is asked of the server by name: a server of the embedded pools
+    only serves a default trainer, evaluations on; a server without the run's pool is a
+    ConfigError naming the pool."""
+    server = server_factory(unique_prefix(), "plain")  # the embedded pools only
+    words = [
+        "algorithm=ppo",
+        "num_envs=2",
+        "total_frames=32",
+        "validation_variations=1",
+        f"server_endpoint={server.endpoint}",
+        f"server_prefix={server.prefix}",
+        f"log_dir={tmp_path}",
+    ]
+    out = train(load_config(None, words))
+    assert out["eval"]["episodes"] == 12  # the default carve of hbs-paper, one variation each
+    other = server_factory(unique_prefix(), "other", 'pools:["embedded:hbs-general"]')
+    words += [f"server_endpoint={other.endpoint}", f"server_prefix={other.prefix}"]
+    with pytest.raises(ConfigError, match='unknown pool "hbs-paper".*serve the run\'s pool'):
+        train(load_config(None, words))
 
 
 def test_every_refusal_of_the_registries_and_the_reader_names_what_was_wrong(tmp_path):

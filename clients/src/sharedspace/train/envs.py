@@ -10,6 +10,8 @@ from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
 from sharedspace.scripted import SCRIPTED
+from sharedspace.train.config import ConfigError
+from sharedspace.wire.errors import BadRequest
 
 __all__ = ["ResidualAction", "make_env"]
 
@@ -40,14 +42,23 @@ def make_env(
         if split == "validation" or scenario_order == "sequential":  # by name, in pool order
             pool = cfg.pool_scenes()
             scenarios = [pool[i]["name"] for i in cfg.scene_indices(split)]
-    env = RemoteBatchedEnv(
-        spec,
-        num_envs or cfg.num_envs,
-        scenario_order=scenario_order,
-        scenarios=scenarios,
-        variation_seeds=variation_seeds,
-        client=cfg.connection(),
-    )
+    try:
+        env = RemoteBatchedEnv(
+            spec,
+            num_envs or cfg.num_envs,
+            scenario_order=scenario_order,
+            scenarios=scenarios,
+            variation_seeds=variation_seeds,
+            client=cfg.connection(),
+        )
+    except BadRequest as err:
+        if "unknown pool" not in str(err):
+            raise
+        raise ConfigError(
+            f"{err}: serve the run's pool (`sim-server serve --cfg 'pools:[...]'`; "
+            "docs/ARCHITECTURE.md, \"Validation, not test\") or point the run at a server "
+            "that does"
+        ) from None
     if not cfg.base_driver:
         return env
     return TransformedEnv(env, ResidualAction(cfg.base_driver, scale=cfg.residual_scale))
