@@ -49,8 +49,8 @@ def main() -> None:
     from sharedspace.train.config import TrainConfig
 
     cfg = TrainConfig(algorithm="ppo", task=args.task, device="cpu")
-    recorded = json.loads(Path(cfg.carve_validation()).read_text())["scenarios"]
-    recorded = [s for s in recorded if s["split"] == "train"][:12]
+    pool = cfg.pool_scenes()
+    recorded = [pool[i] for i in cfg.scene_indices("train")][:12]
     composed_file = REPO / "out" / "composed" / f"{args.task}-s0-{args.scenes}.json"
     if not composed_file.is_file():
         raise SystemExit(f"{composed_file} is missing: run benchmarks/composed_realism.py first")

@@ -66,7 +66,17 @@ def geometry(scene: dict) -> dict[str, float]:
     }
 
 
-def score(task: str, pool_file: Path, split_pool: bool) -> dict:
+def recorded_train(task_cfg, path: Path) -> Path:
+    """The task's recorded train scenes less its validation split, as a pool file at ``path``."""
+    pool = task_cfg.pool_scenes()
+    source = task_cfg.scenario_pool or "scenarios/data/hbs-paper.json"
+    doc = json.loads((REPO / source).read_text())
+    doc["scenarios"] = [pool[i] for i in task_cfg.scene_indices("train")]
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def score(task: str, pool_file: Path) -> dict:
     """The drivers' outcomes and the scenes' geometry on the train split of ``pool_file``."""
     from sharedspace.paper.drivers import make_driver
     from sharedspace.paper.evaluate import evaluate_policy
@@ -106,9 +116,10 @@ def main() -> None:
     composed = REPO / "out" / "composed" / f"{args.task}-s0-{args.scenes}.json"
     composed.parent.mkdir(parents=True, exist_ok=True)
     compose(task_cfg, args.scenes, composed)
+    recorded = composed.parent / f"{args.task}-recorded-train.json"
     rows = {
-        "recorded train": score(args.task, Path(task_cfg.carve_validation()), True),
-        "composed": score(args.task, composed, False),
+        "recorded train": score(args.task, recorded_train(task_cfg, recorded)),
+        "composed": score(args.task, composed),
     }
     (OUT / f"realism-{args.task}.json").write_text(json.dumps(rows, indent=1))
     head = "| scenes | n | peds within 5 m of path | path (m) | duration (s) | "

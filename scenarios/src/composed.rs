@@ -28,8 +28,9 @@
 //!    recording reached within the horizon.
 //! 3. **Legal**: a draw whose pedestrian starts within [`PEDESTRIAN_GAP`] of another
 //!    pedestrian or within [`VEHICLE_GAP`] of a car, or stands (as recorded) within those gaps
-//!    where a later car enters, is redrawn (at most [`TRIES`] times; then the scene has one
-//!    pedestrian fewer).
+//!    where a later car enters, or whose recorded track touches the recorded car's at any step
+//!    (in the recording nobody ever did), is redrawn (at most [`TRIES`] times; then the scene
+//!    has one pedestrian fewer).
 //!
 //! Only `+ - * /` and `sqrt` touch the coordinates (rotations are unit vectors, never angles),
 //! so a scene is the same bytes on every platform; the legality checks use the footprints'
@@ -522,7 +523,10 @@ impl Parts {
                     continue;
                 };
                 let footprint = TrackFootprint::new(&ped);
-                if used.contains(&key(&ped)) || !starts_clear(&footprint, &agents, &placed) {
+                if used.contains(&key(&ped))
+                    || !starts_clear(&footprint, &agents, &placed)
+                    || meets_the_recorded_car(&footprint, &placed[0], ped.positions.len())
+                {
                     continue;
                 }
                 used.insert(key(&ped));
@@ -623,6 +627,20 @@ fn starts_clear(
             (Some(me), Some(other)) => clearance(&me, &other) > gap,
             _ => true,
         }
+    })
+}
+
+/// Whether a pedestrian's recorded track (footprints `footprint`, `samples` of them from step
+/// 0) touches the recorded car's (`car`) at any step: in the recording nobody ever did, so a
+/// composed scene's record does not either.
+fn meets_the_recorded_car(
+    footprint: &TrackFootprint,
+    car: &TrackFootprint,
+    samples: usize,
+) -> bool {
+    (0..samples as u32).any(|step| match (footprint.at(step), car.at(step)) {
+        (Some(me), Some(c)) => clearance(&me, &c) <= 0.0,
+        _ => false,
     })
 }
 
