@@ -33,6 +33,12 @@ RUNS = REPO / "results" / "scenes" / "runs"
 #: The arms: the overrides each adds to the recipe.
 ARMS: dict[str, list[str]] = {
     "recorded": [],
+    # the cheap road: the task's training variations, wider (position noise 0.5 -> 1.0 m, start
+    # offsets 2 -> 4 steps, desired speed +-0.2 -> +-0.3) and rotated by up to 30 degrees
+    "variations": [
+        'variations={"position_sigma": 1.0, "start_offset_steps": 4, '
+        '"desired_speed_scale": 0.3, "mirror": true, "rotation_deg": 30}'
+    ],
     "n1000": ["scenes=1000"],
     "n10000": ["scenes=10000"],
     "unlimited": ["scenes=-1"],

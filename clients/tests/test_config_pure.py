@@ -69,3 +69,14 @@ def test_the_validation_carve_is_a_seeded_selection_of_the_train_scenes_asked_by
     assert cfg.env_spec("validation", 0).split == "train"
     plain = TrainConfig(algorithm="ppo", task="paper", eval_split="test", device="cpu")
     assert plain.validation_names() == () and plain.scene_indices("validation") == []
+
+
+def test_a_task_s_training_variations_may_be_set_its_world_may_not():
+    from sharedspace.train.config import ConfigError
+
+    wide = {"position_sigma": 1.0, "rotation_deg": 30.0}
+    cfg = TrainConfig(algorithm="ppo", task="paper", variations=wide, device="cpu")
+    assert cfg.variations == wide
+    assert TrainConfig(algorithm="ppo", task="paper", device="cpu").variations != wide
+    with pytest.raises(ConfigError, match="max_agents is set by task=paper"):
+        TrainConfig(algorithm="ppo", task="paper", max_agents=5, device="cpu")

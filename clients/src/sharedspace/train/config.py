@@ -100,6 +100,11 @@ BASE_DEFAULTS: dict[str, Any] = {
 }
 
 
+#: Fields a task sets by default that a run may set otherwise: how it trains and validates,
+#: not the world its policy is scored in.
+TRAINING_CHOICES = ("variations", "validation_scenes", "validation_variations")
+
+
 @dataclass
 class TrainConfig:
     """Every knob of a run, for any registered algorithm, one car or several. One line of doc
@@ -254,8 +259,9 @@ class TrainConfig:
 
     def _take_task(self, task, algo) -> dict[str, Any]:
         """The task's training world into the fields it sets (a world field given another
-        value than the task's is a :class:`ConfigError` naming it; the validation split's size
-        may be set); returns the fields it filled in, with their defaults."""
+        value than the task's is a :class:`ConfigError` naming it; the training variations and
+        the validation split's size may be set: neither changes the task's test side); returns
+        the fields it filled in, with their defaults."""
         if not algo.drives(task.cars):
             raise ConfigError(
                 f"task {task.name} has {task.cars} learning car(s) per scene and algorithm "
@@ -276,7 +282,7 @@ class TrainConfig:
             if given == unset or given == value:
                 setattr(self, name, value)
                 filled[name] = unset
-            elif name not in ("validation_scenes", "validation_variations"):  # the world's
+            elif name not in TRAINING_CHOICES:  # the world's
                 raise ConfigError(
                     f"{name} is set by task={task.name} ({value!r}); this config gives {given!r}"
                 )
