@@ -307,5 +307,5 @@ def test_every_refusal_of_the_registries_and_the_reader_names_what_was_wrong(tmp
     with pytest.raises(BenchError, match="not 'nobodys' \\(register it before scoring\\)"):
         make_policy(nobody, get_task("crowd"))
 
-    with pytest.raises(FileNotFoundError, match="carved from a pool file"):
+    with pytest.raises(FileNotFoundError, match="no-pool.json is missing"):
         held_out_scenes(str(tmp_path / "no-pool.json"), 12)

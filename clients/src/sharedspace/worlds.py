@@ -214,6 +214,7 @@ def _pool_source(pool: str) -> Path:
     source = repo_path(pool) if pool else DEFAULT_POOL_PATH
     if not source.is_file():
         raise FileNotFoundError(
-            f"the validation split is carved from a pool file, and {source} is missing"
+            f"the pool file {source} is missing (a run's envs, validation split and composed "
+            "scenes are read from it)"
         )
     return source

@@ -15,7 +15,7 @@ from typing import Any
 from sharedspace.cli import UserError, did_you_mean
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
-from sharedspace.pool import DEFAULT_POOL_PATH, load_pool, split_indices
+from sharedspace.pool import load_pool, split_indices
 from sharedspace.train.networks import (
     NetworkConfig,
     UnknownNetwork,
@@ -386,7 +386,7 @@ class TrainConfig:
         by name, :func:`sharedspace.train.envs.make_env`), ``seed`` and scene ``variations``.
         Writes nothing."""
         return EnvSpec(
-            pool=self.scenario_pool or str(DEFAULT_POOL_PATH),  # by name: the server must have it
+            pool=held_out_scenes(self.scenario_pool, 0)[0],  # the file's pool, by its name
             split="test" if split == "test" else "train",
             seed=seed,
             pedestrian_model=self.pedestrian_model,
