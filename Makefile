@@ -125,7 +125,7 @@ test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(G
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
 	@# the other end of the torchrl range (0.11, BenchMARL's pin): the envs and a BenchMARL experiment
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 600 $(BENCHMARL_VENV)/bin/python -m pytest clients/tests_benchmarl -q -p no:cacheprovider
-	$(PY) -m ruff check clients calibration benchmarks scripts
+	$(PY) -m ruff check clients calibration benchmarks scripts examples
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 lint: ## cargo fmt --check and clippy -D warnings
@@ -133,7 +133,7 @@ lint: ## cargo fmt --check and clippy -D warnings
 	$(CARGO) clippy --workspace --all-targets --features sim-server/bench -- -D warnings
 
 lint-py: $(VENV)/.installed ## ruff and the import contracts (clients/pyproject.toml) on the Python code
-	$(PY) -m ruff check clients calibration benchmarks scripts
+	$(PY) -m ruff check clients calibration benchmarks scripts examples
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
 
 fmt: ## format the Rust code
