@@ -386,7 +386,9 @@ class TrainConfig:
         by name, :func:`sharedspace.train.envs.make_env`), ``seed`` and scene ``variations``.
         Writes nothing."""
         return EnvSpec(
-            pool=held_out_scenes(self.scenario_pool, 0)[0],  # the file's pool, by its name
+            # the default by its name (hbs-paper, never "the server's first pool"); a file by
+            # its path, which the envs read
+            pool=self.scenario_pool or held_out_scenes("", 0)[0],
             split="test" if split == "test" else "train",
             seed=seed,
             pedestrian_model=self.pedestrian_model,
