@@ -44,6 +44,9 @@ ARMS: dict[str, list[str]] = {
     "unlimited": ["scenes=-1"],
 }
 
+#: The pilots' budget in frames (issue 58's from-scratch budget, chosen there on validation).
+DEFAULT_FRAMES = 3_145_728
+
 #: The bench's from-scratch recipe (sharedspace.bench.rows: SCRATCH and its run settings).
 RECIPE = [
     "algorithm=ppo",
@@ -58,7 +61,8 @@ RECIPE = [
 
 def run_one(task: str, arm: str, seed: int, frames: int, network: str) -> dict:
     """Trains (or resumes, or skips) one run; its ``done.json``."""
-    log_dir = RUNS / f"{task}-{arm}-s{seed}"
+    budget = "" if frames == DEFAULT_FRAMES else f"-{frames / 2**20:g}M"
+    log_dir = RUNS / f"{task}-{arm}{budget}-s{seed}"
     done = log_dir / "done.json"
     if done.is_file():
         return json.loads(done.read_text())
@@ -86,7 +90,7 @@ def run_one(task: str, arm: str, seed: int, frames: int, network: str) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"{log_dir.name}: exit {proc.returncode}; see {log_dir}/train.log")
     last = json.loads(proc.stdout.strip().splitlines()[-1])
-    out = {"arm": arm, "seed": seed, "task": task, "wall_seconds": spent, "result": last}
+    out = {"arm": arm + budget, "seed": seed, "task": task, "wall_seconds": spent, "result": last}
     done.write_text(json.dumps(out, indent=1))
     return out
 
@@ -108,6 +112,9 @@ def score_run(log_dir: Path, task: str) -> dict:
     for split in ("train", "validation"):
         summary = evaluate_split(cfg, actor, split)["summary"]
         out[split] = {k: summary[k] for k in ("episodes", "success", "collision", "timeout")}
+    rows = [ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]]
+    trained = [float(r[3]) for r in rows if len(r) == 4 and r[2] == "train/success"]
+    out["trained_on"] = {"success": trained[-1]}  # its own training scenes, as it played them
     test = score(task, [ckpt], name=log_dir.name)
     out["test"] = {
         "episodes": test.summary["episodes"],
@@ -125,8 +132,9 @@ def report(task: str) -> None:
         run["score"] = score_run(done.parent, task)
         arms.setdefault(run["arm"], []).append(run)
     rows = {}
-    print("| arm | seeds | frames | wall (min/run) | train scenes | validation | test success / collision |")
-    print("|---|---|---|---|---|---|---|")
+    head = "| arm | seeds | frames | wall (min/run) | its training scenes (as played) | "
+    print(head + "recorded train scenes | validation | test success / collision |")
+    print("|---|---|---|---|---|---|---|---|")
     for arm, runs in arms.items():
         mean = lambda split, key: sum(r["score"][split][key] for r in runs) / len(runs)  # noqa: E731
         rows[arm] = {
@@ -137,10 +145,12 @@ def report(task: str) -> None:
                 split: {k: mean(split, k) for k in ("success", "collision", "timeout")}
                 for split in ("train", "validation", "test")
             },
+            "trained_on": {"success": mean("trained_on", "success")},
         }
         r = rows[arm]
         print(
             f"| {arm} | {len(runs)} | {r['frames']} | {r['wall_min']:.1f} | "
+            f"{r['trained_on']['success']:.3f} | "
             f"{r['train']['success']:.3f} | {r['validation']['success']:.3f} | "
             f"{r['test']['success']:.3f} / {r['test']['collision']:.3f} |"
         )
@@ -152,7 +162,7 @@ def main() -> None:
     ap.add_argument("--task", default="paper")
     ap.add_argument("--arms", default="recorded,n1000,unlimited")
     ap.add_argument("--seeds", default="0")
-    ap.add_argument("--frames", type=int, default=3_145_728)
+    ap.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="a run's budget")
     ap.add_argument("--network", default="gcn_uniform")
     ap.add_argument("--report", action="store_true", help="score the finished runs instead")
     args = ap.parse_args()
