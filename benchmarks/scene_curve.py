@@ -101,7 +101,7 @@ def score_run(log_dir: Path, task: str) -> dict:
     kept = log_dir / "score.json"
     if kept.is_file():
         return json.loads(kept.read_text())
-    from sharedspace.bench.score import score
+    from sharedspace.bench.scoring import score
     from sharedspace.train.checkpoint import last_checkpoint
     from sharedspace.train.evaluation import evaluate_split
     from sharedspace.train.learners import load_checkpoint_actor

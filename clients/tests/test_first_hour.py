@@ -164,7 +164,7 @@ def test_docs_usage_holds_the_reference_as_generated_now():
     ],
 )
 def test_a_result_file_is_named_safely_on_every_file_system(name, safe):
-    from sharedspace.bench.score import file_name
+    from sharedspace.bench.scoring import file_name
 
     assert file_name(name) == safe
 

@@ -110,3 +110,16 @@ def test_a_trainer_pointed_where_no_server_answers_is_one_line(sim_server):
     words = ["algorithm=ppo", "total_frames=64", "progress=false", "eval_interval=0"]
     words += [f"server_endpoint={sim_server.endpoint}", "server_prefix=nobodyserves"]
     _one_line(_run("-m", "sharedspace.train", "--set", *words), "prefix 'nobodyserves'")
+
+
+def test_the_bench_and_its_tasks_import_no_torch():
+    """``import sharedspace.bench`` (and ``--help``) leave torch out: it loads only once there
+    is something to play."""
+    probe = (
+        "import sys, sharedspace.bench as b; b.get_task('crowd'); b.TASKS['crossing'].episodes; "
+        "assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)[:5]"
+    )
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    out = _run("-m", "sharedspace.bench", "--help")
+    assert out.returncode == 0 and "crossing" in out.stdout

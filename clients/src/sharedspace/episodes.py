@@ -1,8 +1,8 @@
 """Playing and summarising episodes: one record per episode of a batched env, and the one
-outcome summary (success, collision, timeout with Wilson intervals) that every learner, table
-and benchmark reports. It knows envs and policies, not trainers: the trainer's evaluation
-(:mod:`sharedspace.train.evaluation`) and the benchmark (:mod:`sharedspace.bench`) both play
-through :func:`run_episodes`."""
+outcome summary (success, collision, timeout with Wilson intervals, :mod:`sharedspace.outcomes`)
+that every learner, table and benchmark reports. It knows envs and policies, not trainers: the
+trainer's evaluation (:mod:`sharedspace.train.evaluation`) and the benchmark
+(:mod:`sharedspace.bench`) both play through :func:`run_episodes`."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sharedspace.names import Feature
-from sharedspace.stats import wilson
+from sharedspace.outcomes import BENCHMARK_VARIATIONS, METRICS, STATUSES, outcome_rates
 
 __all__ = [
     "BENCHMARK_VARIATIONS",
@@ -26,9 +26,6 @@ __all__ = [
     "summarize",
     "variation_batches",
 ]
-
-#: The powered test's scene variations (sim-core ``VariationSpec::benchmark``; docs/RESULTS.md).
-BENCHMARK_VARIATIONS = {"position_sigma": 0.25, "start_offset_steps": 1, "desired_speed_scale": 0.1}
 
 #: Most sub-envs of one evaluation env (the server's default ``max_batch`` is 1024).
 MAX_EVAL_ENVS = 512
@@ -47,12 +44,6 @@ def variation_batches(
         count = min(per_env, first + variations - start)
         batches.append([start + k // scenes for k in range(scenes * count)])
     return batches
-
-
-#: How an episode ends.
-STATUSES = ("success", "collision", "timeout")
-#: The per-episode metrics a summary averages (sim-core ``EpisodeMetrics``).
-METRICS = ("avg_speed", "avg_abs_jerk", "max_abs_acc")
 
 
 def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
@@ -106,21 +97,6 @@ def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
                 break
             td = env.maybe_reset(step_mdp(td))
     return [r for r in records if r is not None]
-
-
-def outcome_rates(
-    rows: Sequence[dict[str, Any]], flags: Sequence[str] = ()
-) -> dict[str, dict[str, Any]]:
-    """How episodes ended: for each of :data:`STATUSES` (a row's ``status``) and each boolean
-    field of ``flags``, its ``rate``, ``count`` and Wilson 95 % interval ``ci95``. The one
-    outcome summary of every learner (single-car rows here, per-car rows in ``marl``)."""
-    n = len(rows)
-    out: dict[str, dict[str, Any]] = {}
-    for key in (*STATUSES, *flags):
-        hits = sum(bool(r[key]) if key in flags else r["status"] == key for r in rows)
-        lo, hi = wilson(hits, n)
-        out[key] = {"rate": hits / max(n, 1), "count": hits, "ci95": [lo, hi]}
-    return out
 
 
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, float]:

@@ -8,11 +8,15 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from sharedspace.wire.requests import SyntheticScenes
+
 __all__ = [
+    "synthetic_names",
     "DEFAULT_POOL_PATH",
     "listed_scenarios",
     "load_pool",
@@ -81,3 +85,15 @@ def recorded_headings(velocities: np.ndarray) -> np.ndarray:
                 out[k] = math.atan2(velocities[found, 1], velocities[found, 0])
                 break
     return out
+
+
+def synthetic_names(synthetic: SyntheticScenes, split: str) -> list[tuple[str, str]]:
+    """The scenes a ``CreateEnv.synthetic`` request makes, as ``(name, split)`` in order (the
+    server names them ``synthetic-{layout}-n{N}[-v{V}[-intersection]]-seed{seed}``, SPEC 5.2)."""
+    s = synthetic
+    vehicles = f"-v{s.vehicles}" if s.vehicles > 1 or s.routes == "intersection" else ""
+    vehicles += "-intersection" if s.routes == "intersection" else ""
+    return [
+        (f"synthetic-{s.layout}-n{s.pedestrians}{vehicles}-seed{s.seed + i}", split)
+        for i in range(s.scenes)
+    ]

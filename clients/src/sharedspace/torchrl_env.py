@@ -41,10 +41,10 @@ from torchrl.envs import EnvBase
 
 from . import names
 from .client import Connection, EnvOptions, SimClient, env_options
-from .pool import listed_scenarios
+from .pool import listed_scenarios, synthetic_names
 from .vector import VectorClient
 from .wire.errors import SharedspaceError
-from .wire.requests import EnvSpec, SyntheticScenes
+from .wire.requests import EnvSpec
 
 __all__ = [
     "EPISODE_FLAG_KEYS",
@@ -117,18 +117,6 @@ def contract_tensordict(
         batch_size=env.batch_size,
         device=env.device,
     )
-
-
-def synthetic_names(synthetic: SyntheticScenes, split: str) -> list[tuple[str, str]]:
-    """The scenes a ``CreateEnv.synthetic`` request makes, as ``(name, split)`` in order (the
-    server names them ``synthetic-{layout}-n{N}[-v{V}[-intersection]]-seed{seed}``, SPEC 5.2)."""
-    s = synthetic
-    vehicles = f"-v{s.vehicles}" if s.vehicles > 1 or s.routes == "intersection" else ""
-    vehicles += "-intersection" if s.routes == "intersection" else ""
-    return [
-        (f"synthetic-{s.layout}-n{s.pedestrians}{vehicles}-seed{s.seed + i}", split)
-        for i in range(s.scenes)
-    ]
 
 
 class _ServerEnvs(EnvBase):

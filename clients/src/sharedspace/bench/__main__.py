@@ -9,8 +9,6 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sharedspace.bench.leaderboard import legend
-from sharedspace.bench.score import score
 from sharedspace.bench.tasks import TASKS, BenchError
 from sharedspace.cli import run_command
 
@@ -38,6 +36,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--out", default="", help="write DIR/TASK/NAME.json and .md")
     args = ap.parse_args(argv)
+    from sharedspace.bench.leaderboard import legend  # torch: once there is something to play
+    from sharedspace.bench.scoring import score
+
     try:
         result = score(
             args.task,

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sharedspace.bench.score import Result, compare, load_result
+from sharedspace.bench.scoring import Result, compare, load_result
 from sharedspace.bench.tasks import REPO, BenchError
 from sharedspace.cli import run_command
 from sharedspace.episodes import STATUSES

@@ -36,7 +36,7 @@ from typing import Any
 
 from sharedspace.bench import leaderboard
 from sharedspace.bench.best import choose_best, validation_variations
-from sharedspace.bench.score import Result, compare, load_result, score
+from sharedspace.bench.scoring import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
 from sharedspace.cli import run_command
 from sharedspace.train.checkpoint import read_checkpoint

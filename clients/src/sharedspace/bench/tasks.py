@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.cli import UserError, did_you_mean
-from sharedspace.episodes import BENCHMARK_VARIATIONS
-from sharedspace.marl.task import CrossingTask
+from sharedspace.marl.crossing import CrossingTask
+from sharedspace.outcomes import BENCHMARK_VARIATIONS
 from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.worlds import REPO, TABLE2_WORLD, TABLE2G_WORLD
 
