@@ -99,7 +99,7 @@ def score_run(log_dir: Path, task: str) -> dict:
     """A finished run's last checkpoint on the recorded train scenes, the validation split and
     the bench task's test scenes (kept in the run's ``score.json``)."""
     kept = log_dir / "score.json"
-    if kept.is_file():
+    if kept.is_file() and "test_minus_car_aware" in json.loads(kept.read_text()):
         return json.loads(kept.read_text())
     from sharedspace.bench.scoring import score
     from sharedspace.train.checkpoint import last_checkpoint
@@ -115,13 +115,20 @@ def score_run(log_dir: Path, task: str) -> dict:
     rows = [ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]]
     trained = [float(r[3]) for r in rows if len(r) == 4 and r[2] == "train/success"]
     out["trained_on"] = {"success": trained[-1]}  # its own training scenes, as it played them
-    test = score(task, [ckpt], name=log_dir.name)
+    script = REPO / "results" / "bench" / task / "car_aware.json"
+    test = score(task, [ckpt], name=log_dir.name, reference=script)
     out["test"] = {
         "episodes": test.summary["episodes"],
         **{k: test.summary[k]["rate"] for k in ("success", "collision", "timeout")},
     }
+    out["test_minus_car_aware"] = test.comparison
     kept.write_text(json.dumps(out, indent=1))
     return out
+
+
+def _diff(row: dict) -> str:
+    c = row.get("test_minus_car_aware")
+    return "–" if not c else f"{c['diff']:+.3f} [{c['lo']:+.3f}, {c['hi']:+.3f}]"
 
 
 def report(task: str) -> None:
@@ -133,8 +140,8 @@ def report(task: str) -> None:
         arms.setdefault(run["arm"], []).append(run)
     rows = {}
     head = "| arm | seeds | frames | wall (min/run) | its training scenes (as played) | "
-    print(head + "recorded train scenes | validation | test success / collision |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(head + "recorded train scenes | validation | test success / collision | test − car_aware |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for arm, runs in arms.items():
         mean = lambda split, key: sum(r["score"][split][key] for r in runs) / len(runs)  # noqa: E731
         rows[arm] = {
@@ -146,13 +153,17 @@ def report(task: str) -> None:
                 for split in ("train", "validation", "test")
             },
             "trained_on": {"success": mean("trained_on", "success")},
+            # one seed: its paired difference; several: score them pooled with the bench
+            "test_minus_car_aware": runs[0]["score"]["test_minus_car_aware"]
+            if len(runs) == 1
+            else None,
         }
         r = rows[arm]
         print(
             f"| {arm} | {len(runs)} | {r['frames']} | {r['wall_min']:.1f} | "
             f"{r['trained_on']['success']:.3f} | "
             f"{r['train']['success']:.3f} | {r['validation']['success']:.3f} | "
-            f"{r['test']['success']:.3f} / {r['test']['collision']:.3f} |"
+            f"{r['test']['success']:.3f} / {r['test']['collision']:.3f} | {_diff(r)} |"
         )
     (REPO / "results" / "scenes" / f"curve-{task}.json").write_text(json.dumps(rows, indent=1))
 
