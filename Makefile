@@ -35,6 +35,23 @@ $(VENV)/.installed: clients/requirements-dev.txt clients/requirements-train.txt 
 
 venv: $(VENV)/.installed ## create the Python virtualenv in .venv
 
+# The `train` extra at the lower end of its ranges (clients/requirements-lower.txt overrides the
+# locked pins): the trainer's and the bench's tests run in it too (torch 2.9 from PyPI: about a
+# minute, uv's cache keeps it). torchrl 0.13 lacks `rsample_and_log_prob`, which SAC's update uses.
+LOWER_VENV := .venv-lower
+$(LOWER_VENV)/.installed: clients/requirements-lower.txt clients/requirements-train.txt clients/pyproject.toml
+	$(PYTHON) -m venv $(LOWER_VENV)
+	$(LOWER_VENV)/bin/python -m pip install --quiet uv==$(UV_VERSION)
+	$(LOWER_VENV)/bin/uv pip install --quiet --python $(LOWER_VENV)/bin/python \
+		-r clients/requirements-train.txt --override clients/requirements-lower.txt -e 'clients[train]'
+	@touch $@
+
+#: The tests the lower end runs: the trainers (PPO, SAC, the multi-car learners, a plug-in, the
+#: updates, the GCN), the TorchRL envs, the bench with its checkpoints, the shipped policies.
+LOWER_TESTS := test_learner_protocol.py test_update.py test_ppo.py test_overlap.py \
+	test_train_gcn.py test_remote_torchrl.py test_bench.py test_shipped_policy.py \
+	test_repo_checks.py::test_the_installed_trainer_is_one_tested_end_of_the_ranges
+
 # BenchMARL 1.5.2 pins torchrl < 0.12 (its experiment builds a SyncDataCollector, which torchrl
 # 0.13 removed): its own venv, the package installed editable beside it without the `train`
 # extra. torch comes from uv's cache (the same 2.15.0 as .venv): about 20 s.
@@ -113,7 +130,7 @@ router: $(SERVER) ## a zenoh router with auth and access control (deploy/router.
 	@test -f deploy/credentials.txt || { echo "deploy/credentials.txt is missing: cp deploy/credentials.txt.example deploy/credentials.txt and change the passwords (deploy/README.md)"; exit 1; }
 	$(SERVER) router --config deploy/router.json5 $(ARGS)
 
-test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(GENERAL_POOL) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
+test: $(VENV)/.installed $(LOWER_VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(GENERAL_POOL) ## every test: Rust (fmt, clippy, module cycles, unit, integration, property), Python (pytest against a live server, the viewer in headless Chromium), ruff, import contracts
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets --features sim-server/bench -- -D warnings
 	$(PYTHON) scripts/module_cycles.py sim-core scenarios protocol sim-server
@@ -123,7 +140,9 @@ test: $(VENV)/.installed $(BENCHMARL_VENV)/.installed $(VIEWER_PAGE) browser $(G
 	@# a hung interpreter exit must fail CI in minutes, not eat its whole budget
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server SHAREDSPACE_REQUIRE_BROWSER=1 timeout --kill-after=30 1800 $(PY) -m pytest clients/tests -q -p no:cacheprovider \
 		|| { rc=$$?; [ $$rc = 124 ] && echo "pytest did not exit within 1800 s (hung at exit?)"; exit $$rc; }
-	@# the other end of the torchrl range (0.11, BenchMARL's pin): the envs and a BenchMARL experiment
+	@# the train extra's lower bounds (clients/requirements-lower.txt)
+	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 900 $(LOWER_VENV)/bin/python -m pytest $(addprefix clients/tests/,$(LOWER_TESTS)) -q -p no:cacheprovider
+	@# BenchMARL's torchrl (0.11, its pin): the envs and a BenchMARL experiment
 	SHAREDSPACE_SIM_SERVER=target/debug/sim-server timeout --kill-after=30 600 $(BENCHMARL_VENV)/bin/python -m pytest clients/tests_benchmarl -q -p no:cacheprovider
 	$(PY) -m ruff check clients calibration benchmarks scripts examples
 	cd clients && ../$(VENV)/bin/lint-imports --no-logo
@@ -253,4 +272,4 @@ table2g: $(SERVER) $(VENV)/.installed ## Table II-G, the crowded benchmark: hbs-
 
 clean:
 	$(CARGO) clean
-	rm -rf $(VENV)
+	rm -rf $(VENV) $(LOWER_VENV)

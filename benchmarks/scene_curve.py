@@ -7,7 +7,8 @@ composed scenes beside them (``scenes=N``, SPEC 5.2.2), one run per arm and seed
 Each run trains with the bench's from-scratch recipe (``sharedspace.bench.rows``: the learning
 rate held for half the run, then annealed to 0) and scores on the validation split carved from
 the recorded train scenes as it goes. A run lives in ``results/scenes/runs/<task>-<arm>-s<seed>``
-(config, metrics.csv, checkpoints); one cut short (a session's end) resumes from its last
+(config, metrics.csv, checkpoints), and its last checkpoint is shipped to
+``results/scenes/policies/<run>.pt``; one cut short (a session's end) resumes from its last
 checkpoint on the next call, and a finished one (``done.json``: its last line and its wall
 seconds, summed over the calls) is skipped. Nothing in the training reads a test scene.
 
@@ -29,6 +30,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 RUNS = REPO / "results" / "scenes" / "runs"
+#: Each finished run's last checkpoint, shipped (the checkpoints folder stays local).
+POLICIES = REPO / "results" / "scenes" / "policies"
 
 #: The arms: the overrides each adds to the recipe.
 ARMS: dict[str, list[str]] = {
@@ -91,8 +94,17 @@ def run_one(task: str, arm: str, seed: int, frames: int, network: str) -> dict:
         raise SystemExit(f"{log_dir.name}: exit {proc.returncode}; see {log_dir}/train.log")
     last = json.loads(proc.stdout.strip().splitlines()[-1])
     out = {"arm": arm + budget, "seed": seed, "task": task, "wall_seconds": spent, "result": last}
+    ship_policy(log_dir)
     done.write_text(json.dumps(out, indent=1))
     return out
+
+
+def ship_policy(log_dir: Path) -> Path:
+    """The run's last checkpoint, shipped to ``results/scenes/policies/<run>.pt`` (what the
+    report scores, so a clean checkout can score it again)."""
+    from sharedspace.train.checkpoint import last_checkpoint, read_checkpoint, ship
+
+    return ship(read_checkpoint(last_checkpoint(str(log_dir))), POLICIES / f"{log_dir.name}.pt")
 
 
 def score_run(log_dir: Path, task: str) -> dict:
@@ -102,11 +114,11 @@ def score_run(log_dir: Path, task: str) -> dict:
     if kept.is_file() and "test_minus_car_aware" in json.loads(kept.read_text()):
         return json.loads(kept.read_text())
     from sharedspace.bench.scoring import score
-    from sharedspace.train.checkpoint import last_checkpoint
     from sharedspace.train.evaluation import evaluate_split
     from sharedspace.train.learners import load_checkpoint_actor
 
-    ckpt = last_checkpoint(str(log_dir))
+    shipped = POLICIES / f"{log_dir.name}.pt"
+    ckpt = str(shipped if shipped.is_file() else ship_policy(log_dir))
     cfg, actor = load_checkpoint_actor(ckpt)
     out = {"checkpoint": str(Path(ckpt).relative_to(REPO))}
     for split in ("train", "validation"):

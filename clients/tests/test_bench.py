@@ -49,8 +49,11 @@ def test_a_plain_function_is_scored_with_no_trainer_imported(tmp_path):
             inspect.getsource(brake_near),
             'task = dataclasses.replace(TASKS["paper"], name="paper-small", variations=2)',
             'result = score(task, brake_near, name="brake_near")',
+            'script = score(task, "car_aware")',
             'loaded = sorted(m for m in sys.modules if m.startswith("sharedspace."))',
-            'print(json.dumps({"summary": result.summary, "loaded": loaded}))',
+            'torch = sorted(m for m in sys.modules if m.split(".")[0] in ("torch", "tensordict"))',
+            'out = {"summary": result.summary, "script": script.summary["episodes"]}',
+            'print(json.dumps({**out, "loaded": loaded, "torch": torch}))',
         ]
     )
     out = subprocess.run(
@@ -65,6 +68,48 @@ def test_a_plain_function_is_scored_with_no_trainer_imported(tmp_path):
     assert got["summary"]["episodes"] == 36
     assert sum(got["summary"][s]["count"] for s in ("success", "collision", "timeout")) == 36
     assert not [m for m in got["loaded"] if m.startswith("sharedspace.train")], got["loaded"]
+    assert got["script"] == 36
+    assert got["torch"] == [], "a NumPy function and a scripted driver are played without torch"
+
+
+def test_the_numpy_loop_plays_the_episodes_of_the_torchrl_loop(tmp_path):
+    """The bench's torch-free loop (:func:`sharedspace.rollout.play_first_episodes`) and the
+    TorchRL env's (:func:`sharedspace.episodes.run_episodes`, the trainers' evaluation) give
+    every episode the same outcome, length, return and metrics (the TorchRL env keeps the
+    metrics in float32, the NumPy loop as the server sends them)."""
+    from sharedspace.bench.scoring import _connection, _single_car_spec
+    from sharedspace.episodes import run_episodes, variation_batches
+    from sharedspace.torchrl_env import RemoteBatchedEnv
+
+    script = SCRIPTED["car_aware"]()
+    driver = TensorDictModule(script, in_keys=["features", "mask"], out_keys=["action"])
+    bench = {(e["scene"], e["unit"]): e for e in score(SMALL, "car_aware").episodes}
+    scenes = [s["name"] for s in SMALL.check_scenes()]
+    client = _connection(SMALL, "", tmp_path).open()  # the task's pool and world
+    played = {}
+    try:
+        for seeds in variation_batches(len(scenes), SMALL.variations):
+            env = RemoteBatchedEnv(
+                _single_car_spec(SMALL),
+                len(seeds),
+                scenario_order="sequential",
+                variation_seeds=seeds,
+                client=client,
+            )
+            try:
+                for e in run_episodes(env, driver):
+                    played[(env.scenario_names[e["scenario_index"]], e["variation"])] = e
+            finally:
+                env.close()
+    finally:
+        client.shutdown()
+    assert len(bench) == len(played) == 36
+    for key, e in bench.items():
+        torchrl = played[key]
+        assert (e["status"], e["steps"]) == (torchrl["status"], torchrl["steps"]), key
+        assert e["return"] == pytest.approx(torchrl["return"], rel=1e-12, abs=1e-12), key
+        for metric in ("avg_speed", "avg_abs_jerk", "max_abs_acc"):
+            assert e[metric] == pytest.approx(torchrl[metric], rel=1e-6, abs=1e-7), (key, metric)
 
 
 def test_every_form_of_one_driver_plays_the_same_episodes():

@@ -1,8 +1,9 @@
 """Playing and summarising episodes: one record per episode of a batched env, and the one
 outcome summary (success, collision, timeout with Wilson intervals, :mod:`sharedspace.outcomes`)
 that every learner, table and benchmark reports. It knows envs and policies, not trainers: the
-trainer's evaluation (:mod:`sharedspace.train.evaluation`) and the benchmark
-(:mod:`sharedspace.bench`) both play through :func:`run_episodes`."""
+trainer's evaluation (:mod:`sharedspace.train.evaluation`) and the paper's tables play through
+:func:`run_episodes`; the benchmark plays the same episodes with no torch
+(:func:`sharedspace.rollout.play_first_episodes`)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from sharedspace.names import Feature
 from sharedspace.outcomes import BENCHMARK_VARIATIONS, METRICS, STATUSES, outcome_rates
+from sharedspace.rollout import MAX_EVAL_ENVS, variation_batches
 
 __all__ = [
     "BENCHMARK_VARIATIONS",
@@ -26,25 +28,6 @@ __all__ = [
     "summarize",
     "variation_batches",
 ]
-
-#: Most sub-envs of one evaluation env (the server's default ``max_batch`` is 1024).
-MAX_EVAL_ENVS = 512
-
-
-def variation_batches(
-    scenes: int, variations: int, first: int = 0, max_envs: int = MAX_EVAL_ENVS
-) -> list[list[int]]:
-    """The variation seed of every sub-env, env by env, to play each of ``scenes`` scenes (in
-    sequential order) in the variations ``first .. first + variations - 1``: whole variations
-    per env, at most ``max_envs`` sub-envs (at least one variation). Sub-env ``k`` of an env
-    plays scene ``k % scenes``."""
-    per_env = max(1, max_envs // scenes)
-    batches = []
-    for start in range(first, first + variations, per_env):
-        count = min(per_env, first + variations - start)
-        batches.append([start + k // scenes for k in range(scenes * count)])
-    return batches
-
 
 def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
     """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and

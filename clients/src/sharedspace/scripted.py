@@ -12,16 +12,19 @@ features and mask), with no state.
 
 They are the reference rows of the tables (:mod:`sharedspace.paper.drivers` names them) and the
 base a residual policy adds its action to (``TrainConfig.base_driver``).
+
+Each is NumPy alone: the benchmark scores them with no torch loaded. Called on torch tensors (a
+TorchRL transform, a prior's actions), a driver computes the same actions and hands them back as
+a tensor of the features' dtype and device.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
-from torch import nn
 
 from sharedspace.names import Feature
 
@@ -29,6 +32,7 @@ __all__ = [
     "SCRIPTED",
     "VehicleLimits",
     "pursuit_action",
+    "ScriptedDriver",
     "HoldDriver",
     "StopDriver",
     "PursuitDriver",
@@ -80,23 +84,42 @@ def pursuit_action(
     return acc, omega
 
 
-class HoldDriver(nn.Module):
+class ScriptedDriver:
+    """A closed-form driver: :meth:`act` maps node features ``[*, M, F]`` and the mask
+    ``[*, M]`` (bool) to normalised actions ``[*, 2]`` (acceleration, yaw rate). Calling it
+    takes NumPy arrays or torch tensors and gives back the same kind, in the features' dtype."""
+
+    def act(self, features: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def __call__(self, features: Any, mask: Any) -> Any:
+        if isinstance(features, np.ndarray):
+            action = self.act(features, np.asarray(mask).astype(bool))
+            return action.astype(features.dtype, copy=False)
+        # A tensor: torch is loaded already, by whoever made it.
+        torch = sys.modules["torch"]
+        f = features.detach().cpu().numpy()
+        action = self.act(f, mask.detach().cpu().numpy().astype(bool))
+        return torch.as_tensor(action, dtype=features.dtype, device=features.device)
+
+
+class HoldDriver(ScriptedDriver):
     """Action ``[0, 0]``: the initial speed and heading, whatever happens."""
 
-    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return features.new_zeros((*features.shape[:-2], 2))
+    def act(self, features: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return np.zeros((*features.shape[:-2], 2), dtype=features.dtype)
 
 
-class StopDriver(nn.Module):
+class StopDriver(ScriptedDriver):
     """Full braking, straight on: the least an AV can do to avoid anyone."""
 
-    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        action = features.new_zeros((*features.shape[:-2], 2))
+    def act(self, features: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        action = np.zeros((*features.shape[:-2], 2), dtype=features.dtype)
         action[..., 0] = -1.0
         return action
 
 
-class PursuitDriver(nn.Module):
+class PursuitDriver(ScriptedDriver):
     """Pure pursuit toward the goal at ``cruise`` m/s, braking to a stop while a present
     pedestrian's centre is within ``brake_ahead`` m ahead and ``brake_side`` m to either side.
 
@@ -113,13 +136,11 @@ class PursuitDriver(nn.Module):
         brake_side: float = 2.5,
         limits: VehicleLimits = VehicleLimits(),  # noqa: B008 - frozen dataclass
     ):
-        super().__init__()
         self.cruise, self.brake_ahead, self.brake_side = cruise, brake_ahead, brake_side
         self.limits = limits
 
-    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        f = features.detach().cpu().numpy()
-        present = mask.detach().cpu().numpy().astype(bool)
+    def act(self, features: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        f, present = features, mask
         ego = f[..., 0, :]
         heading_error = np.arctan2(ego[..., _GOAL_DY], ego[..., _GOAL_DX])
         others = f[..., 1:, :]
@@ -130,11 +151,10 @@ class PursuitDriver(nn.Module):
         acc, omega = pursuit_action(
             heading_error, ego[..., _GOAL_DIST], ego[..., _SPEED], self.cruise, self.limits, brake
         )
-        action = np.stack([acc / self.limits.acc_max, omega / self.limits.omega_max], -1)
-        return torch.as_tensor(action, dtype=features.dtype, device=features.device)
+        return np.stack([acc / self.limits.acc_max, omega / self.limits.omega_max], -1)
 
 
-class CarAwareDriver(nn.Module):
+class CarAwareDriver(ScriptedDriver):
     """Pursuit toward the goal whose speed follows the intelligent driver model (Treiber et al.,
     2000) behind the first agent in its path: pedestrians and cars alike.
 
@@ -173,7 +193,6 @@ class CarAwareDriver(nn.Module):
         half_width: float = 0.9,
         limits: VehicleLimits = VehicleLimits(),  # noqa: B008 - frozen dataclass
     ):
-        super().__init__()
         self.cruise, self.headway, self.min_gap = cruise, headway, min_gap
         self.margin, self.lookahead, self.comfort_decel = margin, lookahead, comfort_decel
         self.half_length, self.half_width = half_length, half_width
@@ -210,9 +229,8 @@ class CarAwareDriver(nn.Module):
         acc = a * (1.0 - (v / self.cruise) ** 4 - (desired / gap) ** 2)
         return np.where(in_path, acc, np.inf).min(-1)
 
-    def forward(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        f = features.detach().cpu().numpy().astype(np.float64)
-        present = mask.detach().cpu().numpy().astype(bool)
+    def act(self, features: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        f, present = features.astype(np.float64), mask
         ego = f[..., 0, :]
         heading_error = np.arctan2(ego[..., _GOAL_DY], ego[..., _GOAL_DX])
         acc, omega = pursuit_action(
@@ -220,11 +238,10 @@ class CarAwareDriver(nn.Module):
         )
         acc = np.minimum(acc, self.idm_acceleration(f, present))
         acc = np.clip(acc, -self.limits.acc_max, self.limits.acc_max)
-        action = np.stack([acc / self.limits.acc_max, omega / self.limits.omega_max], -1)
-        return torch.as_tensor(action, dtype=features.dtype, device=features.device)
+        return np.stack([acc / self.limits.acc_max, omega / self.limits.omega_max], -1)
 
 
-#: The scripted drivers by name, each a factory of its module ``(features, mask) -> action``.
+#: The scripted drivers by name, each a factory of its driver ``(features, mask) -> action``.
 SCRIPTED = {
     "hold": lambda: HoldDriver(),
     "stop": lambda: StopDriver(),

@@ -1,5 +1,6 @@
-"""Any policy, as the benchmark plays it: one ``act(td) -> actions`` over a batch of
-observations (``[K, 2]`` for one car per env, ``[K, A, 2]`` for the crossing task's cars).
+"""Any policy, as the benchmark plays it: one NumPy ``act(obs) -> actions`` over a batch of
+observations ``{"features" [*, M, F], "adjacency" [*, M, M], "mask" [*, M]}`` (``*`` is ``K``
+for one car per env, ``K, A`` for the crossing task's cars), giving ``[*, 2]``.
 
 A policy spec is one of:
 
@@ -15,24 +16,21 @@ A policy spec is one of:
 - a TorchRL module (a ``TensorDictModuleBase``) that reads the env's tensordict and writes
   ``action`` (``("vehicle", "action")`` on the crossing task); played deterministically.
 
-Only a checkpoint builds a learner's network (:mod:`sharedspace.train.learners`,
-:mod:`sharedspace.marl.networks`); the checkpoint reader and the registry are all a function or
-a driver loads of the trainers.
+Only a checkpoint or a module loads torch: a scripted driver or a function is played with NumPy
+alone. Only a checkpoint builds a learner's network (:mod:`sharedspace.train.learners`,
+:mod:`sharedspace.marl.networks`).
 """
 
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sharedspace.bench.tasks import REPO, BenchError, Task, scenes_fingerprint, test_scenes
 from sharedspace.cli import did_you_mean
@@ -47,12 +45,12 @@ GROUP = "vehicle"
 
 @dataclass
 class Policy:
-    """A policy the benchmark can play: ``act(td)`` gives the actions of a batch; ``name`` and
-    ``source`` say what it is in a result."""
+    """A policy the benchmark can play: ``act(obs)`` gives the actions of a batch (see the
+    module's doc); ``name`` and ``source`` say what it is in a result."""
 
     name: str
     source: dict[str, Any]
-    act: Callable[[TensorDictBase], torch.Tensor]
+    act: Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
 def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
@@ -70,8 +68,8 @@ def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
             f"policy {text!r}: not a scripted driver ({', '.join(sorted(SCRIPTED))}), "
             f"a checkpoint file (.pt) or module:function{did_you_mean(text, SCRIPTED)}"
         )
-    if isinstance(spec, TensorDictModuleBase):
-        act = _module_act(spec, _action_key(task))
+    if _is_module(spec):
+        act = _module_act(spec, task)
         return Policy(name or type(spec).__name__, {"kind": "module"}, act)
     if callable(spec):
         label = getattr(spec, "__qualname__", type(spec).__name__)
@@ -79,18 +77,11 @@ def make_policy(spec: Any, task: Task, name: str = "") -> Policy:
     raise BenchError(f"policy {spec!r}: give a driver name, a checkpoint, a callable or a module")
 
 
-def _obs(td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``features``, ``adjacency`` and ``mask`` of a batch, one car per env or grouped cars."""
-    root = td.get(GROUP) if GROUP in td.keys() else td
-    return root.get("features"), root.get("adjacency"), root.get("mask")
-
-
 def _scripted(driver: str, name: str) -> Policy:
-    module = SCRIPTED[driver]()
+    script = SCRIPTED[driver]()
 
-    def act(td: TensorDictBase) -> torch.Tensor:
-        features, _, mask = _obs(td)
-        return module(features, mask)
+    def act(obs: dict[str, np.ndarray]) -> np.ndarray:
+        return script(obs["features"], obs["mask"])
 
     return Policy(name or driver, {"kind": "driver", "driver": driver}, act)
 
@@ -98,12 +89,12 @@ def _scripted(driver: str, name: str) -> Policy:
 def _function_act(fn: Callable[[dict[str, np.ndarray]], Any]) -> Callable:
     """Calls ``fn`` on each agent's observation, as a PettingZoo env hands it over."""
 
-    def act(td: TensorDictBase) -> torch.Tensor:
-        features, adjacency, mask = _obs(td)
+    def act(obs: dict[str, np.ndarray]) -> np.ndarray:
+        features, adjacency, mask = obs["features"], obs["adjacency"], obs["mask"]
         lead = features.shape[:-2]
-        f = features.reshape(-1, *features.shape[-2:]).numpy()
-        a = adjacency.reshape(-1, *adjacency.shape[-2:]).numpy()
-        m = mask.reshape(-1, mask.shape[-1]).numpy().astype(np.int8)
+        f = features.reshape(-1, *features.shape[-2:])
+        a = adjacency.reshape(-1, *adjacency.shape[-2:])
+        m = mask.reshape(-1, mask.shape[-1]).astype(np.int8)
         out = np.empty((len(f), 2), dtype=np.float32)
         for i in range(len(f)):
             action = np.asarray(fn({"features": f[i], "adjacency": a[i], "mask": m[i]}))
@@ -113,26 +104,64 @@ def _function_act(fn: Callable[[dict[str, np.ndarray]], Any]) -> Callable:
                     "one action is [acceleration, yaw rate], shape (2,), in [-1, 1]"
                 )
             out[i] = action
-        return torch.from_numpy(out).reshape(*lead, 2)
+        return out.reshape(*lead, 2)
 
     return act
 
 
-def _action_key(task: Task) -> str | tuple[str, str]:
-    return (GROUP, "action") if task.crossing is not None else "action"
+def _is_module(spec: Any) -> bool:
+    """Whether ``spec`` is a TensorDict module (only a caller holding one has tensordict
+    loaded, so no other spec imports it)."""
+    if "tensordict" not in sys.modules:
+        return False
+    from tensordict.nn import TensorDictModuleBase
+
+    return isinstance(spec, TensorDictModuleBase)
 
 
-def _module_act(module: TensorDictModuleBase, key: str | tuple[str, str]) -> Callable:
-    """A TorchRL module's deterministic action (what it writes at ``key``)."""
+def as_tensordict(obs: dict[str, np.ndarray], crossing: bool):
+    """A batch of NumPy observations as the env's tensordict: the three observation keys, under
+    the group ``vehicle`` with batch ``[K, A]`` for the crossing task, else at the root."""
+    import torch
+    from tensordict import TensorDict
 
-    def act(td: TensorDictBase) -> torch.Tensor:
+    data = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in obs.items()}
+    data["mask"] = data["mask"].bool()
+    batch = list(obs["features"].shape[:-2])
+    if crossing:
+        return TensorDict({GROUP: TensorDict(data, batch_size=batch)}, batch_size=batch[:1])
+    return TensorDict(data, batch_size=batch)
+
+
+def _td_act(act_td: Callable, crossing: bool) -> Callable:
+    """A tensordict policy ``act_td(td) -> actions`` as a NumPy one."""
+
+    def act(obs: dict[str, np.ndarray]) -> np.ndarray:
+        return act_td(as_tensordict(obs, crossing)).detach().cpu().numpy()
+
+    return act
+
+
+def _module_act(module: Any, task: Task) -> Callable:
+    """A TorchRL module's deterministic action (what it writes at ``action``, or at
+    ``("vehicle", "action")`` on the crossing task), as a NumPy policy."""
+    crossing = task.crossing is not None
+    return _td_act(_module_td_act(module, (GROUP, "action") if crossing else "action"), crossing)
+
+
+def _module_td_act(module: Any, key: str | tuple[str, str]) -> Callable:
+    """A TorchRL module's deterministic action, what it writes at ``key``, of a tensordict."""
+    import torch
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    def act_td(td):
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
             out = module(td.clone(False))
         if key not in out.keys(include_nested=True):
             raise BenchError(f"the module wrote no {key!r} into the tensordict")
         return out.get(key)
 
-    return act
+    return act_td
 
 
 def _imported(target: str, task: Task, name: str) -> Policy:
@@ -168,7 +197,7 @@ def _checkpoint(path: Path, task: Task, name: str) -> Policy:
             raise BenchError(
                 f"policy {path}: a multi-car checkpoint ({algorithm}), task {task.tag} has one car"
             )
-        return Policy(name or _run_name(path), source, _marl_act(ckpt, task, path))
+        return Policy(name or _run_name(path), source, _td_act(_marl_act(ckpt, task, path), True))
     if task.crossing is not None:
         raise BenchError(
             f"policy {path}: a single-car checkpoint ({algorithm}); task {task.tag} has "
@@ -236,11 +265,13 @@ def _single_car_act(ckpt: dict[str, Any]) -> Callable:
     from sharedspace.train.learners import load_checkpoint_actor
 
     cfg, actor = load_checkpoint_actor(ckpt)
-    act = _module_act(actor, "action")
+    act = _module_td_act(actor, "action")
     if not cfg.base_driver:
-        return act
+        return _td_act(act, False)
     residual = ResidualAction(cfg.base_driver, scale=cfg.residual_scale)
-    return lambda td: residual._inv_call(td.clone(False).set("action", act(td))).get("action")
+    return _td_act(
+        lambda td: residual._inv_call(td.clone(False).set("action", act(td))).get("action"), False
+    )
 
 
 def _marl_act(ckpt: dict[str, Any], task: Task, path: Path) -> Callable:

@@ -19,15 +19,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import torch
-from tensordict import TensorDictBase
-from torch import nn
+import numpy as np
 
 from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.bench.tasks import BenchError, Task, get_task
 from sharedspace.client import Connection
-from sharedspace.episodes import STATUSES, outcome_rates, run_episodes, variation_batches
+from sharedspace.outcomes import STATUSES, outcome_rates
+from sharedspace.pool import listed_scenarios
+from sharedspace.rollout import play_first_episodes, variation_batches
 from sharedspace.stats import paired_clustered
+from sharedspace.wire.requests import EnvSpec
 
 __all__ = ["Result", "compare", "file_name", "load_result", "score"]
 
@@ -205,98 +206,102 @@ def _connection(task: Task, endpoint: str, tmp: Path) -> Connection:
     return Connection.resolve(local_pools=[str(task.pool_path())], local_params=str(params))
 
 
-class _ActModule(nn.Module):
-    """``act`` as the policy module :func:`sharedspace.episodes.run_episodes` plays."""
-
-    def __init__(self, act):
-        super().__init__()
-        self.act = act
-
-    def forward(self, td: TensorDictBase) -> TensorDictBase:
-        td.set("action", torch.as_tensor(self.act(td), dtype=torch.float32))
-        return td
-
-
 def _play(task: Task, policy: Policy, client) -> list[dict[str, Any]]:
     if task.crossing is not None:
-        from sharedspace.marl.evaluate import play
-
-        rows = play(task.crossing, lambda td, step: policy.act(td), client)
-        cars = {car: k for k, car in enumerate(task.crossing.agents)}
-        return [
-            {"scene": r["scene"], "unit": cars[r["car"]], **_keep(r, ("status", "car_collision"))}
-            for r in rows
-        ]
-    pool = json.loads(task.pool_path().read_text())
-    names = [s["name"] for s in pool["scenarios"]]
-    tests = len(task.check_scenes())
+        return _play_crossing(task, policy, client)
+    scenes = [s["name"] for s in task.check_scenes()]
+    keep = ("status", "avg_speed", "avg_abs_jerk", "max_abs_acc", "steps", "return")
     episodes = []
-    for seeds in variation_batches(tests, max(task.variations, 1)):
-        env = _single_car_env(task, client, len(seeds), seeds)
-        try:
-            for e in run_episodes(env, _ActModule(policy.act)):
-                keep = ("status", "avg_speed", "avg_abs_jerk", "max_abs_acc", "steps", "return")
-                unit = e["variation"] if task.variations else 0
-                episodes.append(
-                    {"scene": names[e["scenario_index"]], "unit": unit, **_keep(e, keep)}
-                )
-        finally:
-            env.close()
+    for seeds in variation_batches(len(scenes), max(task.variations, 1)):
+        names = [scenes[k % len(scenes)] for k in range(len(seeds))]
+        played = play_first_episodes(
+            client, _single_car_spec(task), policy.act, names, seeds if task.variations else None
+        )
+        for e in played:
+            unit = e["variation"] if task.variations else 0
+            episodes.append({"scene": e["scene"], "unit": unit, **_keep(e, keep)})
     return episodes
+
+
+def _play_crossing(task: Task, policy: Policy, client) -> list[dict[str, Any]]:
+    """Every car of every test scene of the crossing task (torch: its env is TorchRL's)."""
+    import torch
+
+    from sharedspace.marl.evaluate import play
+
+    def act(td, step: int):
+        obs = {k: td.get(("vehicle", k)).numpy() for k in ("features", "adjacency", "mask")}
+        return torch.as_tensor(policy.act(obs))
+
+    rows = play(task.crossing, act, client)
+    cars = {car: k for k, car in enumerate(task.crossing.agents)}
+    return [
+        {"scene": r["scene"], "unit": cars[r["car"]], **_keep(r, ("status", "car_collision"))}
+        for r in rows
+    ]
 
 
 def _keep(record: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]:
     return {k: record[k] for k in keys if k in record}
 
 
-def _single_car_env(task: Task, client, num_envs: int, seeds: list[int] | None):
-    from sharedspace.torchrl_env import RemoteBatchedEnv
-    from sharedspace.wire.requests import EnvSpec
-
-    spec = EnvSpec(
-        pool=str(task.pool_path()),
+def _single_car_spec(task: Task) -> EnvSpec:
+    """The task's envs, its pool named as the server serving the file knows it."""
+    return EnvSpec(
+        pool=listed_scenarios(task.pool_path())[0],
         split="test",
         seed=0,
         pedestrian_model=task.pedestrian_model,
         max_agents=task.max_agents,
         variations=dict(task.variation_spec) if task.variations else None,
     )
-    return RemoteBatchedEnv(
-        spec,
-        num_envs,
-        scenario_order="sequential",
-        variation_seeds=seeds if task.variations else None,
-        client=client,
-    )
 
 
-def _probe(task: Task, policy: Policy, client) -> None:
-    """One observation of the task through the policy: the action's shape and finiteness are
-    checked before any episode is played."""
+def _first_observation(task: Task, client) -> tuple[dict[str, np.ndarray], tuple[int, ...]]:
+    """One observation of the task's first test scene (its cars grouped on the crossing task),
+    and the actions' shape it wants."""
     if task.crossing is not None:
         from sharedspace.marl.task import make_env
 
         env = make_env(
             task.crossing, "test", 1, client, scenarios=task.crossing.scene_names("test")[:1]
         )
-        want = (1, task.cars, 2)
-    else:
-        env = _single_car_env(task, client, 1, [0])
-        want = (1, 2)
+        try:
+            td = env.reset()
+            obs = {k: td.get(("vehicle", k)).numpy() for k in ("features", "adjacency", "mask")}
+        finally:
+            env.close()
+        return obs, (1, task.cars, 2)
+    from sharedspace.vector import VectorClient
+
+    vec = VectorClient(1, _single_car_spec(task), client=client)
     try:
-        action = torch.as_tensor(policy.act(env.reset()))
+        first = task.check_scenes()[0]["name"]
+        variation = [0] if task.variations else None
+        reset = vec.client.reset_many(vec.env_ids, scenarios=[first], variations=variation)[0]
+    finally:
+        vec.close()
+    obs = {k: np.asarray(reset["obs"][k][:1]) for k in ("features", "adjacency", "mask")}
+    obs["mask"] = obs["mask"].astype(bool)
+    return obs, (1, 2)
+
+
+def _probe(task: Task, policy: Policy, client) -> None:
+    """One observation of the task through the policy: the action's shape and finiteness are
+    checked before any episode is played."""
+    obs, want = _first_observation(task, client)
+    try:
+        action = np.asarray(policy.act(obs))
     except BenchError:
         raise
     except Exception as err:  # a user's policy: say which and why, then stop
         raise BenchError(
             f"policy {policy.name!r} failed on the task's observation: {err!r}"
         ) from err
-    finally:
-        env.close()
     if tuple(action.shape) != want:
         raise BenchError(
             f"policy {policy.name!r} gave actions of shape {tuple(action.shape)} for a batch of "
             f"shape {want[:-1]}; task {task.tag} wants {want}: [acceleration, yaw rate] per car"
         )
-    if not bool(torch.isfinite(action).all()):  # the server clips finite ones into [-1, 1]
+    if not bool(np.isfinite(action).all()):  # the server clips finite ones into [-1, 1]
         raise BenchError(f"policy {policy.name!r} gave an action that is not finite: {action}")
