@@ -408,3 +408,39 @@ def test_envs_use_the_server_the_environment_names_in_a_fresh_venv(user_venv, si
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert "ours 3" in done.stdout and "own servers 0" in done.stdout, done.stdout
+
+
+def test_the_base_package_scores_a_policy_with_no_torch(wheels, tmp_path):
+    """``sharedspace`` without its ``train`` extra (and the server wheel), offline into a fresh
+    venv: no torch to import, and ``python -m sharedspace.bench`` still scores the car-aware
+    script and a user's NumPy function, its legend printed."""
+    uv = Path(sys.executable).parent / "uv"
+    venv = tmp_path / "venv"
+    subprocess.run([str(uv), "venv", "-q", "--python", sys.executable, str(venv)], check=True)
+    python = venv / "bin" / "python"
+    done = subprocess.run(
+        [str(uv), "pip", "install", "--offline", "--python", str(python)]
+        + [wheels["package"].as_uri(), str(wheels["server"])],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    work = tmp_path / "user"
+    work.mkdir()
+    (work / "mine.py").write_text(
+        "import numpy as np\n\n\ndef act(obs):\n    return np.array([0.2, 0.0], dtype=np.float32)\n"
+    )
+    env = _user_env(venv)
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [str(python), *args], cwd=work, env=env, capture_output=True, text=True, timeout=600
+        )
+
+    no_torch = run("-c", "import torch")
+    assert no_torch.returncode != 0 and "No module named 'torch'" in no_torch.stderr
+    for policy, row in (("car_aware", "| car_aware | 2304 |"), ("mine:act", "| mine:act | 2304 |")):
+        scored = run("-m", "sharedspace.bench", "paper", "--policy", policy)
+        assert scored.returncode == 0, scored.stderr[-2000:]
+        assert row in scored.stdout and "Wilson interval" in scored.stdout, scored.stdout

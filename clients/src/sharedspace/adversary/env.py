@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 
 from sharedspace.adversary.task import AdversaryTask, get_adversary_task, plausible_action
 from sharedspace.bench.policies import Policy, make_policy
@@ -222,13 +222,8 @@ class AdversaryEnv(_ServerEnvs):
 
     def _driver_action(self) -> np.ndarray:
         obs = self._obs["driver"]
-        td = TensorDict(
-            {key: torch.from_numpy(obs[key].copy()) for key in _OBS},
-            batch_size=[self.num_envs],
-        )
-        with torch.no_grad():
-            action = torch.as_tensor(self.driver.act(td), dtype=torch.float32)
-        return action.reshape(self.num_envs, 2).numpy()
+        action = np.asarray(self.driver.act({key: obs[key].copy() for key in _OBS}), np.float32)
+        return action.reshape(self.num_envs, 2)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         t0 = time.perf_counter()

@@ -92,7 +92,8 @@ def record_stress_episode(
             frame = env.scene_frame()
             if frame is not None:
                 ep.frames.append(frame)
-            actions = {DRIVER: np.asarray(driver.act(_td(obs[DRIVER])), np.float32).reshape(2)}
+            mine = {k: np.asarray(obs[DRIVER][k])[None] for k in ("features", "adjacency", "mask")}
+            actions = {DRIVER: np.asarray(driver.act(mine), np.float32).reshape(2)}
             if ADVERSARY in env.agents:
                 with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
                     command = adversary(_td(obs[ADVERSARY]))["action"].numpy().reshape(1, 2)

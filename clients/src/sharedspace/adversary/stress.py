@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torch import nn
@@ -45,10 +46,11 @@ def pooled_driver(specs: Sequence[Any], task: AdversaryTask, name: str = "") -> 
     if len(made) == 1:
         return made[0]
 
-    def act(td: TensorDictBase) -> torch.Tensor:
-        out = torch.zeros(td.batch_size[0], 2)
+    def act(obs: dict[str, np.ndarray]) -> np.ndarray:
+        n = len(made)
+        out = np.zeros((len(obs["features"]), 2), dtype=np.float32)
         for j, p in enumerate(made):
-            out[j :: len(made)] = torch.as_tensor(p.act(td[j :: len(made)]), dtype=torch.float32)
+            out[j::n] = np.asarray(p.act({k: v[j::n] for k, v in obs.items()}), np.float32)
         return out
 
     sources = [p.source for p in made]

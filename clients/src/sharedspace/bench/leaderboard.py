@@ -19,7 +19,7 @@ from typing import Any
 from sharedspace.bench.scoring import Result, compare, load_result
 from sharedspace.bench.tasks import REPO, BenchError
 from sharedspace.cli import run_command
-from sharedspace.episodes import STATUSES
+from sharedspace.outcomes import STATUSES
 
 __all__ = ["legend", "render"]
 
