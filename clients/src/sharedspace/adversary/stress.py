@@ -27,7 +27,8 @@ from sharedspace.adversary.task import AdversaryTask, get_adversary_task
 from sharedspace.adversary.train import serve_task
 from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.episodes import run_episodes
-from sharedspace.stats import paired_clustered, wilson
+from sharedspace.outcomes import outcome_rates
+from sharedspace.stats import paired_clustered
 
 __all__ = [
     "load_adversary",
@@ -153,18 +154,18 @@ def summarize_stress(result: dict[str, Any]) -> dict[str, Any]:
     base = conditions[base_label]["episodes"]
     for label, cond in conditions.items():
         eps = cond["episodes"]
-        n = len(eps)
-        rates = {}
-        for key, hit in (
-            ("success", lambda e: e["driver"] == "success"),
-            ("collision", lambda e: e["driver"] == "collision"),
-            ("at_fault", lambda e: e["fault"]),
-            ("at_fault_any", lambda e: e.get("fault_any", False)),
-            ("adversary_blamed", lambda e: e["blame"]),
-        ):
-            count = sum(1 for e in eps if hit(e))
-            rates[key] = {"rate": count / n, "count": count, "ci95": list(wilson(count, n))}
-        cond["summary"] = {"episodes": n, **rates}
+        rows = [
+            {
+                "status": e["driver"],
+                "at_fault": e["fault"],
+                "at_fault_any": e.get("fault_any", False),
+                "adversary_blamed": e["blame"],
+            }
+            for e in eps
+        ]
+        rates = outcome_rates(rows, flags=("at_fault", "at_fault_any", "adversary_blamed"))
+        rates.pop("timeout")  # the stress test's conditions report success and collision
+        cond["summary"] = {"episodes": len(eps), **rates}
         if label != base_label:
             cond["drop"] = paired_clustered(
                 per_episode(base, "success"), per_episode(eps, "success")

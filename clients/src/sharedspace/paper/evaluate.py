@@ -31,9 +31,9 @@ import numpy as np
 
 from sharedspace.cli import run_command
 from sharedspace.episodes import BENCHMARK_VARIATIONS, variation_batches
+from sharedspace.outcomes import outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.pool import load_pool, recorded_headings
-from sharedspace.stats import wilson
 from sharedspace.train.config import (
     TrainConfig,
     add_overrides_argument,
@@ -219,10 +219,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.variations > 0:
         eps = result["episodes"]
         cells = []
-        for s in STATUSES:
-            k = sum(e["status"] == s for e in eps)
-            lo, hi = wilson(k, len(eps))
-            cells.append(f"{s} {k}/{len(eps)} = {k / len(eps):.3f} [{lo:.3f}, {hi:.3f}]")
+        for s, rate in outcome_rates(eps).items():
+            lo, hi = rate["ci95"]
+            share = f"{rate['count']}/{len(eps)} = {rate['rate']:.3f}"
+            cells.append(f"{s} {share} [{lo:.3f}, {hi:.3f}]")
         print("Wilson 95 %: " + ", ".join(cells))
     if args.json:
         with open(args.json, "w") as f:

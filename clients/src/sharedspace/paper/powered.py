@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.cli import run_command
+from sharedspace.outcomes import outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.paper.evaluate import (
     BENCHMARK_VARIATIONS,
@@ -94,10 +95,9 @@ def group_table(groups: dict[str, dict[str, list[dict[str, Any]]]]) -> dict[str,
         eps = [e for episodes in runs.values() for e in episodes]
         n = len(eps)
         row: dict[str, Any] = {"episodes": n, "runs": {}}
-        for s in STATUSES:
-            k = sum(e["status"] == s for e in eps)
-            row[s] = k / n if n else 0.0
-            row[f"{s}_ci"] = wilson(k, n)
+        for s, rate in outcome_rates(eps).items():
+            row[s] = rate["rate"]
+            row[f"{s}_ci"] = tuple(rate["ci95"])
         for run, episodes in runs.items():
             m = len(episodes)
             row["runs"][run] = {

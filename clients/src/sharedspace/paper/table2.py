@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from sharedspace.cli import run_command
+from sharedspace.outcomes import outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver, reachability
 from sharedspace.paper.evaluate import (
     COLUMNS,
@@ -53,7 +54,7 @@ from sharedspace.paper.evaluate import (
 )
 from sharedspace.paper.planner import open_loop_search, unavoidable_first_step
 from sharedspace.pool import load_pool, split_indices
-from sharedspace.stats import paired_clustered, sign_test, wilson
+from sharedspace.stats import paired_clustered, sign_test
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.checkpoint import ship as ship_checkpoint
 from sharedspace.train.config import (
@@ -131,13 +132,12 @@ def variant_stats(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
             "per_seed": vals.tolist(),
         }
     n = len(episodes)
-    for status in STATUSES:
-        k = sum(e["status"] == status for e in episodes)
+    for status, rate in outcome_rates(episodes).items():
         stats[f"pooled_{status}"] = {
-            "k": k,
+            "k": rate["count"],
             "n": n,
-            "rate": k / n if n else 0.0,
-            "wilson95": wilson(k, n),
+            "rate": rate["rate"],
+            "wilson95": tuple(rate["ci95"]),
         }
     return stats
 
