@@ -1,15 +1,16 @@
 """How episodes ended, with no torch: the statuses, the metrics a summary averages, the powered
-test's variations and the one outcome summary (:func:`outcome_rates`). The bench, the tables and
+test's variations, the one outcome summary (:func:`outcome_rates`) and the one per-episode
+average over pooled seeds (:func:`mean_by_episode`). The bench, the tables and
 the learners' evaluations all count outcomes here (:mod:`sharedspace.episodes` plays them)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from typing import Any
 
 from sharedspace.stats import wilson
 
-__all__ = ["BENCHMARK_VARIATIONS", "METRICS", "STATUSES", "outcome_rates"]
+__all__ = ["BENCHMARK_VARIATIONS", "METRICS", "STATUSES", "mean_by_episode", "outcome_rates"]
 
 #: How an episode ends (sim-core ``EpisodeStatus``).
 STATUSES = ("success", "collision", "timeout")
@@ -33,3 +34,18 @@ def outcome_rates(
         lo, hi = wilson(hits, n)
         out[key] = {"rate": hits / max(n, 1), "count": hits, "ci95": [lo, hi]}
     return out
+
+
+def mean_by_episode(
+    rows: Iterable[dict[str, Any]],
+    episode: Callable[[dict[str, Any]], Hashable],
+    value: Callable[[dict[str, Any]], float],
+) -> dict[Hashable, float]:
+    """Each episode's ``value`` averaged over the rows that played it (``episode(row)`` names
+    it: a scene and variation, or a scene and car): a pooled row's seeds count as one outcome
+    per episode, which is what a paired difference pairs. The one per-episode averaging of the
+    bench, the tables, the stress test and the multi-car evaluation."""
+    plays: dict[Hashable, list[float]] = {}
+    for row in rows:
+        plays.setdefault(episode(row), []).append(float(value(row)))
+    return {key: sum(v) / len(v) for key, v in plays.items()}

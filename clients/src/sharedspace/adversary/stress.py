@@ -27,7 +27,7 @@ from sharedspace.adversary.task import AdversaryTask, get_adversary_task
 from sharedspace.adversary.train import serve_task
 from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.episodes import run_episodes
-from sharedspace.outcomes import outcome_rates
+from sharedspace.outcomes import mean_by_episode, outcome_rates
 from sharedspace.stats import paired_clustered
 
 __all__ = [
@@ -178,8 +178,8 @@ def summarize_stress(result: dict[str, Any]) -> dict[str, Any]:
 
 def per_episode(episodes: list[dict[str, Any]], what: str) -> dict[tuple[str, int], float]:
     """Per (scene, variation), the mean over the pooled policies of success or ``fault``."""
-    sums: dict[tuple[str, int], list[float]] = {}
-    for e in episodes:
-        hit = e["driver"] == "success" if what == "success" else bool(e[what])
-        sums.setdefault((e["scene"], int(e["variation"])), []).append(float(hit))
-    return {k: sum(v) / len(v) for k, v in sums.items()}
+    return mean_by_episode(
+        episodes,
+        lambda e: (e["scene"], int(e["variation"])),
+        lambda e: e["driver"] == "success" if what == "success" else bool(e[what]),
+    )

@@ -24,7 +24,7 @@ import numpy as np
 from sharedspace.bench.policies import Policy, make_policy
 from sharedspace.bench.tasks import BenchError, Task, get_task
 from sharedspace.client import Connection
-from sharedspace.outcomes import STATUSES, outcome_rates
+from sharedspace.outcomes import STATUSES, mean_by_episode, outcome_rates
 from sharedspace.pool import listed_scenarios
 from sharedspace.rollout import play_first_episodes, variation_batches
 from sharedspace.stats import paired_clustered
@@ -97,10 +97,11 @@ class Result:
 
     def success_by_episode(self) -> dict[tuple[str, int], float]:
         """Each episode's success, averaged over the pooled policies."""
-        sums: dict[tuple[str, int], list[float]] = {}
-        for e in self.episodes:
-            sums.setdefault((e["scene"], int(e["unit"])), []).append(e["status"] == "success")
-        return {k: sum(v) / len(v) for k, v in sums.items()}
+        return mean_by_episode(
+            self.episodes,
+            lambda e: (e["scene"], int(e["unit"])),
+            lambda e: e["status"] == "success",
+        )
 
 
 def score(

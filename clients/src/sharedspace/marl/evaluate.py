@@ -21,6 +21,7 @@ from sharedspace.client import Connection, SimClient
 from sharedspace.episodes import STATUSES, outcome_rates
 from sharedspace.marl.task import CrossingTask, make_env
 from sharedspace.names import Feature
+from sharedspace.outcomes import mean_by_episode
 from sharedspace.scripted import SCRIPTED
 from sharedspace.stats import paired_clustered
 from sharedspace.train.envs import ResidualAction
@@ -144,13 +145,12 @@ def paired_difference(
     :func:`sharedspace.stats.paired_clustered`, the one paired difference). ``rows`` may hold
     several seeds' plays of the cells: a cell's outcome is their mean. A cell the baseline did
     not play is a ``KeyError``."""
-    plays: dict[tuple[str, str], list[float]] = {}
-    for r in rows:
-        plays.setdefault((r["scene"], r["car"]), []).append(float(r["status"] == "success"))
+    mine = mean_by_episode(
+        rows, lambda r: (r["scene"], r["car"]), lambda r: r["status"] == "success"
+    )
     base = {(r["scene"], r["car"]): float(r["status"] == "success") for r in baseline}
-    missing = sorted(set(plays) - set(base))
+    missing = sorted(set(mine) - set(base))
     if missing:
         raise KeyError(f"cells the baseline did not play: {missing[:3]}")
-    mine = {cell: float(np.mean(v)) for cell, v in plays.items()}
     out = paired_clustered(mine, base, resamples, seed)
     return {"mean": out["diff"], "ci95": [out["lo"], out["hi"]]}

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.cli import run_command
-from sharedspace.outcomes import outcome_rates
+from sharedspace.outcomes import mean_by_episode, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.paper.evaluate import (
     BENCHMARK_VARIATIONS,
@@ -80,11 +80,11 @@ def outcome_by_episode(
 
 def pooled(runs: dict[str, list[dict[str, Any]]], status: str) -> dict[tuple[int, int], float]:
     """A group's outcome per episode: the mean over its runs (seeds) that played it."""
-    sums: dict[tuple[int, int], list[float]] = {}
-    for episodes in runs.values():
-        for key, v in outcome_by_episode(episodes, status).items():
-            sums.setdefault(key, []).append(v)
-    return {k: sum(v) / len(v) for k, v in sums.items()}
+    return mean_by_episode(
+        (e for episodes in runs.values() for e in episodes),
+        lambda e: (int(e["scenario_index"]), int(e["variation"])),
+        lambda e: e["status"] == status,
+    )
 
 
 def group_table(groups: dict[str, dict[str, list[dict[str, Any]]]]) -> dict[str, dict[str, Any]]:

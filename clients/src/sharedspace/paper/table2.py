@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from sharedspace.cli import run_command
-from sharedspace.outcomes import outcome_rates
+from sharedspace.outcomes import mean_by_episode, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver, reachability
 from sharedspace.paper.evaluate import (
     COLUMNS,
@@ -144,11 +144,11 @@ def variant_stats(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
 
 def per_scenario_success(per_seed: dict[int, dict[str, Any]]) -> dict[int, float]:
     """Scenario -> success averaged over seeds."""
-    by: dict[int, list[float]] = {}
-    for r in per_seed.values():
-        for e in r["episodes"]:
-            by.setdefault(int(e["scenario_index"]), []).append(float(e["status"] == "success"))
-    return {k: float(np.mean(v)) for k, v in by.items()}
+    return mean_by_episode(
+        (e for r in per_seed.values() for e in r["episodes"]),
+        lambda e: int(e["scenario_index"]),
+        lambda e: e["status"] == "success",
+    )
 
 
 def paired(a: dict[int, float], b: dict[int, float]) -> dict[str, Any]:
