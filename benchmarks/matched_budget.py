@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sharedspace.paper.evaluate import load_checkpoint_actor, evaluate_policy
+from sharedspace.paper.evaluate import evaluate_policy
+from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.stats import wilson, sign_test, paired_bootstrap
 

@@ -215,7 +215,7 @@ def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
     """``base_driver``: the env executes the script's action plus the policy's; a fresh actor's
     deterministic residual is 0, so its episodes are the script's, step for step, while the
     replay buffer sees the residual."""
-    from sharedspace.train.evaluation import run_episodes
+    from sharedspace.episodes import run_episodes
     from sharedspace.train.sac import make_actor
 
     base = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])

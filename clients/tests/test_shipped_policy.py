@@ -13,7 +13,8 @@ pytest.importorskip("torchrl")
 
 from conftest import REPO_ROOT, start_server, unique_prefix  # noqa: E402
 
-from sharedspace.paper.evaluate import evaluate_policy, load_checkpoint_actor  # noqa: E402
+from sharedspace.paper.evaluate import evaluate_policy  # noqa: E402
+from sharedspace.train.learners import load_checkpoint_actor  # noqa: E402
 
 POLICIES = REPO_ROOT / "results" / "table2" / "policies"
 

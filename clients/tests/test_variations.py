@@ -17,7 +17,7 @@ from conftest import sim_server_binary, unique_prefix
 
 import sharedspace
 from sharedspace.client import SimClient
-from sharedspace.paper.evaluate import BENCHMARK_VARIATIONS
+from sharedspace.outcomes import BENCHMARK_VARIATIONS
 from sharedspace.stats import cluster_bootstrap, paired_clustered
 from sharedspace.torchrl_env import RemoteBatchedEnv
 from sharedspace.train.config import TrainConfig, apply_overrides

@@ -38,6 +38,7 @@ from torch import nn
 from torchrl.envs.utils import step_mdp
 
 from sharedspace.cli import run_command
+from sharedspace.outcomes import STATUSES
 from sharedspace.paper.drivers import make_driver
 from sharedspace.paper.planner import Cell, cell_name, open_loop_search
 from sharedspace.train.config import (
@@ -47,7 +48,6 @@ from sharedspace.train.config import (
     command_parser,
 )
 from sharedspace.train.envs import make_env
-from sharedspace.train.evaluation import STATUSES
 from sharedspace.train.prior import KEYS, read_header, world_of, write_prior
 from sharedspace.worlds import TRAINING_VARIATIONS  # the learners' variations, the demos' default
 

@@ -223,9 +223,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_overrides_argument(ap, "config overrides (server_endpoint=..., server_prefix=...)")
     args = ap.parse_args(argv)
     from sharedspace.paper.drivers import make_driver
-    from sharedspace.paper.evaluate import load_checkpoint_actor
     from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
     from sharedspace.train.config import TrainConfig, apply_overrides
+    from sharedspace.train.learners import load_checkpoint_actor
 
     if args.checkpoint:
         cfg, policy = load_checkpoint_actor(args.checkpoint, args.set)

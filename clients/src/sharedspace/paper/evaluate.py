@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from sharedspace.cli import run_command
-from sharedspace.episodes import BENCHMARK_VARIATIONS, variation_batches
-from sharedspace.outcomes import outcome_rates
+from sharedspace.episodes import summarize
+from sharedspace.outcomes import BENCHMARK_VARIATIONS, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.pool import load_pool, recorded_headings
 from sharedspace.train.config import (
@@ -40,29 +40,11 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
-from sharedspace.train.envs import make_env
-from sharedspace.train.evaluation import (
-    STATUSES,
-    evaluate_split,
-    run_episodes,
-    summarize,
-)
+from sharedspace.train.evaluation import evaluate_split, play_variations
 from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.networks import network_label
 
-__all__ = [
-    "COLUMNS",
-    "BENCHMARK_VARIATIONS",
-    "STATUSES",
-    "human_episodes",
-    "run_episodes",
-    "play_variations",
-    "summarize",
-    "format_table",
-    "load_checkpoint_actor",
-    "evaluate_policy",
-    "main",
-]
+__all__ = ["COLUMNS", "human_episodes", "format_table", "evaluate_policy", "main"]
 
 #: Table II columns: (key, header).
 COLUMNS = (
@@ -124,39 +106,6 @@ def format_table(rows: dict[str, dict[str, float]]) -> str:
             + f"{int(row['episodes']):>10}"
         )
     return "\n".join(lines)
-
-
-def play_variations(
-    cfg: TrainConfig,
-    policy,
-    variations: int,
-    split: str = "test",
-    spec: dict[str, Any] | None = None,
-    first: int = 0,
-    fresh_policy=None,
-) -> list[dict[str, Any]]:
-    """Plays every scenario of ``split`` in the variations of seeds ``first .. first +
-    variations - 1`` of ``spec`` (default :data:`BENCHMARK_VARIATIONS`): one episode per
-    (scenario, variation), each record with its ``variation`` seed. Envs of whole variations
-    (:func:`sharedspace.episodes.variation_batches`). ``fresh_policy()``, if given, makes the
-    policy anew for each env (a driver that counts its steps)."""
-    n = len(cfg.scene_indices(split))
-    episodes: list[dict[str, Any]] = []
-    for seeds in variation_batches(n, variations, first):
-        env = make_env(
-            cfg,
-            split=split,
-            num_envs=len(seeds),
-            seed=cfg.seed,
-            scenario_order="sequential",
-            variations=dict(spec or BENCHMARK_VARIATIONS),
-            variation_seeds=seeds,
-        )
-        try:
-            episodes += run_episodes(env, fresh_policy() if fresh_policy else policy)
-        finally:
-            env.close()
-    return episodes
 
 
 def evaluate_policy(

@@ -131,7 +131,7 @@ def open_loop_search(
     successful sequence, or None).
 
     With ``variations`` = M > 0 the search runs on each of the M seeded variations of every test
-    scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.paper.evaluate.play_variations`
+    scenario (seeds 0..M-1 of ``spec``, as :func:`sharedspace.train.evaluation.play_variations`
     plays them), keyed ``"{name}#{seed}"``: the bound of the powered test. ``split`` names
     another split, ``cells`` any list of (scene, variation seed) instead; ``initial`` maps a
     cell's name to a sequence ``[T, 2]`` that round 0 plays among its first candidates (a

@@ -8,13 +8,14 @@ paired, scene-clustered comparisons.
 
     python -m sharedspace.paper.powered --from-json docs/table2_variations.json --by-m 8,16,32
 
-Every policy plays variation ``j`` (seed ``j``, :func:`sharedspace.paper.evaluate.play_variations`)
-of every test scene, so two policies' outcomes pair up episode by episode. A variant's seeds pool:
-its outcome in an episode is the mean over its seeds. A comparison ``A - B`` is the mean paired
-difference with two 95 % bootstrap intervals (:func:`sharedspace.stats.paired_clustered`): one
-that resamples whole scenes (the episodes of one scene are not independent; this is the interval
-for scenes like these, and more variations cannot narrow it below what the scenes disagree by),
-and one that holds the test scenes fixed (how sure the mean over these scenes' variations is).
+Every policy plays variation ``j`` (seed ``j``,
+:func:`sharedspace.train.evaluation.play_variations`) of every test scene, so two policies' outcomes
+pair up episode by episode. A variant's seeds pool: its outcome in an episode is the mean over its
+seeds. A comparison ``A - B`` is the mean paired difference with two 95 % bootstrap intervals
+(:func:`sharedspace.stats.paired_clustered`): one that resamples whole scenes (the episodes of one
+scene are not independent; this is the interval for scenes like these, and more variations cannot
+narrow it below what the scenes disagree by), and one that holds the test scenes fixed (how sure the
+mean over these scenes' variations is).
 ``--by-m`` gives both half-widths for the first M variations of a run, to choose M. With no
 ``--set server_endpoint=...`` a local server is started with ``--params`` (the Table II world,
 ``params/table2.json5``, by default).
@@ -31,14 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.cli import run_command
-from sharedspace.outcomes import mean_by_episode, outcome_rates
+from sharedspace.outcomes import BENCHMARK_VARIATIONS, STATUSES, mean_by_episode, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
-from sharedspace.paper.evaluate import (
-    BENCHMARK_VARIATIONS,
-    STATUSES,
-    load_checkpoint_actor,
-    play_variations,
-)
 from sharedspace.stats import paired_clustered, wilson
 from sharedspace.train.config import (
     TrainConfig,
@@ -46,6 +41,8 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
+from sharedspace.train.evaluation import play_variations
+from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.networks import network_label
 
 __all__ = ["LABELS", "group_table", "comparisons", "label", "render", "main"]

@@ -42,16 +42,10 @@ from typing import Any
 import numpy as np
 
 from sharedspace.cli import run_command
-from sharedspace.outcomes import mean_by_episode, outcome_rates
+from sharedspace.episodes import summarize
+from sharedspace.outcomes import STATUSES, mean_by_episode, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver, reachability
-from sharedspace.paper.evaluate import (
-    COLUMNS,
-    STATUSES,
-    evaluate_policy,
-    human_episodes,
-    load_checkpoint_actor,
-    summarize,
-)
+from sharedspace.paper.evaluate import COLUMNS, evaluate_policy, human_episodes
 from sharedspace.paper.planner import open_loop_search, unavoidable_first_step
 from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_clustered, sign_test
@@ -63,6 +57,7 @@ from sharedspace.train.config import (
     apply_overrides,
     command_parser,
 )
+from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_network, network_label
 
 __all__ = ["main", "render", "ship"]

@@ -24,16 +24,16 @@ from typing import Any
 from tensordict.nn import TensorDictModule
 
 from sharedspace.cli import run_command
+from sharedspace.episodes import summarize
 from sharedspace.paper.demos import TRAINING_VARIATIONS
 from sharedspace.paper.drivers import CarAwareDriver
-from sharedspace.paper.evaluate import play_variations
 from sharedspace.train.config import (
     TrainConfig,
     add_overrides_argument,
     apply_overrides,
     command_parser,
 )
-from sharedspace.train.evaluation import summarize
+from sharedspace.train.evaluation import play_variations
 
 __all__ = ["GRID", "tune_car_aware", "main"]
 

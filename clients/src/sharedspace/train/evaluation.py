@@ -13,26 +13,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from sharedspace.episodes import (
-    BENCHMARK_VARIATIONS,
-    METRICS,
-    STATUSES,
-    outcome_rates,
-    run_episodes,
-    summarize,
-    variation_batches,
-)
+from sharedspace.episodes import BENCHMARK_VARIATIONS, run_episodes, summarize, variation_batches
 from sharedspace.train.config import TrainConfig
 from sharedspace.train.envs import make_env
 
-__all__ = [
-    "METRICS",
-    "STATUSES",
-    "evaluate_split",
-    "outcome_rates",
-    "run_episodes",
-    "summarize",
-]
+__all__ = ["evaluate_split", "play_variations"]
 
 
 def evaluate_split(cfg: TrainConfig, actor, split: str = "test") -> dict[str, Any]:
@@ -50,20 +35,41 @@ def evaluate_split(cfg: TrainConfig, actor, split: str = "test") -> dict[str, An
 
 
 def _evaluate_validation(cfg: TrainConfig, actor) -> dict[str, Any]:
-    scenes = cfg.validation_scenes
+    episodes = play_variations(cfg, actor, cfg.validation_variations, "validation", seed=0)
+    return {"episodes": episodes, "summary": summarize(episodes)}
+
+
+def play_variations(
+    cfg: TrainConfig,
+    policy,
+    variations: int,
+    split: str = "test",
+    spec: dict[str, Any] | None = None,
+    first: int = 0,
+    fresh_policy=None,
+    seed: int | None = None,
+) -> list[dict[str, Any]]:
+    """Plays every scenario of ``split`` in the variations of seeds ``first .. first +
+    variations - 1`` of ``spec`` (default :data:`~sharedspace.outcomes.BENCHMARK_VARIATIONS`):
+    one episode per (scenario, variation), each record with its ``variation`` seed. Envs of
+    whole variations (:func:`sharedspace.rollout.variation_batches`), seeded ``seed`` (default
+    the config's). ``fresh_policy()``, if given, makes the policy anew for each env (a driver
+    that counts its steps). The one play loop over variation batches of the trainers' and the
+    tables' TorchRL envs."""
+    n = len(cfg.scene_indices(split))
     episodes: list[dict[str, Any]] = []
-    for seeds in variation_batches(scenes, cfg.validation_variations):
+    for seeds in variation_batches(n, variations, first):
         env = make_env(
             cfg,
-            split="validation",
+            split=split,
             num_envs=len(seeds),
-            seed=0,
+            seed=cfg.seed if seed is None else seed,
             scenario_order="sequential",
-            variations=BENCHMARK_VARIATIONS,
+            variations=dict(spec or BENCHMARK_VARIATIONS),
             variation_seeds=seeds,
         )
         try:
-            episodes += run_episodes(env, actor)
+            episodes += run_episodes(env, fresh_policy() if fresh_policy else policy)
         finally:
             env.close()
-    return {"episodes": episodes, "summary": summarize(episodes)}
+    return episodes
