@@ -4,7 +4,7 @@ composed scenes beside them (``scenes=N``, SPEC 5.2.2), one run per arm and seed
     .venv/bin/python benchmarks/scene_curve.py --task paper --arms recorded,n1000,unlimited \\
         --seeds 0 --frames 3145728 --network gcn_uniform
 
-Each run trains with the bench's from-scratch recipe (``sharedspace.bench.rows``: the learning
+Each run trains with the bench's from-scratch recipe (``sharedspace.arms.rows``: the learning
 rate held for half the run, then annealed to 0) and scores on the validation split carved from
 the recorded train scenes as it goes. A run lives in ``results/scenes/runs/<task>-<arm>-s<seed>``
 (config, metrics.csv, checkpoints), and its last checkpoint is shipped to
@@ -50,7 +50,7 @@ ARMS: dict[str, list[str]] = {
 #: The pilots' budget in frames (issue 58's from-scratch budget, chosen there on validation).
 DEFAULT_FRAMES = 3_145_728
 
-#: The bench's from-scratch recipe (sharedspace.bench.rows: SCRATCH and its run settings).
+#: The bench's from-scratch recipe (sharedspace.arms.rows: SCRATCH and its run settings).
 RECIPE = [
     "algorithm=ppo",
     "anneal_lr=true",

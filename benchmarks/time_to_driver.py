@@ -4,7 +4,7 @@ wall-clock minutes and the frames until the validation success first reaches a t
 
 Each run is the reference arm's recipe (``python -m sharedspace.train --set task=crowd
 algorithm=ppo network=gcn_risk seed=S anneal_lr=true anneal_start=0.5 total_frames=6291456``,
-``sharedspace.bench.rows``'s ``scratch`` arm) with a validation scoring every ``--eval-interval``
+``sharedspace.arms.rows``'s ``scratch`` arm) with a validation scoring every ``--eval-interval``
 frames (the split carved from the train scenes: nothing here looks at the test scenes). A run
 is stopped at its first scoring at or above the threshold, or at ``--cap`` frames. Its minutes
 are its training wall time at that scoring (collection and updates, ``eval/train_wall_s``: the

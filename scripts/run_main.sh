@@ -6,7 +6,7 @@
 #    parameters of the paper's Table II (params/table2.json5);
 # 2. trains the fast learner for the benchmark's `paper` task against it over Zenoh: PPO with the
 #    GCN over the risk graph, from scratch, on 256 envs stepped together, with the from-scratch
-#    recipe of the benchmark's rows (sharedspace.bench.rows.ARMS["scratch"]: the learning rate
+#    recipe of the benchmark's rows (sharedspace.arms.rows.ARMS["scratch"]: the learning rate
 #    held for half the run, then falling to 0, so that the last checkpoint is the policy;
 #    RUN_FRAMES frames, default 786 432: about 2 minutes; progress bar: frames/s, return,
 #    success, the env's share of the time; curves on the validation scenes carved from the
@@ -39,7 +39,7 @@ trap 'kill "$server_pid" 2>/dev/null; wait "$server_pid" 2>/dev/null || true' EX
 echo "== sim-server serving on $endpoint (log: $out/server.log)"
 
 remote=("server_endpoint=$endpoint" server_prefix=sharedspace)
-mapfile -t recipe < <("$py" -c 'from sharedspace.bench.rows import ARMS; print(*ARMS["scratch"], sep="\n")')
+mapfile -t recipe < <("$py" -c 'from sharedspace.arms.rows import ARMS; print(*ARMS["scratch"], sep="\n")')
 echo "== training PPO-GCN-Cog from scratch (${recipe[*]}): $frames frames against the server"
 "$py" -m sharedspace.train --set algorithm=ppo task=paper network=gcn_risk "total_frames=$frames" \
     "${recipe[@]}" eval_interval=262144 "checkpoint_interval=$frames" progress=true "log_dir=$out" \

@@ -343,7 +343,7 @@ def test_a_task_whose_pool_is_missing_or_changed_is_refused():
 
 
 def test_a_run_is_stable_when_its_last_three_scorings_agree_over_a_million_frames(tmp_path):
-    from sharedspace.bench.rows import stability
+    from sharedspace.arms.rows import stability
 
     def run(name, scorings):
         folder = tmp_path / name

@@ -1,7 +1,7 @@
 """A task's leaderboard from its result files: one row per result, best success first, each
 with its Wilson intervals, its paired difference against the task's ``car_aware`` row, and for a
 learned row its success on the validation split, on which the task's best row is chosen
-(:mod:`sharedspace.bench.best`, ``OUT/best.json``): the table says which, and the test scores
+(:mod:`sharedspace.arms.best`, ``OUT/best.json``): the table says which, and the test scores
 above it play no part in that choice.
 
     python -m sharedspace.bench.leaderboard results/bench/crowd [--out LEADERBOARD.md]

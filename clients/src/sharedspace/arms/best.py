@@ -1,9 +1,9 @@
 """Each task's best learned row, chosen on validation: never on the test scenes.
 
-    python -m sharedspace.bench.best paper crowd [--out results/bench]
+    python -m sharedspace.arms.best paper crowd [--out results/bench]
 
 A row is the seeds of one arm and network (``OUT/policies/TASK-ARM-NETWORK-sSEED.pt``, what
-:mod:`sharedspace.bench.rows` ships). Every shipped policy is scored once on its task's
+:mod:`sharedspace.arms.rows` ships). Every shipped policy is scored once on its task's
 validation split, the train scenes the trainer carves off (:mod:`sharedspace.worlds`), at
 :data:`VALIDATION_EPISODES` episodes or more, as the scratch runs' own last scoring is; the
 scores are kept in ``OUT/TASK/validation.json``. The row whose seeds score the highest pooled
@@ -142,7 +142,7 @@ def choose_best(tasks: Sequence[str], out: Path, min_seeds: int = 3) -> dict[str
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sharedspace.bench.best", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m sharedspace.arms.best", description=__doc__)
     ap.add_argument(
         "tasks", nargs="+", choices=[t for t, w in TRAINING_TASKS.items() if w.cars == 1]
     )

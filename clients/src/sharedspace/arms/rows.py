@@ -2,7 +2,7 @@
 three networks, 3 seeds, from scratch or as a residual over the car-aware script, trained on the
 task's train split and scored by the benchmark beside the scripts.
 
-    python -m sharedspace.bench.rows crowd --arm residual [--frames 1500000] [--seeds 0 1 2]
+    python -m sharedspace.arms.rows crowd --arm residual [--frames 1500000] [--seeds 0 1 2]
         [--networks gcn_risk gcn_uniform mlp] [--out results/bench]
 
 Each run trains for the task in its own process (``python -m sharedspace.train --set
@@ -14,7 +14,7 @@ as ``OUT/policies/TASK-ARM-NETWORK-sSEED.pt``. Then every network's seeds are sc
 pooled row (``OUT/TASK/ARM-NETWORK.json`` / ``.md``) against the task's ``car_aware`` row, and
 the paper's question is asked of the rows: Cog − NoCog and Cog − S, paired. ``OUT/TASK/runs.json``
 keeps each run's wall time. Last, the task's best row is chosen on validation
-(:mod:`sharedspace.bench.best`, ``OUT/best.json``) and its leaderboard written.
+(:mod:`sharedspace.arms.best`, ``OUT/best.json``) and its leaderboard written.
 
 The recipe (the trainer's PPO defaults and the tasks' training worlds, :mod:`sharedspace.worlds`)
 was chosen on a validation split carved from the train scenes (results/ppo/tuning), never on the
@@ -34,8 +34,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sharedspace.arms.best import choose_best, validation_variations
 from sharedspace.bench import leaderboard
-from sharedspace.bench.best import choose_best, validation_variations
 from sharedspace.bench.scoring import Result, compare, load_result, score
 from sharedspace.bench.tasks import REPO
 from sharedspace.cli import run_command
@@ -167,7 +167,7 @@ def reference(task: str, driver: str, out: Path) -> Result:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sharedspace.bench.rows", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m sharedspace.arms.rows", description=__doc__)
     ap.add_argument("task", choices=SINGLE_CAR_TASKS)
     ap.add_argument("--arm", choices=sorted(ARMS), required=True)
     ap.add_argument("--networks", nargs="+", default=list(NETWORKS), type=_network_name)
