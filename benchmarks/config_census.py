@@ -6,7 +6,8 @@ Traced with ``sys.setprofile`` over ``python -m sharedspace.train``'s ``main`` (
 line builds the config, then the one loop makes the world, env, learner and collector), up to
 the first batch. Consecutive calls in one module count once; a *comeback* is an entry into a
 module the config had already left. Also counts the lines of ``train/``, ``marl/`` and
-``bench/``. Run it on an old checkout too (``PYTHONPATH=OLD/clients/src``) for before and after.
+``bench/``, and of the reference arms (``arms/``). Run it on an old checkout too
+(``PYTHONPATH=OLD/clients/src``) for before and after.
 
 Usage: python benchmarks/config_census.py [--set task=crowd algorithm=ppo network=gcn_risk]
 """
@@ -91,7 +92,7 @@ def main() -> None:
         "modules": sorted(set(sequence)),
         "sequence": sequence,
         "comebacks": comebacks(sequence),
-        "lines": lines("train", "marl", "bench", "reference_arms"),
+        "lines": lines("train", "marl", "bench", "arms"),
     }
     print(" -> ".join(sequence))
     print(f"{len(out['modules'])} modules, {out['comebacks']} comebacks; lines {out['lines']}")
