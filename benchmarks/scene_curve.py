@@ -15,8 +15,8 @@ seconds, summed over the calls) is skipped. Nothing in the training reads a test
 ``--report`` scores each finished run's last checkpoint on the recorded train scenes (each once,
 as recorded: what it fits), the validation split (its last scoring, in the trainer's variations)
 and the bench task's test scenes (``python -m sharedspace.bench TASK``, reported beside, never
-chosen on), pooled per arm, into ``results/scenes/curve-<task>.json``; ``score.json`` in a run's
-directory keeps its scores.
+chosen on), pooled per arm, into ``results/scenes/curve-<task>.json`` and the figure
+``docs/figures/scene-curve-<task>.png``; ``score.json`` in a run's directory keeps its scores.
 """
 
 from __future__ import annotations
@@ -178,6 +178,64 @@ def report(task: str) -> None:
             f"{r['test']['success']:.3f} / {r['test']['collision']:.3f} | {_diff(r)} |"
         )
     (REPO / "results" / "scenes" / f"curve-{task}.json").write_text(json.dumps(rows, indent=1))
+    plot(task, rows, arms)
+
+
+#: The arms in the order of the figure: from the recorded scenes to a fresh scene each episode.
+ORDER = ["recorded", "variations", "n1000", "n10000", "unlimited"]
+
+
+def _validation_curve(log_dir: Path) -> tuple[list[float], list[float]]:
+    """(frames in millions, validation success) of a run's scorings."""
+    rows = [ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]]
+    points = [(int(r[0]) / 1e6, float(r[3])) for r in rows if len(r) == 4 and r[2] == "eval/success"]
+    return [p[0] for p in points], [p[1] for p in points]
+
+
+def plot(task: str, rows: dict, arms: dict[str, list[dict]]) -> Path:
+    """``docs/figures/scene-curve-TASK.png``: each arm's success on its own training scenes,
+    the recorded train scenes, validation and test (left), and every run's validation curve
+    (right), beside ``car_aware``'s test success."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    script = json.loads((REPO / "results" / "bench" / task / "car_aware.json").read_text())
+    car_aware = script["summary"]["success"]["rate"]
+    names = [a for a in ORDER if a in rows] + sorted(a for a in rows if a not in ORDER)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
+    splits = [
+        ("trained_on", "its own training scenes"),
+        ("train", "recorded train scenes"),
+        ("validation", "validation (12 x 80)"),
+        ("test", "test (bench, 18 x 128)"),
+    ]
+    width = 0.2
+    for k, (split, label) in enumerate(splits):
+        xs = [i + (k - 1.5) * width for i in range(len(names))]
+        left.bar(xs, [rows[a][split]["success"] for a in names], width, label=label)
+    left.axhline(car_aware, color="k", ls="--", lw=1, label=f"car_aware test ({car_aware:.3f})")
+    ticks = [f"{a.split('-')[0]}\n{rows[a]['frames'] / 1e6:.2f} M" for a in names]
+    left.set_xticks(range(len(names)), ticks, fontsize=8)
+    left.set_ylim(0.4, 1.0)
+    left.set_ylabel("success")
+    left.set_title(f"{task}: PPO from scratch, gcn_uniform, seed 0")
+    left.legend(fontsize=7, loc="lower right")
+    for arm in names:
+        for run in arms[arm]:
+            frames, success = _validation_curve(RUNS / f"{task}-{arm}-s{run['seed']}")
+            right.plot(frames, success, marker=".", label=arm)
+    right.axhline(car_aware, color="k", ls="--", lw=1)
+    right.set_xlabel("frames (M)")
+    right.set_ylabel("validation success")
+    right.set_title("validation during training (chosen on; test never)")
+    right.legend(fontsize=7)
+    fig.tight_layout()
+    out = REPO / "docs" / "figures" / f"scene-curve-{task}.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
 
 
 def main() -> None:

@@ -125,7 +125,8 @@ def as_tensordict(obs: dict[str, np.ndarray], crossing: bool):
     import torch
     from tensordict import TensorDict
 
-    data = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in obs.items()}
+    # a copy: the replies' arrays are read-only views
+    data = {k: torch.from_numpy(np.array(v)) for k, v in obs.items()}
     data["mask"] = data["mask"].bool()
     batch = list(obs["features"].shape[:-2])
     if crossing:
