@@ -50,7 +50,7 @@ $(LOWER_VENV)/.installed: clients/requirements-lower.txt clients/requirements-tr
 #: updates, the GCN), the TorchRL envs, the bench with its checkpoints, the shipped policies.
 LOWER_TESTS := test_learner_protocol.py test_update.py test_ppo.py test_overlap.py \
 	test_train_gcn.py test_remote_torchrl.py test_bench.py test_shipped_policy.py \
-	test_repo_checks.py::test_the_installed_trainer_is_one_tested_end_of_the_ranges
+	test_train_extra.py
 
 # BenchMARL 1.5.2 pins torchrl < 0.12 (its experiment builds a SyncDataCollector, which torchrl
 # 0.13 removed): its own venv, the package installed editable beside it without the `train`
