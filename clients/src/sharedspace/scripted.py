@@ -21,6 +21,7 @@ a tensor of the features' dtype and device.
 from __future__ import annotations
 
 import sys
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,13 +85,14 @@ def pursuit_action(
     return acc, omega
 
 
-class ScriptedDriver:
+class ScriptedDriver(ABC):
     """A closed-form driver: :meth:`act` maps node features ``[*, M, F]`` and the mask
     ``[*, M]`` (bool) to normalised actions ``[*, 2]`` (acceleration, yaw rate). Calling it
     takes NumPy arrays or torch tensors and gives back the same kind, in the features' dtype."""
 
+    @abstractmethod
     def act(self, features: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """The actions of a batch of observations, NumPy in and out."""
 
     def __call__(self, features: Any, mask: Any) -> Any:
         if isinstance(features, np.ndarray):
