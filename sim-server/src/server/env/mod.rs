@@ -1,23 +1,23 @@
-//! One simulation env: a seeded scenario sequence, the current episode's [`World`], and the
-//! translation between sim-core results and protocol messages. Pure and synchronous.
+//! One simulation env: a seeded scenario sequence, the current episode's [`World`], its steps
+//! and resets as protocol messages (the translations of sim-core's results: `wire.rs`). Pure and
+//! synchronous.
 
 use std::sync::{Arc, OnceLock};
 
 use protocol::{
-    encode, AgentDesc, AgentKind as WireKind, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply,
-    Event, EventKind, EventsMsg, F32Array, F64Array, KeySpace, Mode, ObsBatch, Outcome, Reset,
-    ResetResult, RewardTerms as WireTerms, RiskGraphMsg, StateRewards, StatesMsg, StepInfo,
-    StepResult, U32Array, U8Array, UncertaintyMsg, N_FEATURES, PAD_NODE_ID,
+    encode, EnvTopic, EpisodeMetrics, ErrorCode, ErrorReply, Event, EventKind, EventsMsg, F32Array,
+    F64Array, KeySpace, Mode, ObsBatch, Reset, ResetResult, RewardTerms as WireTerms, RiskGraphMsg,
+    StateRewards, StatesMsg, StepInfo, StepResult, U32Array, U8Array, UncertaintyMsg, N_FEATURES,
+    PAD_NODE_ID,
 };
 use sim_core::geometry::Shape;
-use sim_core::metrics::EpisodeStatus;
 use sim_core::params::VehicleModel;
 use sim_core::params::{PedestrianModel, WorldParams};
-use sim_core::scenario::{AgentKind, Split};
+use sim_core::scenario::Split;
 use sim_core::support::rng::{derive_seed, SplitMix64};
 use sim_core::variation::{Variation, VariationSpec};
 use sim_core::world::{
-    AgentId, Control, EpisodeConfig, Event as SimEvent, StepError, StepOutcome, StepScratch, World,
+    AgentId, Control, EpisodeConfig, StepError, StepOutcome, StepScratch, World,
 };
 
 use protocol::wire::{BatchArrays, BatchColumns, BatchReset, ObsRef};
@@ -29,9 +29,11 @@ use super::pools::{
 
 mod buffers;
 mod publish;
+mod wire;
 
 pub use buffers::{BufMut, Buffers, Slots};
 pub use publish::{Gates, Publication, Watch};
+use wire::{agent_descs, event, outcome_of, sim_event, to_wire_kind, write_obs};
 
 /// The stream of an env's variation seeds, apart from its scenario sequence (an arbitrary
 /// constant: "variation" in ASCII).
@@ -131,58 +133,6 @@ pub struct Env {
     /// than allocated per step).
     clipped: Vec<bool>,
     pub closed: bool,
-}
-
-fn to_wire_kind(k: AgentKind) -> WireKind {
-    match k {
-        AgentKind::Vehicle => WireKind::Vehicle,
-        AgentKind::Pedestrian => WireKind::Pedestrian,
-    }
-}
-
-fn outcome_of(s: EpisodeStatus) -> Outcome {
-    match s {
-        EpisodeStatus::Success => Outcome::Success,
-        EpisodeStatus::Collision => Outcome::Collision,
-        EpisodeStatus::Timeout => Outcome::Timeout,
-    }
-}
-
-/// A sim-core event as the protocol's event at `step`, time `t`.
-fn sim_event(e: &SimEvent, step: u32, t: f64) -> Event {
-    match *e {
-        SimEvent::Collision { a, b } => event(EventKind::Collision, step, t, vec![a, b]),
-        SimEvent::AtFault {
-            vehicle,
-            pedestrian,
-        } => event(EventKind::AtFault, step, t, vec![vehicle, pedestrian]),
-        SimEvent::GoalReached { agent } => event(EventKind::GoalReached, step, t, vec![agent]),
-        SimEvent::Entered { agent } => event(EventKind::AgentEntered, step, t, vec![agent]),
-        SimEvent::Left { agent } => event(EventKind::AgentLeft, step, t, vec![agent]),
-    }
-}
-
-fn event(kind: EventKind, step: u32, t: f64, agents: Vec<u32>) -> Event {
-    Event {
-        kind,
-        step,
-        t,
-        agents,
-        outcome: None,
-    }
-}
-
-/// Writes the observations of `ext_ids` into the slots (`node_ids` included).
-fn write_obs(world: &World, ext_ids: &[AgentId], m: usize, s: &mut Slots<'_>) {
-    let f = N_FEATURES as usize;
-    for (e, &ego) in ext_ids.iter().enumerate() {
-        let feats = &mut s.features[e * m * f..(e + 1) * m * f];
-        let adj = &mut s.adjacency[e * m * m..(e + 1) * m * m];
-        let mask = &mut s.mask[e * m..(e + 1) * m];
-        let ids = &mut s.node_ids[e * m..(e + 1) * m];
-        // Buffer sizes are right by construction and m >= 1 is checked at creation.
-        let _ = world.fill_observation_with_ids(ego, m, (feats, adj, mask), ids, PAD_NODE_ID);
-    }
 }
 
 impl Env {
@@ -714,28 +664,4 @@ impl Env {
         }
         Some(r)
     }
-}
-
-/// The `ResetResult::agents` entries of `world`, in id order.
-fn agent_descs(world: &World, served: &ServedScenario, ext_ids: &[AgentId]) -> Vec<AgentDesc> {
-    let mut agents: Vec<AgentDesc> = world
-        .agents()
-        .map(|a| {
-            let (length, width) = match a.shape {
-                Shape::Rect { length, width } => (Some(length), Some(width)),
-                Shape::Disc { .. } => (None, None),
-            };
-            AgentDesc {
-                id: a.id,
-                name: served.names[a.id as usize].clone(),
-                kind: to_wire_kind(a.kind),
-                external: ext_ids.contains(&a.id),
-                radius: a.shape.bounding_radius(),
-                length,
-                width,
-            }
-        })
-        .collect();
-    agents.sort_by_key(|a| a.id);
-    agents
 }
