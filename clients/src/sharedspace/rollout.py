@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from sharedspace.client import SimClient
+from sharedspace.outcomes import METRICS
 from sharedspace.vector import VectorClient
 from sharedspace.wire.requests import EnvSpec
 
@@ -28,10 +29,6 @@ MAX_EVAL_ENVS = 512
 #: A batch of one car's observations ``{"features" [K, M, F], "adjacency" [K, M, M],
 #: "mask" [K, M] (bool)}`` to actions ``[K, 2]`` in [-1, 1] (acceleration, yaw rate).
 Act = Callable[[dict[str, np.ndarray]], Any]
-
-#: The per-episode metrics the server reports when an episode ends (sim-core ``EpisodeMetrics``).
-_METRICS = ("avg_speed", "avg_abs_jerk", "max_abs_acc")
-
 
 def variation_batches(
     scenes: int, variations: int, first: int = 0, max_envs: int = MAX_EVAL_ENVS
@@ -89,12 +86,13 @@ def play_first_episodes(
                         "scene": scenes[i],
                         "variation": -1 if chosen[i] is None else chosen[i],
                         "status": metrics.get("outcome", "timeout"),
-                        **{m: float(metrics.get(m, 0.0)) for m in _METRICS},
+                        **{m: float(metrics.get(m, 0.0)) for m in METRICS},
                         "steps": int(steps[i]),
                         "return": float(returns[i]),
                     }
             if all(r is not None for r in records):
                 break
+            # copies: the reply's arrays are read-only, and a policy may write into its input
             obs = {key: np.array(res["obs"][key][:, 0]) for key in ("features", "adjacency")}
             obs["mask"] = np.asarray(res["obs"]["mask"][:, 0], dtype=bool)
             ended = np.flatnonzero((res["terminated"] | res["truncated"])[:, 0])
