@@ -363,3 +363,24 @@ def test_a_run_is_stable_when_its_last_three_scorings_agree_over_a_million_frame
     off = run("last off", [(4 * m, 0.80), (5 * m, 0.80), (6 * m, 0.848)])  # range 0.048
     assert off["range"] <= 0.05 and off["last_minus_mean"] > 0.03 and not off["stable"]
     assert not run("too few", [(5 * m, 0.80), (6 * m, 0.80)])["stable"]
+
+
+def test_the_numpy_loop_refuses_a_mismatch_by_name(tmp_path):
+    """``play_first_episodes``: variations that do not match the scenes, and a policy whose
+    actions are not ``[K, 2]``, are refused with what was wrong."""
+    from sharedspace.bench.scoring import _connection, _single_car_spec
+    from sharedspace.rollout import play_first_episodes
+
+    scenes = [s["name"] for s in SMALL.check_scenes()[:2]]
+    hold = lambda obs: np.zeros((len(obs["features"]), 2), dtype=np.float32)  # noqa: E731
+    client = _connection(SMALL, "", tmp_path).open()
+    try:
+        spec = _single_car_spec(SMALL)
+        with pytest.raises(ValueError, match="1 variations for 2 scenes"):
+            play_first_episodes(client, spec, hold, scenes, [0])
+        with pytest.raises(ValueError, match=r"actions of shape \(2, 3\), wanted \(2, 2\)"):
+            play_first_episodes(client, spec, lambda obs: np.zeros((2, 3)), scenes, [0, 0])
+        played = play_first_episodes(client, spec, hold, scenes, [0, 1])
+        assert [(e["scene"], e["variation"]) for e in played] == [(scenes[0], 0), (scenes[1], 1)]
+    finally:
+        client.shutdown()
