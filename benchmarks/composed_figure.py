@@ -44,16 +44,20 @@ def draw(ax, scene: dict) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", default="paper", choices=("paper", "crowd"))
-    ap.add_argument("--scenes", type=int, default=300, help="the composed pool file's size")
+    ap.add_argument(
+        "--scenes", type=int, default=300, help="the composed pool file's size"
+    )
     args = ap.parse_args()
     from sharedspace.train.config import TrainConfig
 
     cfg = TrainConfig(algorithm="ppo", task=args.task, device="cpu")
-    pool = cfg.pool_scenes()
-    recorded = [pool[i] for i in cfg.scene_indices("train")][:12]
+    pool = cfg.world.pool_scenes()
+    recorded = [pool[i] for i in cfg.world.scene_indices("train")][:12]
     composed_file = REPO / "out" / "composed" / f"{args.task}-s0-{args.scenes}.json"
     if not composed_file.is_file():
-        raise SystemExit(f"{composed_file} is missing: run benchmarks/composed_realism.py first")
+        raise SystemExit(
+            f"{composed_file} is missing: run benchmarks/composed_realism.py first"
+        )
     composed = json.loads(composed_file.read_text())["scenarios"][:12]
     fig, axes = plt.subplots(4, 6, figsize=(13, 9))
     for ax, scene in zip(axes.flat, recorded + composed, strict=True):

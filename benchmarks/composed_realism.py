@@ -80,13 +80,11 @@ def score(task: str, pool_file: Path) -> dict:
     """The drivers' outcomes and the scenes' geometry on the train split of ``pool_file``."""
     from sharedspace.paper.drivers import make_driver
     from sharedspace.paper.evaluate import evaluate_policy
-    from sharedspace.train.config import TrainConfig
+    from sharedspace.world_config import WorldConfig
     from sharedspace.worlds import training_task
 
     world = training_task(task)
-    cfg = TrainConfig(
-        algorithm="ppo",
-        device="cpu",
+    cfg = WorldConfig(
         scenario_pool=str(pool_file),
         server_params=world.server_params,
         max_agents=world.max_agents,
@@ -109,9 +107,9 @@ def main() -> None:
     ap.add_argument("--task", default="paper", choices=("paper", "crowd"))
     ap.add_argument("--scenes", type=int, default=300)
     args = ap.parse_args()
-    from sharedspace.train.config import TrainConfig
+    from sharedspace.world_config import WorldConfig
 
-    task_cfg = TrainConfig(algorithm="ppo", task=args.task, device="cpu")
+    task_cfg = WorldConfig(task=args.task)
     OUT.mkdir(parents=True, exist_ok=True)
     composed = REPO / "out" / "composed" / f"{args.task}-s0-{args.scenes}.json"
     composed.parent.mkdir(parents=True, exist_ok=True)

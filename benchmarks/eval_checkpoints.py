@@ -25,7 +25,9 @@ def main() -> None:
     out = {}
     for path in args.checkpoints:
         cfg, actor = load_checkpoint_actor(path)
-        summary = evaluate_split(cfg, actor, args.split)["summary"]
+        summary = evaluate_split(cfg.world, actor, args.split, cfg.seed, cfg.driving())[
+            "summary"
+        ]
         ckpt = load_checkpoint(path)
         out[path] = {"frames": ckpt["counters"]["frames"], **summary}
         print(

@@ -42,22 +42,24 @@ from script_returns import CROWD_WORLD as WORLD  # this folder: Table II-G's wor
 
 def env_rate(cfg: TrainConfig, steps: int) -> dict:
     """Random actions through the learner's TorchRL env (``step_and_maybe_reset``)."""
-    env = make_env(cfg, "train", variations=cfg.variations)
+    env = make_env(
+        cfg.world, "train", cfg.algo.num_envs, cfg.seed, variations=cfg.world.variations
+    )
     td = env.reset()
     for _ in range(5):  # warm-up
-        td.set("action", torch.rand(cfg.num_envs, 2) * 2 - 1)
+        td.set("action", torch.rand(cfg.algo.num_envs, 2) * 2 - 1)
         _, td = env.step_and_maybe_reset(td)
     t0, env0 = time.perf_counter(), env.env_time_s
     for _ in range(steps):
-        td.set("action", torch.rand(cfg.num_envs, 2) * 2 - 1)
+        td.set("action", torch.rand(cfg.algo.num_envs, 2) * 2 - 1)
         _, td = env.step_and_maybe_reset(td)
     wall = time.perf_counter() - t0
     env_s = env.env_time_s - env0
     env.close()
     return {
-        "fps": steps * cfg.num_envs / wall,
+        "fps": steps * cfg.algo.num_envs / wall,
         "env_share": env_s / wall,
-        "frames": steps * cfg.num_envs,
+        "frames": steps * cfg.algo.num_envs,
     }
 
 
@@ -80,7 +82,7 @@ def ppo_rate(base: TrainConfig, variant: str, frames: int, log_dir: Path) -> dic
     upd = [r for r in rows if r["metric"] == "train/update_s"][1:]
     collect_s = sum(r["value"] for r in iters)
     update_s = sum(r["value"] for r in upd)
-    n = len(iters) * cfg.num_envs * cfg.rollout_steps
+    n = len(iters) * cfg.algo.num_envs * cfg.algo.rollout_steps
     timing = out["timing"]
     return {
         "fps": n / (collect_s + update_s),

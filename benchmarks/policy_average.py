@@ -45,7 +45,9 @@ def main() -> None:
     rows = []
     for i, (frames, path) in enumerate(snaps):
         state = load_checkpoint(str(path))["actor"]
-        gap = (frames - (snaps[i - 1][0] if i else 0)) / (cfg.num_envs * cfg.rollout_steps)
+        gap = (frames - (snaps[i - 1][0] if i else 0)) / (
+            cfg.algo.num_envs * cfg.algo.rollout_steps
+        )
         for d in args.decays:
             w = d**gap
             avg = averages.setdefault(d, {k: v.clone() for k, v in state.items()})
@@ -61,7 +63,9 @@ def main() -> None:
             (f"ema{d}", averages[d]) for d in args.decays
         ]:
             actor.load_state_dict(params)
-            summary = evaluate_split(cfg, actor, cfg.eval_split)["summary"]
+            summary = evaluate_split(
+                cfg.world, actor, cfg.world.eval_split, cfg.seed, cfg.driving()
+            )["summary"]
             row[name] = summary["success"]
             row[f"{name}_collision"] = summary["collision"]
         rows.append(row)

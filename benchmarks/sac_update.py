@@ -68,10 +68,10 @@ def env_batches(count: int, batch: int, seed: int = 0) -> list[TensorDict]:
     """``count`` replay batches sampled from transitions of the paper pool's train split
     (the trainer's env on a local sim-server, a uniform random policy): real observations,
     whose masks fill 4 of the 8 nodes as the paper's scenes do."""
-    from sharedspace.train.config import TrainConfig
+    from sharedspace.world_config import WorldConfig
     from sharedspace.train.envs import make_env
 
-    env = make_env(TrainConfig(num_envs=16, max_agents=8, seed=seed), split="train")
+    env = make_env(WorldConfig(max_agents=8), "train", 16, seed)
     torch.manual_seed(seed)
     data = env.rollout(64, break_when_any_done=False).reshape(-1)
     env.close()
@@ -142,7 +142,7 @@ def gemm_floor(cfg: TrainConfig, batch: int, dtype: torch.dtype = torch.float32)
     shapes. Forward: actor and target critics on the next observation, critics (twice: the
     replayed and the new action) and actor on the observation; backward: input and weight
     gradients where the update needs them. Returns a step-like callable."""
-    h, g, nodes, feats = cfg.hidden_sizes[0], cfg.gcn_hidden, 4, 11
+    h, g, nodes, feats = cfg.algo.hidden_sizes[0], cfg.net.gcn_hidden, 4, 11
     emb = 2 * g  # ego ++ mean readout
 
     def mat(*shape):

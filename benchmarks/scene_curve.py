@@ -91,9 +91,17 @@ def run_one(task: str, arm: str, seed: int, frames: int, network: str) -> dict:
     wall.write_text(json.dumps({"seconds": spent}))
     (log_dir / "train.log").open("a").write(proc.stdout + proc.stderr)
     if proc.returncode != 0:
-        raise SystemExit(f"{log_dir.name}: exit {proc.returncode}; see {log_dir}/train.log")
+        raise SystemExit(
+            f"{log_dir.name}: exit {proc.returncode}; see {log_dir}/train.log"
+        )
     last = json.loads(proc.stdout.strip().splitlines()[-1])
-    out = {"arm": arm + budget, "seed": seed, "task": task, "wall_seconds": spent, "result": last}
+    out = {
+        "arm": arm + budget,
+        "seed": seed,
+        "task": task,
+        "wall_seconds": spent,
+        "result": last,
+    }
     ship_policy(log_dir)
     done.write_text(json.dumps(out, indent=1))
     return out
@@ -104,7 +112,9 @@ def ship_policy(log_dir: Path) -> Path:
     report scores, so a clean checkout can score it again)."""
     from sharedspace.train.checkpoint import last_checkpoint, read_checkpoint, ship
 
-    return ship(read_checkpoint(last_checkpoint(str(log_dir))), POLICIES / f"{log_dir.name}.pt")
+    return ship(
+        read_checkpoint(last_checkpoint(str(log_dir))), POLICIES / f"{log_dir.name}.pt"
+    )
 
 
 def score_run(log_dir: Path, task: str) -> dict:
@@ -122,11 +132,19 @@ def score_run(log_dir: Path, task: str) -> dict:
     cfg, actor = load_checkpoint_actor(ckpt)
     out = {"checkpoint": str(Path(ckpt).relative_to(REPO))}
     for split in ("train", "validation"):
-        summary = evaluate_split(cfg, actor, split)["summary"]
-        out[split] = {k: summary[k] for k in ("episodes", "success", "collision", "timeout")}
-    rows = [ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]]
+        summary = evaluate_split(cfg.world, actor, split, cfg.seed, cfg.driving())[
+            "summary"
+        ]
+        out[split] = {
+            k: summary[k] for k in ("episodes", "success", "collision", "timeout")
+        }
+    rows = [
+        ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]
+    ]
     trained = [float(r[3]) for r in rows if len(r) == 4 and r[2] == "train/success"]
-    out["trained_on"] = {"success": trained[-1]}  # its own training scenes, as it played them
+    out["trained_on"] = {
+        "success": trained[-1]
+    }  # its own training scenes, as it played them
     script = REPO / "results" / "bench" / task / "car_aware.json"
     test = score(task, [ckpt], name=log_dir.name, reference=script)
     out["test"] = {
@@ -151,8 +169,13 @@ def report(task: str) -> None:
         run["score"] = score_run(done.parent, task)
         arms.setdefault(run["arm"], []).append(run)
     rows = {}
-    head = "| arm | seeds | frames | wall (min/run) | its training scenes (as played) | "
-    print(head + "recorded train scenes | validation | test success / collision | test − car_aware |")
+    head = (
+        "| arm | seeds | frames | wall (min/run) | its training scenes (as played) | "
+    )
+    print(
+        head
+        + "recorded train scenes | validation | test success / collision | test − car_aware |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for arm, runs in arms.items():
         mean = lambda split, key: sum(r["score"][split][key] for r in runs) / len(runs)  # noqa: E731
@@ -177,7 +200,9 @@ def report(task: str) -> None:
             f"{r['train']['success']:.3f} | {r['validation']['success']:.3f} | "
             f"{r['test']['success']:.3f} / {r['test']['collision']:.3f} | {_diff(r)} |"
         )
-    (REPO / "results" / "scenes" / f"curve-{task}.json").write_text(json.dumps(rows, indent=1))
+    (REPO / "results" / "scenes" / f"curve-{task}.json").write_text(
+        json.dumps(rows, indent=1)
+    )
     plot(task, rows, arms)
 
 
@@ -187,8 +212,14 @@ ORDER = ["recorded", "variations", "n1000", "n10000", "unlimited"]
 
 def _validation_curve(log_dir: Path) -> tuple[list[float], list[float]]:
     """(frames in millions, validation success) of a run's scorings."""
-    rows = [ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]]
-    points = [(int(r[0]) / 1e6, float(r[3])) for r in rows if len(r) == 4 and r[2] == "eval/success"]
+    rows = [
+        ln.split(",") for ln in (log_dir / "metrics.csv").read_text().splitlines()[1:]
+    ]
+    points = [
+        (int(r[0]) / 1e6, float(r[3]))
+        for r in rows
+        if len(r) == 4 and r[2] == "eval/success"
+    ]
     return [p[0] for p in points], [p[1] for p in points]
 
 
@@ -201,7 +232,9 @@ def plot(task: str, rows: dict, arms: dict[str, list[dict]]) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    script = json.loads((REPO / "results" / "bench" / task / "car_aware.json").read_text())
+    script = json.loads(
+        (REPO / "results" / "bench" / task / "car_aware.json").read_text()
+    )
     car_aware = script["summary"]["success"]["rate"]
     names = [a for a in ORDER if a in rows] + sorted(a for a in rows if a not in ORDER)
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
@@ -215,7 +248,9 @@ def plot(task: str, rows: dict, arms: dict[str, list[dict]]) -> Path:
     for k, (split, label) in enumerate(splits):
         xs = [i + (k - 1.5) * width for i in range(len(names))]
         left.bar(xs, [rows[a][split]["success"] for a in names], width, label=label)
-    left.axhline(car_aware, color="k", ls="--", lw=1, label=f"car_aware test ({car_aware:.3f})")
+    left.axhline(
+        car_aware, color="k", ls="--", lw=1, label=f"car_aware test ({car_aware:.3f})"
+    )
     ticks = [f"{a.split('-')[0]}\n{rows[a]['frames'] / 1e6:.2f} M" for a in names]
     left.set_xticks(range(len(names)), ticks, fontsize=8)
     left.set_ylim(0.4, 1.0)
@@ -245,7 +280,9 @@ def main() -> None:
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="a run's budget")
     ap.add_argument("--network", default="gcn_uniform")
-    ap.add_argument("--report", action="store_true", help="score the finished runs instead")
+    ap.add_argument(
+        "--report", action="store_true", help="score the finished runs instead"
+    )
     args = ap.parse_args()
     if args.report:
         report(args.task)

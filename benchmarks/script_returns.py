@@ -48,7 +48,13 @@ def crowd_returns(pool: str, reward: str, seed: int) -> dict[str, list[float]]:
     cfg = TrainConfig(scenario_pool=pool, reward=reward, seed=seed, **CROWD_WORLD)
     n = len(split_indices(load_pool(pool), "train"))
     env = make_env(
-        cfg, "train", num_envs=n, scenario_order="sequential", variations=cfg.variations
+        cfg.world,
+        "train",
+        n,
+        cfg.seed,
+        "sequential",
+        variations=cfg.world.variations,
+        driving=cfg.driving(),
     )
     driver = SCRIPTED["car_aware"]()
     td = env.reset()

@@ -169,7 +169,9 @@ def main() -> None:
     ap.add_argument(
         "--set", nargs="*", default=[], help="more trainer settings, both codes"
     )
-    ap.add_argument("--after-set", nargs="*", default=[], help="settings of the after code only")
+    ap.add_argument(
+        "--after-set", nargs="*", default=[], help="settings of the after code only"
+    )
     ap.add_argument(
         "--out", required=True, help="the JSON kept (results/time_to_driver/NAME.json)"
     )
@@ -178,7 +180,10 @@ def main() -> None:
     done = json.loads(out.read_text()) if out.is_file() else {"runs": {}}
     recipe = RECIPE + [f"eval_interval={args.eval_interval}", *args.set]
     kept = (done.get("recipe", recipe), done.get("after_settings", args.after_set))
-    if kept != (recipe, args.after_set):  # resuming: its runs must be of the same settings
+    if kept != (
+        recipe,
+        args.after_set,
+    ):  # resuming: its runs must be of the same settings
         raise SystemExit(
             f"{out} keeps runs of other settings ({' '.join(kept[0])}; after: "
             f"{' '.join(kept[1]) or 'none'}): give the same ones, or another --out"
@@ -186,7 +191,9 @@ def main() -> None:
     done["recipe"], done["after_settings"] = recipe, args.after_set
     # what "validation" is: the carve of the task's train scenes, named by its pool's content
     cfg = load_config(None, RECIPE)
-    done["validation_pool"] = validation_label(cfg.scenario_pool, cfg.validation_scenes) + ".json"
+    done["validation_pool"] = (
+        validation_label(cfg.world.scenario_pool, cfg.world.validation_scenes) + ".json"
+    )
     codes = {"before": args.before, "after": args.after}
     settings = {"before": args.set, "after": args.set + args.after_set}
     for i, seed in enumerate(args.seeds):

@@ -52,20 +52,22 @@ def test_a_composed_request_the_server_cannot_serve_names_what_is_wrong(sim_clie
 
 def test_scenes_compose_from_the_train_scenes_less_the_validation_split():
     cfg = TrainConfig(algorithm="ppo", task="paper", scenes=1000, device="cpu")
-    composed = cfg.env_spec("train", 0).composed
+    composed = cfg.world.env_spec("train", 0).composed
     assert (composed.scenes, composed.source) == (1000, "hbs-paper")
-    pool = cfg.pool_scenes()
-    validation = {pool[i]["name"] for i in cfg.scene_indices("validation")}
-    assert set(composed.hold_out) == validation and len(validation) == cfg.validation_scenes
+    pool = cfg.world.pool_scenes()
+    validation = {pool[i]["name"] for i in cfg.world.scene_indices("validation")}
+    assert set(composed.hold_out) == validation and len(validation) == cfg.world.validation_scenes
     # Validation and test envs play recorded scenes only.
-    assert cfg.env_spec("validation", 0).composed is None
-    assert cfg.env_spec("test", 0).composed is None
+    assert cfg.world.env_spec("validation", 0).composed is None
+    assert cfg.world.env_spec("test", 0).composed is None
     # -1: a fresh scene every episode; 0: none.
-    assert TrainConfig(algorithm="ppo", scenes=-1, device="cpu").composed_scenes().scenes is None
-    assert TrainConfig(algorithm="ppo", device="cpu").env_spec("train", 0).composed is None
+    assert (
+        TrainConfig(algorithm="ppo", scenes=-1, device="cpu").world.composed_scenes().scenes is None
+    )
+    assert TrainConfig(algorithm="ppo", device="cpu").world.env_spec("train", 0).composed is None
     with pytest.raises(ConfigError, match="scenes must be"):
         TrainConfig(algorithm="ppo", scenes=-2, device="cpu")
-    assert cfg.world()["composed"] == {"scenes": 1000, "seed": 0}
+    assert cfg.world_record()["composed"] == {"scenes": 1000, "seed": 0}
 
 
 def test_a_tiny_ppo_run_trains_on_composed_scenes(tmp_path):

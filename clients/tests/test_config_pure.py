@@ -45,8 +45,8 @@ def test_building_a_config_writes_nothing(task, algorithm, empty_places):
     words = [f"algorithm={algorithm}", "device=cpu"] + ([f"task={task}"] if task else [])
     cfg = load_config(None, words)
     TrainConfig(algorithm=algorithm, task=task, device="cpu")
-    cfg.env_spec("train", 0, cfg.variations)
-    cfg.env_spec("validation", 0)
+    cfg.world.env_spec("train", 0, cfg.world.variations)
+    cfg.world.env_spec("validation", 0)
     assert _files(cwd) == _files(home) == _files(carve) == []
 
 
@@ -54,21 +54,23 @@ def test_the_validation_carve_is_a_seeded_selection_of_the_train_scenes_asked_by
     import random
 
     cfg = TrainConfig(algorithm="ppo", task="paper", device="cpu")
-    pool = cfg.pool_scenes()
+    pool = cfg.world.pool_scenes()
     train = [s["name"] for s in pool if s["split"] == "train"]
-    sampled = set(random.Random(0).sample(train, cfg.validation_scenes))
-    held = cfg.validation_names()
+    sampled = set(random.Random(0).sample(train, cfg.world.validation_scenes))
+    held = cfg.world.validation_names()
     assert set(held) == sampled and list(held) == [n for n in train if n in sampled]
     # train less validation, the validation split and the test scenes partition the pool
-    parts = [cfg.scene_indices(split) for split in ("train", "validation", "test")]
+    parts = [cfg.world.scene_indices(split) for split in ("train", "validation", "test")]
     assert sorted(i for part in parts for i in part) == list(range(len(pool)))
     assert [pool[i]["name"] for i in parts[1]] == list(held)
     # the training envs exclude it, the others do not; eval_split=test carves nothing
-    assert cfg.env_spec("train", 0).exclude == held
-    assert cfg.env_spec("validation", 0).exclude == () == cfg.env_spec("test", 0).exclude
-    assert cfg.env_spec("validation", 0).split == "train"
+    assert cfg.world.env_spec("train", 0).exclude == held
+    assert (
+        cfg.world.env_spec("validation", 0).exclude == () == cfg.world.env_spec("test", 0).exclude
+    )
+    assert cfg.world.env_spec("validation", 0).split == "train"
     plain = TrainConfig(algorithm="ppo", task="paper", eval_split="test", device="cpu")
-    assert plain.validation_names() == () and plain.scene_indices("validation") == []
+    assert plain.world.validation_names() == () and plain.world.scene_indices("validation") == []
 
 
 def test_a_task_s_training_variations_may_be_set_its_world_may_not():
@@ -76,7 +78,7 @@ def test_a_task_s_training_variations_may_be_set_its_world_may_not():
 
     wide = {"position_sigma": 1.0, "rotation_deg": 30.0}
     cfg = TrainConfig(algorithm="ppo", task="paper", variations=wide, device="cpu")
-    assert cfg.variations == wide
-    assert TrainConfig(algorithm="ppo", task="paper", device="cpu").variations != wide
+    assert cfg.world.variations == wide
+    assert TrainConfig(algorithm="ppo", task="paper", device="cpu").world.variations != wide
     with pytest.raises(ConfigError, match="max_agents is set by task=paper"):
         TrainConfig(algorithm="ppo", task="paper", max_agents=5, device="cpu")

@@ -48,7 +48,7 @@ def _config(algorithm: str, sim_server, tmp_path) -> TrainConfig:
 def test_every_learner_conforms_and_learns_in_the_one_vocabulary(algorithm, sim_server, tmp_path):
     cfg = _config(algorithm, sim_server, tmp_path)
     module = get_algorithm(algorithm).load()
-    world = Cars(cfg, TINY_CROSSING) if cfg.task == "crossing" else module.make_world(cfg)
+    world = Cars(cfg, TINY_CROSSING) if cfg.world.task == "crossing" else module.make_world(cfg)
     env = world.make_env(seed=0)
     learner = module.make_learner(cfg, world, env)
     assert isinstance(world, World) and isinstance(learner, Learner)

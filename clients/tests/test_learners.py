@@ -87,7 +87,7 @@ def test_a_plugin_algorithm_and_network_train_one_car_and_the_bench_scores_them(
     )
     out = train(cfg)
     assert out["counters"]["frames"] == 64
-    assert out["eval"]["episodes"] == cfg.validation_scenes  # the validation split, once each
+    assert out["eval"]["episodes"] == cfg.world.validation_scenes  # the validation split, once each
     ckpt_path = tmp_path / "checkpoints" / "last.pt"
     ckpt = read_checkpoint(ckpt_path)
     assert (ckpt["algorithm"], ckpt["network"], ckpt["modules"]) == (
@@ -197,7 +197,7 @@ def test_every_shipped_checkpoint_reads_and_its_actor_loads_with_no_server(tmp_p
             "        continue",
             "    cfg, actor = load_checkpoint_actor(ckpt)",
             "    with torch.no_grad():",
-            "        action = actor(observation_example(cfg.max_agents))['action']",
+            "        action = actor(observation_example(cfg.world.max_agents))['action']",
             "    assert action.shape == (1, 2) and bool(torch.isfinite(action).all()), path",
             "    kinds[path] = 'one'",
             "print(json.dumps({'kinds': kinds, 'servers': len(local_server._shared)}))",
@@ -215,7 +215,7 @@ def test_an_actor_loads_with_no_server_and_acts_as_saved(tmp_path):
     """The actor of a shipped residual PPO checkpoint: its weights are the checkpoint's."""
     path = REPO / "results" / "bench" / "policies" / "crowd-residual-s_sac-s0.pt"
     cfg, actor = load_checkpoint_actor(path)
-    assert (cfg.algorithm, cfg.network, cfg.max_agents) == ("ppo", "mlp", 10)
+    assert (cfg.algorithm, cfg.net.network, cfg.world.max_agents) == ("ppo", "mlp", 10)
     saved = read_checkpoint(path)["actor"]
     for key, value in actor.state_dict().items():
         assert torch.equal(value, saved[key]), key

@@ -94,10 +94,10 @@ def test_masac_moves_only_its_critics_until_the_actor_warmup_ends(sim_server, tm
         return any(not torch.equal(a, b) for a, b in zip(before, module.parameters(), strict=True))
 
     actor_before, critic_before = snapshot(actor), snapshot(loss.qvalue_network_params)
-    masac.learn(cfg, loss, optim, buffer, data, None, frames=cfg.actor_warmup_frames - 1)
+    masac.learn(cfg, loss, optim, buffer, data, None, frames=cfg.algo.actor_warmup_frames - 1)
     assert not moved(actor_before, actor), "the actor moved during the critics' warm-up"
     assert moved(critic_before, loss.qvalue_network_params)
-    masac.learn(cfg, loss, optim, buffer, data, None, frames=cfg.actor_warmup_frames)
+    masac.learn(cfg, loss, optim, buffer, data, None, frames=cfg.algo.actor_warmup_frames)
     assert moved(actor_before, actor)
 
 
@@ -170,8 +170,10 @@ def test_bad_configs_name_what_was_wrong():
         apply_overrides(mappo, ["total_frames=lots"])
     with pytest.raises(ValueError, match="unknown config key .frames."):
         apply_overrides(mappo, ["frames=3"])
-    assert apply_overrides(mappo, ['reward_weights={"danger": 2}']).reward_weights == {"danger": 2}
-    assert np.isclose(apply_overrides(mappo, ["lr=1"]).lr, 1.0)
+    assert apply_overrides(mappo, ['reward_weights={"danger": 2}']).algo.reward_weights == {
+        "danger": 2
+    }
+    assert np.isclose(apply_overrides(mappo, ["lr=1"]).algo.lr, 1.0)
     with pytest.raises(ValueError, match="utd_ratio is an option of algorithm=sac|masac"):
         apply_overrides(mappo, ["utd_ratio=1"])
     # a multi-car run saved in its own config: every option, its own names, retired fields

@@ -36,7 +36,7 @@ def test_calibration_lists_derive_from_the_table():
 
 def test_client_defaults_are_the_tables_default():
     assert models.DEFAULT_MODEL in models.PEDESTRIAN_MODELS
-    assert TrainConfig().pedestrian_model == models.DEFAULT_MODEL
+    assert TrainConfig().world.pedestrian_model == models.DEFAULT_MODEL
     assert EnvSpec().pedestrian_model == models.DEFAULT_MODEL
     assert SharedSpaceParallelEnv(client=Connection()).spec.pedestrian_model == models.DEFAULT_MODEL
 

@@ -103,7 +103,7 @@ def test_ppo_resumes_from_its_checkpoint_and_evaluates(overlap, sim_server, tmp_
 
 def test_the_loss_is_torchrls_clip_ppo_loss(sim_server):
     cfg = apply_overrides(TrainConfig(), [*TINY, *_remote(sim_server)])
-    env = make_env(cfg, "train")
+    env = make_env(cfg.world, "train", cfg.algo.num_envs, driving=cfg.driving())
     actor = ppo.make_actor(cfg, env.action_spec_unbatched)
     update = ppo.make_update(cfg, actor)
     from torchrl.objectives import ClipPPOLoss
@@ -123,7 +123,7 @@ def test_a_residual_ppo_policy_starts_at_its_script(sim_server):
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     cfg = apply_overrides(TrainConfig(), [*TINY, *_remote(sim_server), "base_driver=car_aware"])
-    env = make_env(cfg, "train")
+    env = make_env(cfg.world, "train", cfg.algo.num_envs, driving=cfg.driving())
     actor = ppo.make_actor(cfg, env.action_spec_unbatched)
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -175,14 +175,14 @@ def test_a_bad_config_names_its_field(overrides, field):
 
 
 def test_the_algorithm_fills_in_what_was_left_to_it():
-    """``num_envs`` and ``reward`` left unset follow the algorithm, also when an override
+    """``num_envs`` and ``reward`` left unset take the algorithm's own defaults, also when an override
     changes the algorithm of a config already made; set, they stay."""
     ppo_cfg = apply_overrides(TrainConfig(), ["algorithm=ppo"])
-    assert (ppo_cfg.num_envs, ppo_cfg.reward) == (256, "learner")
-    assert ppo_cfg.world_reward_weights == LEARNER_REWARD
+    assert (ppo_cfg.algo.num_envs, ppo_cfg.algo.reward) == (256, "learner")
+    assert ppo_cfg.reward_weights == LEARNER_REWARD
     sac_cfg = apply_overrides(ppo_cfg, ["algorithm=sac"])
-    assert (sac_cfg.num_envs, sac_cfg.reward, sac_cfg.world_reward_weights) == (8, "world", {})
+    assert (sac_cfg.algo.num_envs, sac_cfg.algo.reward, sac_cfg.reward_weights) == (8, "world", {})
     kept = apply_overrides(TrainConfig(), ["num_envs=32", "reward=learner", "algorithm=sac"])
-    assert (kept.num_envs, kept.reward) == (32, "learner")
-    assert apply_overrides(TrainConfig(), ["variant=s_sac"]).network == "mlp"
-    assert (ppo_cfg.eval_interval, sac_cfg.eval_interval) == (524_288, 20_000)
+    assert (kept.algo.num_envs, kept.algo.reward) == (32, "learner")
+    assert apply_overrides(TrainConfig(), ["variant=s_sac"]).net.network == "mlp"
+    assert (ppo_cfg.algo.eval_interval, sac_cfg.algo.eval_interval) == (524_288, 20_000)

@@ -29,6 +29,7 @@ from sharedspace.train.prior import (  # noqa: E402
     write_prior,
 )
 from sharedspace.train.train import train  # noqa: E402
+from sharedspace.world_config import WorldConfig  # noqa: E402
 
 M = 5
 TINY_RECIPE = {
@@ -124,13 +125,13 @@ def test_the_mirror_is_a_symmetry_of_the_simulator(sim_server):
     driven by the mirror-symmetric car-aware script: every observation of one is the mirror of
     the other's, the risk graphs and the rewards are equal. So mirrored prior data is data the
     simulator could have produced."""
-    cfg = apply_overrides(TrainConfig(), [*remote(sim_server), "max_agents=6"])
+    world = WorldConfig.from_words([*remote(sim_server), "max_agents=6"])
     spec = {"position_sigma": 0.3, "start_offset_steps": 1, "desired_speed_scale": 0.1}
     seeds = list(range(8))
     runs = []
     for mirror in (False, True):
         env = make_env(
-            cfg,
+            world,
             split="train",
             num_envs=len(seeds),
             scenario_order="sequential",
@@ -159,7 +160,7 @@ def test_the_mirror_is_a_symmetry_of_the_simulator(sim_server):
 
 def test_recorded_transitions_are_the_env_steps(sim_server):
     cfg = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
-    env = make_env(cfg, split="train", num_envs=4, scenario_order="sequential")
+    env = make_env(cfg.world, "train", 4, scenario_order="sequential", driving=cfg.driving())
     try:
         got, episodes = record_episodes(env, make_driver("pursuit_3"))
     finally:
@@ -181,7 +182,9 @@ def test_the_trainer_learns_from_recorded_demonstrations(sim_server, tmp_path):
     cfg = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
     transitions, sources = record_demos(cfg, TINY_RECIPE, log=lambda *_: None)
     assert list(sources) == list(TINY_RECIPE)
-    train_scenes = 59 - cfg.validation_scenes  # the paper pool's, the validation ones left out
+    train_scenes = (
+        59 - cfg.world.validation_scenes
+    )  # the paper pool's, the validation ones left out
     assert sources["car_aware"]["episodes"] == train_scenes
     assert set(transitions["source"].tolist()) <= {0, 1, 2}
     failed = round(train_scenes * (1 - sources["car_aware"]["success"]))
@@ -220,13 +223,15 @@ def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
 
     base = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
     residual = apply_overrides(base, ["base_driver=car_aware"])
-    env = make_env(residual, split="train", num_envs=4, scenario_order="sequential")
+    env = make_env(
+        residual.world, "train", 4, scenario_order="sequential", driving=residual.driving()
+    )
     try:
         actor = make_actor(residual, env.action_spec_unbatched)
         learned = run_episodes(env, actor)
     finally:
         env.close()
-    env = make_env(base, split="train", num_envs=4, scenario_order="sequential")
+    env = make_env(base.world, "train", 4, scenario_order="sequential", driving=base.driving())
     try:
         scripted = run_episodes(env, make_driver("car_aware"))
     finally:
@@ -246,7 +251,7 @@ def test_a_residual_learner_reads_prior_actions_as_residuals_over_its_script(sim
 
     world = [*remote(sim_server), f"max_agents={M}"]
     cfg = apply_overrides(TrainConfig(), world)
-    env = make_env(cfg, split="train", num_envs=4, scenario_order="sequential")
+    env = make_env(cfg.world, "train", 4, scenario_order="sequential", driving=cfg.driving())
     try:  # pursuit_3 with noise: actions far from car_aware's
         got, _ = record_episodes(env, make_driver("pursuit_3"), noise_std=0.3, max_steps=30)
     finally:

@@ -110,8 +110,8 @@ def test_without_an_endpoint_the_trainer_starts_its_own_server():
     if sim_server_binary() is None:
         pytest.skip("sim-server binary not found")
     cfg = load_config(None, ["num_envs=2", "max_agents=4"])
-    assert cfg.server_endpoint == ""
-    env = make_env(cfg, split="test")
+    assert cfg.world.server_endpoint == ""
+    env = make_env(cfg.world, "test", cfg.algo.num_envs)
     try:
         td = env.reset()
         assert tuple(td["features"].shape) == (2, 4, 11)

@@ -117,8 +117,8 @@ def test_the_pettingzoo_env_takes_a_vehicle_model(sim_server):
 
 
 def test_train_config_checks_the_vehicle_model():
-    assert TrainConfig(vehicle_model="idm").vehicle_model == "idm"
-    assert TrainConfig().vehicle_model == ""  # the pool's
+    assert TrainConfig(vehicle_model="idm").world.vehicle_model == "idm"
+    assert TrainConfig().world.vehicle_model == ""  # the pool's
     with pytest.raises(ValueError, match="vehicle_model"):
         TrainConfig(vehicle_model="teleport")
 

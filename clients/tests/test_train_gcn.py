@@ -93,7 +93,7 @@ def test_actor_critic_loss_shapes(network):
         TrainConfig(),
         dict(network=network, max_agents=4, num_envs=2, hidden_sizes=[16], gcn_hidden=8),
     )
-    env = make_env(cfg)
+    env = make_env(cfg.world, "train", cfg.algo.num_envs)
     actor = make_actor(cfg, env.action_spec_unbatched)
     critic = make_critic(cfg, env.action_spec_unbatched)
     with torch.no_grad():
@@ -110,8 +110,8 @@ def test_config_file_and_overrides(tmp_path):
     p = tmp_path / "c.toml"
     p.write_text('variant = "s_sac"\nnum_envs = 3\nhidden_sizes = [32, 16]\n')  # old name
     cfg = load_config(p, ["lr=1e-3", "save_buffer=true", "total_frames=1e4"])
-    assert (cfg.network, cfg.num_envs, cfg.hidden_sizes) == ("mlp", 3, [32, 16])
-    assert cfg.lr == 1e-3 and cfg.save_buffer is True and cfg.total_frames == 10_000
+    assert (cfg.net.network, cfg.algo.num_envs, cfg.algo.hidden_sizes) == ("mlp", 3, [32, 16])
+    assert cfg.algo.lr == 1e-3 and cfg.algo.save_buffer is True and cfg.total_frames == 10_000
     with pytest.raises(KeyError):
         load_config(None, ["nope=1"])
     with pytest.raises(ValueError):
@@ -122,7 +122,7 @@ def test_a_retired_field_of_an_old_config_is_ignored_and_an_env_field_is_checked
     """``env_backend`` (configs of shipped checkpoints have it; the Rust server is the only
     backend) is ignored; an env field is checked as the EnvSpec checks it, by name."""
     assert "env_backend" not in TrainConfig.from_dict({"env_backend": "remote"}).to_dict()
-    assert load_config(None, ["env_backend=remote"]).server_endpoint == ""  # a local server
+    assert load_config(None, ["env_backend=remote"]).world.server_endpoint == ""  # a local server
     with pytest.raises(ValueError, match="EnvSpec.vehicle_model"):
         load_config(None, ["vehicle_model=teleport"])
     with pytest.raises(ValueError, match="positon_sigma"):

@@ -74,7 +74,12 @@ def reference_and_update(variant: str, layer_norm: bool = False):
             params[e].to_module(c)
             out.append(c.module)
     update = SACUpdate(
-        actor, qnets, gamma=cfg.gamma, tau=cfg.tau, lr=cfg.lr, alpha_init=cfg.alpha_init
+        actor,
+        qnets,
+        gamma=cfg.algo.gamma,
+        tau=cfg.algo.tau,
+        lr=cfg.algo.lr,
+        alpha_init=cfg.algo.alpha_init,
     )
     with torch.no_grad():
         update.target_critics.load_state_dict(

@@ -238,8 +238,8 @@ def test_pettingzoo_and_gymnasium_take_variations(sim_server, sim_client):
 
 def test_train_config_takes_variations_as_json():
     cfg = apply_overrides(TrainConfig(), ['variations={"position_sigma": 0.25}'])
-    assert cfg.variations == {"position_sigma": 0.25}
-    assert apply_overrides(cfg, ["variations="]).variations == {}
+    assert cfg.world.variations == {"position_sigma": 0.25}
+    assert apply_overrides(cfg, ["variations="]).world.variations == {}
     with pytest.raises(ValueError, match="JSON object"):
         apply_overrides(TrainConfig(), ["variations=[1]"])
 

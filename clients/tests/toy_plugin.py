@@ -11,6 +11,7 @@ them to the loop's contract).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -20,11 +21,11 @@ from sharedspace.marl.networks import GROUP
 from sharedspace.marl.networks import make_actor as make_car_actor
 from sharedspace.marl.train import Cars
 from sharedspace.names import FEATURE_SCALE, NODE_FEATURES
+from sharedspace.train.algorithm_configs import AlgorithmConfig
 from sharedspace.train.loop import OneCar
 from sharedspace.train.networks import Network, register_network
 from sharedspace.train.policy import make_encoder, make_gaussian_actor
 from sharedspace.train.registry import Algorithm, register_algorithm
-from sharedspace.worlds import training_task
 
 
 class MeanEncoder(nn.Module):
@@ -62,8 +63,8 @@ class ToyLearner:
         else:
             self.actor = make_actor(cfg, env.action_spec_unbatched)
             self.keys = "action", ("next", "reward")
-        self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr)
-        self.batch_frames = cfg.num_envs * 8
+        self.optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.algo.lr)
+        self.batch_frames = cfg.algo.num_envs * 8
         self.random_frames = 0
 
     def start(self, counters: dict[str, Any], logger) -> None:
@@ -91,9 +92,17 @@ class ToyLearner:
         self.optimizer.load_state_dict(ckpt["optimizers"]["adam"])
 
 
+@dataclass
+class ToyPgConfig(AlgorithmConfig):
+    """toy_pg's options: its own defaults."""
+
+    num_envs: int = 4  # K, sub-envs stepped together
+    reward: str = "learner"  # named reward (sharedspace.train.reward): world | learner
+
+
 def make_world(cfg):
     """One car per env, or the crossing task's cars, as the task says."""
-    return Cars(cfg) if training_task(cfg.task or "paper").cars > 1 else OneCar(cfg)
+    return Cars(cfg) if cfg.world.cars > 1 else OneCar(cfg)
 
 
 def make_learner(cfg, world, env) -> ToyLearner:
@@ -106,7 +115,7 @@ register_algorithm(
         __name__,
         cars="any",
         family="on",
-        defaults={"num_envs": 4, "reward": "learner"},
+        config=ToyPgConfig,
         doc="a toy",
     )
 )

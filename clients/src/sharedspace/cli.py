@@ -11,11 +11,13 @@ traceback.
 from __future__ import annotations
 
 import difflib
+import json
 import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
+from typing import Any
 
-__all__ = ["UserError", "did_you_mean", "run_command"]
+__all__ = ["UserError", "did_you_mean", "parse_value", "run_command"]
 
 
 class UserError(ValueError):
@@ -43,3 +45,31 @@ def run_command(main: Callable[[Sequence[str] | None], int], argv: Sequence[str]
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         print(f"error: {first}", file=sys.stderr)
         return 2
+
+
+def parse_value(key: str, text: str, like: Any, error: type[Exception] = UserError) -> Any:
+    """``text`` parsed as the type of ``like`` (the field's current value): booleans as
+    true/false/1/0/yes/no/on/off, integers (``1e4`` too), floats, lists as ``256,256`` or
+    ``[256, 256]``, dicts as JSON objects; anything else is the string. A value that does not
+    parse is an ``error`` naming ``key``."""
+    try:
+        if isinstance(like, bool):
+            if text.lower() in ("1", "true", "yes", "on"):
+                return True
+            if text.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError("not a boolean")
+        if isinstance(like, int):
+            return int(float(text)) if "e" in text.lower() else int(text)
+        if isinstance(like, float):
+            return float(text)
+        if isinstance(like, list):
+            return [int(x) for x in text.strip("[]").split(",") if x.strip()]
+        if isinstance(like, dict):
+            value = json.loads(text) if text.strip() else {}
+            if not isinstance(value, dict):
+                raise ValueError("not a JSON object")
+            return value
+    except ValueError as exc:
+        raise error(f"--set {key}={text}: expected {type(like).__name__} ({exc})") from None
+    return text

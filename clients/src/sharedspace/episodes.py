@@ -29,6 +29,7 @@ __all__ = [
     "variation_batches",
 ]
 
+
 def run_episodes(env, policy, max_steps: int = 10_000) -> list[dict[str, Any]]:
     """Plays the first episode of every sub-env of ``env`` with ``policy`` (deterministic) and
     returns one record per sub-env: scenario index, status, metrics, return, and the ego's

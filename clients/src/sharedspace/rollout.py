@@ -30,6 +30,7 @@ MAX_EVAL_ENVS = 512
 #: "mask" [K, M] (bool)}`` to actions ``[K, 2]`` in [-1, 1] (acceleration, yaw rate).
 Act = Callable[[dict[str, np.ndarray]], Any]
 
+
 def variation_batches(
     scenes: int, variations: int, first: int = 0, max_envs: int = MAX_EVAL_ENVS
 ) -> list[list[int]]:

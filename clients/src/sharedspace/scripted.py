@@ -11,7 +11,7 @@ features and mask), with no state.
   motion brings it into the path by the time the car gets there.
 
 They are the reference rows of the tables (:mod:`sharedspace.paper.drivers` names them) and the
-base a residual policy adds its action to (``TrainConfig.base_driver``).
+base a residual policy adds its action to (the trainer's ``base_driver``).
 
 Each is NumPy alone: the benchmark scores them with no torch loaded. Called on torch tensors (a
 TorchRL transform, a prior's actions), a driver computes the same actions and hands them back as

@@ -78,9 +78,9 @@ class AdversaryWorld(OneCar):
         return AdversaryEnv(
             self.driver,
             self.task,
-            self.cfg.num_envs,
+            self.cfg.algo.num_envs,
             seed=seed,
-            reward_weights=self.cfg.reward_weights,
+            reward_weights=self.cfg.algo.reward_weights,
             client=self.client,
         )
 
@@ -91,7 +91,7 @@ class AdversaryWorld(OneCar):
             len(self.curve_scenes),
             scenarios=self.curve_scenes,
             variation_seeds=[0] * len(self.curve_scenes),
-            reward_weights=self.cfg.reward_weights,
+            reward_weights=self.cfg.algo.reward_weights,
             client=self.client,
         )
         try:
@@ -107,7 +107,7 @@ class AdversaryWorld(OneCar):
                 "driver": self.driver.name,
                 "driver_source": self.driver.source,
             },
-            "max_agents": self.cfg.max_agents,
+            "max_agents": self.cfg.world.max_agents,
         }
 
 

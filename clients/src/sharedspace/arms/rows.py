@@ -60,7 +60,7 @@ ARMS: dict[str, list[str]] = {
 }
 #: Frames between validation scorings (and checkpoints): PPO's own cadence, a multiple of its
 #: batch (256 x 32 frames).
-EVAL_INTERVAL = get_algorithm("ppo").defaults["eval_interval"]
+EVAL_INTERVAL = get_algorithm("ppo").config.eval_interval
 #: The single-car tasks a row trains for.
 SINGLE_CAR_TASKS = tuple(n for n, t in TRAINING_TASKS.items() if t.cars == 1)
 

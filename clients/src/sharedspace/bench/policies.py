@@ -267,9 +267,9 @@ def _single_car_act(ckpt: dict[str, Any]) -> Callable:
 
     cfg, actor = load_checkpoint_actor(ckpt)
     act = _module_td_act(actor, "action")
-    if not cfg.base_driver:
+    if not cfg.algo.base_driver:
         return _td_act(act, False)
-    residual = ResidualAction(cfg.base_driver, scale=cfg.residual_scale)
+    residual = ResidualAction(cfg.algo.base_driver, scale=cfg.algo.residual_scale)
     return _td_act(
         lambda td: residual._inv_call(td.clone(False).set("action", act(td))).get("action"), False
     )
@@ -292,5 +292,5 @@ def _marl_act(ckpt: dict[str, Any], task: Task, path: Path) -> Callable:
     cfg = TrainConfig.from_dict(ckpt["config"] | {"device": "cpu"})
     actor = make_actor(cfg, task.crossing)
     actor.load_state_dict(ckpt["actor"])
-    act = policy_act(actor, cfg.base_driver, cfg.residual_scale)
+    act = policy_act(actor, cfg.algo.base_driver, cfg.algo.residual_scale)
     return lambda td: act(td, 0)

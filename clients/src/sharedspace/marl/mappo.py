@@ -50,8 +50,8 @@ def make_loss(cfg: TrainConfig, actor, critic) -> ClipPPOLoss:
     loss = ClipPPOLoss(
         actor_network=actor,
         critic_network=critic,
-        clip_epsilon=cfg.clip_epsilon,
-        entropy_coeff=cfg.entropy_coeff,
+        clip_epsilon=cfg.algo.clip_epsilon,
+        entropy_coeff=cfg.algo.entropy_coeff,
         normalize_advantage=True,
         normalize_advantage_exclude_dims=(-2,),  # each car's advantages normalised apart
     )
@@ -62,12 +62,12 @@ def make_loss(cfg: TrainConfig, actor, critic) -> ClipPPOLoss:
         terminated=(GROUP, "terminated"),
         value=(GROUP, "state_value"),
     )
-    loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.algo.gamma, lmbda=cfg.algo.lmbda)
     return loss
 
 
 def make_optimizer(cfg: TrainConfig, loss: nn.Module) -> torch.optim.Optimizer:
-    return torch.optim.Adam(loss.parameters(), cfg.lr)
+    return torch.optim.Adam(loss.parameters(), cfg.algo.lr)
 
 
 def make_buffer(cfg: TrainConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
@@ -75,7 +75,7 @@ def make_buffer(cfg: TrainConfig, frames_per_batch: int) -> TensorDictReplayBuff
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(frames_per_batch),
         sampler=SamplerWithoutReplacement(),
-        batch_size=cfg.minibatch_size,
+        batch_size=cfg.algo.minibatch_size,
     )
 
 
@@ -96,13 +96,13 @@ def learn(
             target_params=loss.target_critic_network_params,
         )
     buffer.extend(data.reshape(-1))
-    steps = cfg.ppo_epochs * max(1, data.numel() // cfg.minibatch_size)
+    steps = cfg.algo.ppo_epochs * max(1, data.numel() // cfg.algo.minibatch_size)
     for _ in range(steps):
         out = loss(buffer.sample())
         total = sum(v for k, v in out.items() if k.startswith("loss_"))
         optim.zero_grad()
         total.backward()
-        nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+        nn.utils.clip_grad_norm_(loss.parameters(), cfg.algo.max_grad_norm)
         optim.step()
     losses = {k: float(v.detach().mean()) for k, v in out.items() if k.startswith("loss_")}
     return losses | {"gradient_steps": steps}

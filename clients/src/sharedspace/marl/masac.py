@@ -54,7 +54,7 @@ def make_loss(cfg: TrainConfig, actor, critic) -> SACLoss:
         qvalue_network=critic,
         num_qvalue_nets=2,
         delay_qvalue=True,
-        alpha_init=cfg.alpha_init,
+        alpha_init=cfg.algo.alpha_init,
         target_entropy=-2.0,  # per car: -|A|
     )
     loss.set_keys(
@@ -64,7 +64,7 @@ def make_loss(cfg: TrainConfig, actor, critic) -> SACLoss:
         terminated=(GROUP, "terminated"),
         state_action_value=(GROUP, "state_action_value"),
     )
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.algo.gamma)
     return loss
 
 
@@ -72,20 +72,22 @@ def make_optimizer(cfg: TrainConfig, loss: nn.Module) -> torch.optim.Optimizer:
     """Adam; the actor at ``actor_lr``, the critics and the temperature at ``lr``."""
     actor = list(loss.actor_network_params.values(True, True))
     others = [p for p in loss.parameters() if all(p is not a for a in actor)]
-    return torch.optim.Adam([{"params": actor, "lr": cfg.actor_lr}, {"params": others}], cfg.lr)
+    return torch.optim.Adam(
+        [{"params": actor, "lr": cfg.algo.actor_lr}, {"params": others}], cfg.algo.lr
+    )
 
 
 def make_buffer(cfg: TrainConfig, frames_per_batch: int) -> TensorDictReplayBuffer:
     """A replay buffer of ``buffer_size`` sub-env steps, sampled at random."""
     return TensorDictReplayBuffer(
-        storage=LazyTensorStorage(cfg.buffer_size),
+        storage=LazyTensorStorage(cfg.algo.buffer_size),
         sampler=RandomSampler(),
-        batch_size=cfg.batch_size,
+        batch_size=cfg.algo.batch_size,
     )
 
 
 def make_target_update(cfg: TrainConfig, loss: nn.Module) -> SoftUpdate:
-    return SoftUpdate(loss, eps=1.0 - cfg.tau)
+    return SoftUpdate(loss, eps=1.0 - cfg.algo.tau)
 
 
 def learn(
@@ -94,21 +96,21 @@ def learn(
     """One collected batch into the buffer, then ``utd_ratio`` updates per frame; only the
     critics learn for the first ``actor_warmup_frames``. Returns the last step's losses and the
     steps taken."""
-    warmup = frames < cfg.actor_warmup_frames
+    warmup = frames < cfg.algo.actor_warmup_frames
     buffer.extend(data.reshape(-1))
-    steps = max(1, round(cfg.utd_ratio * data.numel()))
+    steps = max(1, round(cfg.algo.utd_ratio * data.numel()))
     for _ in range(steps):
         sample = buffer.sample()
         out = loss(sample)
-        if cfg.residual_penalty and not warmup:
+        if cfg.algo.residual_penalty and not warmup:
             # keeps the residual near 0 (the script) unless the critics disagree by more
             loc = loss.actor_network(sample.clone())[GROUP, "loc"]
-            out["loss_residual"] = cfg.residual_penalty * loc.pow(2).mean()
+            out["loss_residual"] = cfg.algo.residual_penalty * loc.pow(2).mean()
         losses = [v for k, v in out.items() if k.startswith("loss_")]
         total = out["loss_qvalue"] if warmup else sum(losses)
         optim.zero_grad()
         total.backward()
-        nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+        nn.utils.clip_grad_norm_(loss.parameters(), cfg.algo.max_grad_norm)
         optim.step()
         if target_update is not None:
             target_update.step()

@@ -31,26 +31,26 @@ CAR_KEYS = [(GROUP, "features"), (GROUP, "adjacency"), (GROUP, "mask")]
 
 def observation(cfg: TrainConfig | None = None, task: CrossingTask | None = None):
     """Each car's observation as one vector at :data:`OBS`: flattened
-    (:class:`~sharedspace.marl.task.CarObservation`), or ``cfg.network``'s encoding."""
-    if cfg is None or not cfg.network:
+    (:class:`~sharedspace.marl.task.CarObservation`), or ``cfg.net.network``'s encoding."""
+    if cfg is None or not cfg.net.network:
         return TensorDictModule(
             CarObservation(), in_keys=[(GROUP, "features"), (GROUP, "mask")], out_keys=[OBS]
         )
-    encoder = get_network(cfg.network).make_encoder(_car_network(cfg, task), None)
+    encoder = get_network(cfg.net.network).make_encoder(_car_network(cfg, task), None)
     # an encoder maps [*, M, F] to [*, D]: over the group, every car's [*, A, M, F] at once
     return TensorDictModule(encoder, in_keys=CAR_KEYS, out_keys=[OBS])
 
 
 def _car_network(cfg: TrainConfig, task: CrossingTask) -> NetworkConfig:
     """The network part of ``cfg`` for one car of ``task``."""
-    return dataclasses.replace(cfg.network_config(), max_agents=task.max_agents, device="cpu")
+    return dataclasses.replace(cfg.net, max_agents=task.max_agents, device="cpu")
 
 
 def observation_size(cfg: TrainConfig, task: CrossingTask) -> int:
     """The length of one car's :func:`observation` vector."""
-    if not cfg.network:
+    if not cfg.net.network:
         return task.max_agents * (NODE_FEATURES + 1)
-    encoder = get_network(cfg.network).make_encoder(_car_network(cfg, task), None)
+    encoder = get_network(cfg.net.network).make_encoder(_car_network(cfg, task), None)
     return int(encoder.out_features)
 
 
@@ -64,8 +64,8 @@ def agents_mlp(
         n_agent_outputs=outputs,
         n_agents=task.cars,
         centralized=centralized,
-        share_params=cfg.share_params,
-        num_cells=list(cfg.hidden_sizes),
+        share_params=cfg.algo.share_params,
+        num_cells=list(cfg.algo.hidden_sizes),
         activation_class=nn.Tanh,
     )
 
@@ -78,7 +78,9 @@ def make_actor(cfg: TrainConfig, task: CrossingTask) -> ProbabilisticActor:
         for p in list(mlp.parameters())[-2:]:  # the output layer's weight and bias
             p.mul_(0.01)
     head = TensorDictModule(
-        nn.Sequential(mlp, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.init_scale}")),
+        nn.Sequential(
+            mlp, NormalParamExtractor(scale_mapping=f"biased_softplus_{cfg.algo.init_scale}")
+        ),
         in_keys=[OBS],
         out_keys=[(GROUP, "loc"), (GROUP, "scale")],
     )

@@ -35,6 +35,7 @@ __all__ = [
     "make_env",
 ]
 
+
 def make_env(
     task: CrossingTask,
     split: str,

@@ -66,19 +66,21 @@ class Cars:
     def __init__(self, cfg: TrainConfig, task: CrossingTask | None = None):
         self.cfg = cfg
         self.task = task or CrossingTask()
-        self.client = cfg.connection().open()
+        self.client = cfg.world.connection().open()
         self.rows: list[dict[str, Any]] = []
         self.summary: dict[str, Any] = {}
 
     def make_env(self, seed: int):
         cfg = self.cfg
-        weights = cfg.world_reward_weights
+        weights = cfg.reward_weights
         env = make_env(
-            self.task, "train", cfg.num_envs, self.client, seed=seed, reward_weights=weights
+            self.task, "train", cfg.algo.num_envs, self.client, seed=seed, reward_weights=weights
         )
-        if not cfg.base_driver:
+        if not cfg.algo.base_driver:
             return env
-        return TransformedEnv(env, ResidualAction(cfg.base_driver, GROUP, cfg.residual_scale))
+        return TransformedEnv(
+            env, ResidualAction(cfg.algo.base_driver, GROUP, cfg.algo.residual_scale)
+        )
 
     def outcomes(self, data: TensorDictBase) -> dict[str, float]:
         out = batch_outcomes(data)
@@ -95,11 +97,11 @@ class Cars:
         """Every car of the ``eval_split`` scenes (``validation_scenes`` of the validation
         seeds, or the test scenes): the per-car rates."""
         cfg = self.cfg
-        split = cfg.eval_split
+        split = cfg.world.eval_split
         names = self.task.scene_names(
-            split, cfg.validation_scenes if split == "validation" else None
+            split, cfg.world.validation_scenes if split == "validation" else None
         )
-        act = policy_act(actor, cfg.base_driver, cfg.residual_scale)
+        act = policy_act(actor, cfg.algo.base_driver, cfg.algo.residual_scale)
         self.rows = play(self.task, act, self.client, split=split, scenes=names)
         self.summary = summarize(self.rows)
         rates = {k: self.summary[k]["rate"] for k in (*STATUSES, "car_collision")}
@@ -108,14 +110,14 @@ class Cars:
     def network(self) -> str:
         """The registered network, or the flat observation's MLP."""
         cfg = self.cfg
-        if cfg.network:
-            return cfg.network
-        widths = "x".join(str(h) for h in cfg.hidden_sizes)
-        return f"MultiAgentMLP {widths} (shared: {cfg.share_params})"
+        if cfg.net.network:
+            return cfg.net.network
+        widths = "x".join(str(h) for h in cfg.algo.hidden_sizes)
+        return f"MultiAgentMLP {widths} (shared: {cfg.algo.share_params})"
 
     def record(self) -> dict[str, Any]:
         """The task (every field) and the reward."""
-        reward = {"name": self.cfg.reward, "weights": self.cfg.world_reward_weights}
+        reward = {"name": self.cfg.algo.reward, "weights": self.cfg.reward_weights}
         return {"task": dict(vars(self.task)), "reward": reward}
 
     def finish(self, actor, log_dir: Path, summary: dict[str, Any], timing: dict) -> None:
@@ -143,8 +145,10 @@ class CarsLearner:
         self.optim = algo.make_optimizer(cfg, self.loss)
         self.target_update = algo.make_target_update(cfg, self.loss)
         on_policy = get_algorithm(cfg.algorithm).family == "on"
-        batch = cfg.num_envs * cfg.rollout_steps if on_policy else cfg.frames_per_batch
-        self.batch_frames = max(batch - batch % cfg.num_envs, cfg.num_envs)
+        batch = (
+            cfg.algo.num_envs * cfg.algo.rollout_steps if on_policy else cfg.algo.frames_per_batch
+        )
+        self.batch_frames = max(batch - batch % cfg.algo.num_envs, cfg.algo.num_envs)
         self.random_frames = 0
         self.buffer = algo.make_buffer(cfg, self.batch_frames)
 

@@ -41,14 +41,10 @@ from sharedspace.cli import run_command
 from sharedspace.outcomes import STATUSES
 from sharedspace.paper.drivers import make_driver
 from sharedspace.paper.planner import Cell, cell_name, open_loop_search
-from sharedspace.train.config import (
-    TrainConfig,
-    add_overrides_argument,
-    apply_overrides,
-    command_parser,
-)
+from sharedspace.train.config import add_overrides_argument, command_parser
 from sharedspace.train.envs import make_env
 from sharedspace.train.prior import KEYS, read_header, world_of, write_prior
+from sharedspace.world_config import WorldConfig
 from sharedspace.worlds import TRAINING_VARIATIONS  # the learners' variations, the demos' default
 
 __all__ = ["RECIPE", "TRAINING_VARIATIONS", "record_episodes", "record_demos", "main"]
@@ -137,7 +133,7 @@ def record_episodes(
 
 
 def _play_cells(
-    cfg: TrainConfig,
+    world: WorldConfig,
     cells: Sequence[Cell],
     spec: dict[str, Any],
     make_policy,
@@ -150,7 +146,7 @@ def _play_cells(
     for start in range(0, len(cells), _MAX_ENVS):
         part = cells[start : start + _MAX_ENVS]
         env = make_env(
-            cfg,
+            world,
             split="train",
             num_envs=len(part),
             scenarios=[c[0] for c in part],
@@ -168,17 +164,17 @@ def _play_cells(
 
 
 def record_demos(
-    cfg: TrainConfig,
+    world: WorldConfig,
     recipe: dict[str, dict[str, Any]] = RECIPE,
     spec: dict[str, Any] = TRAINING_VARIATIONS,
     log=print,
 ) -> tuple[TensorDict, dict[str, dict[str, Any]]]:
-    """Every source of ``recipe`` on the train split of ``cfg``'s world (without the scenes
-    carved off as its validation split, :meth:`TrainConfig.scene_indices`); returns the
+    """Every source of ``recipe`` on the train split of ``world``'s world (without the scenes
+    carved off as its validation split, :meth:`WorldConfig.scene_indices`); returns the
     transitions (labelled with their ``source`` code, episodes numbered across sources) and
     the per-source summary of the header."""
-    pool = cfg.pool_scenes()
-    names = [pool[i]["name"] for i in cfg.scene_indices("train")]  # the validation split left out
+    pool = world.pool_scenes()
+    names = [pool[i]["name"] for i in world.scene_indices("train")]  # the validation split left out
     parts: list[TensorDict] = []
     sources: dict[str, dict[str, Any]] = {}
     failed: dict[str, list[dict[str, Any]]] = {}  # source -> its episodes that did not arrive
@@ -186,11 +182,11 @@ def record_demos(
     for code, (source, how) in enumerate(recipe.items()):
         t0 = time.perf_counter()
         if how["driver"] == "planner":
-            got, eps, extra = _planner_source(cfg, pool, failed.get(how["of"], []), spec, how)
+            got, eps, extra = _planner_source(world, pool, failed.get(how["of"], []), spec, how)
         else:
             cells = [(n, how["first"] + v) for v in range(how["variations"]) for n in names]
             got, eps = _play_cells(
-                cfg,
+                world,
                 cells,
                 spec,
                 lambda start, part, how=how: make_driver(how["driver"]),
@@ -219,7 +215,7 @@ def record_demos(
 
 
 def _planner_source(
-    cfg: TrainConfig,
+    world: WorldConfig,
     pool: Sequence[dict[str, Any]],
     failures: Sequence[dict[str, Any]],
     spec: dict[str, Any],
@@ -232,7 +228,7 @@ def _planner_source(
     cells: list[Cell] = [(pool[e["scenario_index"]]["name"], e["variation"]) for e in failures]
     initial = {cell_name(c): np.asarray(e["actions"]) for c, e in zip(cells, failures, strict=True)}
     found = open_loop_search(
-        cfg,
+        world,
         rounds=how["rounds"],
         per_round=how["per_round"],
         spec=spec,
@@ -253,7 +249,7 @@ def _planner_source(
         seq = _Sequences(actions[start : start + len(part)])
         return TensorDictModule(seq, in_keys=["features"], out_keys=["action"])
 
-    got, eps = _play_cells(cfg, solved, spec, sequences, 0.0, seed=0)
+    got, eps = _play_cells(world, solved, spec, sequences, 0.0, seed=0)
     return got, eps, {"cells": len(cells), "solved": len(solved)}
 
 
@@ -283,11 +279,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "scenes want more than hbs-general's 229)",
     )
     ap.add_argument("--force", action="store_true", help="record anew even if cached")
-    add_overrides_argument(ap, "TrainConfig overrides, e.g. max_agents=10")
+    add_overrides_argument(ap, "world keys, e.g. max_agents=10")
     args = ap.parse_args(argv)
-    cfg = apply_overrides(
-        TrainConfig(),
-        [f"scenario_pool={args.pool}", f"server_params={args.params}", *args.set],
+    world = WorldConfig.from_words(
+        [f"scenario_pool={args.pool}", f"server_params={args.params}", *args.set]
     )
     recipe = {
         name: {**how, "variations": max(1, round(how["variations"] * args.scale))}
@@ -295,8 +290,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else dict(how)
         for name, how in RECIPE.items()
     }
-    world = world_of(cfg)
-    digest = recipe_digest(world, recipe, args.variation_spec)
+    identity = world_of(world, {})
+    digest = recipe_digest(identity, recipe, args.variation_spec)
     out = Path(args.out)
     if not args.force and (out / "header.json").is_file():
         header = read_header(out)
@@ -305,13 +300,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
     t0 = time.perf_counter()
     # No endpoint: the envs share this process's server of the pool and parameters.
-    transitions, sources = record_demos(cfg, recipe, args.variation_spec)
+    transitions, sources = record_demos(world, recipe, args.variation_spec)
     if out.exists():
         shutil.rmtree(out)
     command = "python -m sharedspace.paper.demos " + shlex.join(
         sys.argv[1:] if argv is None else argv
     )
-    header = write_prior(out, transitions, world, sources, command)
+    header = write_prior(out, transitions, identity, sources, command)
     header["recipe_digest"] = digest
     header["variation_spec"] = args.variation_spec
     header["minutes"] = round((time.perf_counter() - t0) / 60, 1)

@@ -224,19 +224,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from sharedspace.paper.drivers import make_driver
     from sharedspace.pettingzoo_env import SharedSpaceParallelEnv
-    from sharedspace.train.config import TrainConfig, apply_overrides
     from sharedspace.train.learners import load_checkpoint_actor
+    from sharedspace.world_config import WorldConfig
 
     if args.checkpoint:
         cfg, policy = load_checkpoint_actor(args.checkpoint, args.set)
+        world, seed = cfg.world, cfg.seed
     else:
-        cfg = apply_overrides(TrainConfig(), args.set)
-        policy = make_driver(args.driver)
+        world, seed, policy = WorldConfig.from_words(args.set), 0, make_driver(args.driver)
     env = SharedSpaceParallelEnv(
-        cfg.env_spec(args.split, cfg.seed), client=cfg.connection(), render_mode="rgb_array"
+        world.env_spec(args.split, seed), client=world.connection(), render_mode="rgb_array"
     )
     try:
-        ep = record_episode(env, policy, args.scenario, seed=cfg.seed)
+        ep = record_episode(env, policy, args.scenario, seed=seed)
     finally:
         env.close()
     print(
@@ -248,7 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.mp4:
         print("wrote", write_mp4(ep, args.mp4))
     if args.figure:
-        human = _human_profile(args.scenario, cfg.scenario_pool or None)
+        human = _human_profile(args.scenario, world.scenario_pool or None)
         speeds, headings = human if human else (None, None)
         print("wrote", episode_figure(ep, args.figure, speeds, headings))
     return 0

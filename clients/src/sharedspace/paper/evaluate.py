@@ -34,15 +34,12 @@ from sharedspace.episodes import summarize
 from sharedspace.outcomes import BENCHMARK_VARIATIONS, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.pool import load_pool, recorded_headings
-from sharedspace.train.config import (
-    TrainConfig,
-    add_overrides_argument,
-    apply_overrides,
-    command_parser,
-)
+from sharedspace.train.config import add_overrides_argument, command_parser
+from sharedspace.train.envs import Driving
 from sharedspace.train.evaluation import evaluate_split, play_variations
 from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.networks import network_label
+from sharedspace.world_config import WorldConfig
 
 __all__ = ["COLUMNS", "human_episodes", "format_table", "evaluate_policy", "main"]
 
@@ -109,17 +106,20 @@ def format_table(rows: dict[str, dict[str, float]]) -> str:
 
 
 def evaluate_policy(
-    cfg: TrainConfig,
+    world: WorldConfig,
     actor,
     split: str = "test",
     variations: int = 0,
     spec: dict[str, Any] | None = None,
+    seed: int = 0,
+    driving: Driving = Driving(),  # noqa: B008 - frozen
 ) -> dict[str, Any]:
-    """Plays every scenario of ``split`` once (or in ``variations`` seeded variations,
-    :func:`play_variations`); returns per-episode records and the summary."""
+    """Plays every scenario of ``split`` of ``world`` once (or in ``variations`` seeded
+    variations, :func:`play_variations`), envs seeded ``seed``, ``actor`` driving as
+    ``driving`` says; returns per-episode records and the summary."""
     if variations <= 0:
-        return evaluate_split(cfg, actor, split)
-    episodes = play_variations(cfg, actor, variations, split, spec)
+        return evaluate_split(world, actor, split, seed, driving)
+    episodes = play_variations(world, actor, variations, split, spec, seed=seed, driving=driving)
     return {"episodes": episodes, "summary": summarize(episodes)}
 
 
@@ -149,18 +149,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"default {json.dumps(BENCHMARK_VARIATIONS)}",
     )
     ap.add_argument("--json", default="", help="write the table and episodes to this JSON file")
-    add_overrides_argument(ap, "config overrides (e.g. server_endpoint=...)")
+    add_overrides_argument(ap, "world keys (e.g. server_endpoint=...)")
     ap.add_argument("--device", default="cpu")
     args = ap.parse_args(argv)
 
     if args.checkpoint:
         cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
-        name = network_label(cfg.network, cfg.algorithm)
+        name = network_label(cfg.net.network, cfg.algorithm)
+        world, seed, driving = cfg.world, cfg.seed, cfg.driving()
     else:
-        cfg = apply_overrides(TrainConfig(), [*args.set, f"device={args.device}"])
-        actor, name = make_driver(args.driver, load_pool(cfg.scenario_pool or None)), args.driver
-    result = evaluate_policy(cfg, actor, args.split, args.variations, args.variation_spec)
-    human = human_episodes(cfg.pool_scenes(), cfg.scene_indices(args.split))
+        world, seed, driving = WorldConfig.from_words(args.set), 0, Driving()
+        actor, name = make_driver(args.driver, load_pool(world.scenario_pool or None)), args.driver
+    result = evaluate_policy(
+        world, actor, args.split, args.variations, args.variation_spec, seed, driving
+    )
+    human = human_episodes(world.pool_scenes(), world.scene_indices(args.split))
     rows = {name: result["summary"]}
     if args.variations <= 0:  # the record is the recorded scene's, not a variation's
         rows["human"] = summarize(human)

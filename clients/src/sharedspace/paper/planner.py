@@ -32,13 +32,9 @@ from sharedspace.cli import run_command
 from sharedspace.episodes import BENCHMARK_VARIATIONS, MAX_EVAL_ENVS, STATUSES
 from sharedspace.names import Feature
 from sharedspace.pool import load_pool, split_indices
-from sharedspace.train.config import (
-    TrainConfig,
-    add_overrides_argument,
-    apply_overrides,
-    command_parser,
-)
+from sharedspace.train.config import add_overrides_argument, command_parser
 from sharedspace.train.envs import make_env
+from sharedspace.world_config import WorldConfig
 
 __all__ = [
     "Cell",
@@ -63,14 +59,14 @@ class _ConstantAction(nn.Module):
         return self.action.expand(*features.shape[:-2], 2)
 
 
-def unavoidable_first_step(cfg: TrainConfig) -> list[int]:
+def unavoidable_first_step(world: WorldConfig) -> list[int]:
     """Test scenarios (pool indices) in which each of the 9 actions of ``{-1, 0, 1}^2`` ends
     the first step in a collision: no action avoids it."""
-    pool = load_pool(cfg.scenario_pool or None)
+    pool = load_pool(world.scenario_pool or None)
     indices = split_indices(pool, "test")
     collided = {i: 0 for i in indices}
     for action in itertools.product((-1.0, 0.0, 1.0), repeat=2):
-        env = make_env(cfg, split="test", num_envs=len(indices), scenario_order="sequential")
+        env = make_env(world, split="test", num_envs=len(indices), scenario_order="sequential")
         try:
             policy = TensorDictModule(
                 _ConstantAction(action), in_keys=["features"], out_keys=["action"]
@@ -105,7 +101,7 @@ def cell_name(cell: Cell) -> str:
 
 
 def open_loop_search(
-    cfg: TrainConfig,
+    world: WorldConfig,
     rounds: int = 8,
     per_round: int = 48,
     elites: int = 8,
@@ -136,7 +132,7 @@ def open_loop_search(
     another split, ``cells`` any list of (scene, variation seed) instead; ``initial`` maps a
     cell's name to a sequence ``[T, 2]`` that round 0 plays among its first candidates (a
     driver's actions, from which the search starts)."""
-    pool = load_pool(cfg.scenario_pool or None)
+    pool = load_pool(world.scenario_pool or None)
     cells = list(cells) if cells is not None else split_cells(pool, split, variations)
     n = len(cells)  # search cells: (scenario, variation)
     names = [cell_name(c) for c in cells]
@@ -150,7 +146,7 @@ def open_loop_search(
             _start_from(actions, names, initial or {})
         else:
             actions = elite_round(shape, n, [played[name] for name in names], elites, rng)
-        outcome = _play_open_loop(cfg, split, cells, actions, spec)
+        outcome = _play_open_loop(world, split, cells, actions, spec)
         for k, cell in enumerate(cells * per_round):
             name = cell_name(cell)
             status, steps, goal_dist = outcome[k] or ("timeout", max_steps, float("inf"))
@@ -163,7 +159,7 @@ def open_loop_search(
         best = found.get(name, {}).get("best_actions")
         if best:
             replay[j, : len(best)] = best
-    outcome = _play_open_loop(cfg, split, cells, replay, spec)
+    outcome = _play_open_loop(world, split, cells, replay, spec)
     for name, result in zip(names, outcome, strict=True):
         if found.get(name, {}).get("best_actions"):
             found[name]["replayed"] = result[0] if result else "timeout"
@@ -234,7 +230,7 @@ def count_candidate(
 
 
 def _play_open_loop(
-    cfg: TrainConfig,
+    world: WorldConfig,
     split: str,
     cells: Sequence[Cell],
     actions: np.ndarray,
@@ -248,12 +244,12 @@ def _play_open_loop(
     for start in range(0, actions.shape[0], MAX_EVAL_ENVS):
         part = actions[start : start + MAX_EVAL_ENVS]
         part_cells = [cells[(start + k) % n] for k in range(len(part))]
-        outcome += _play_open_loop_env(cfg, split, part_cells, part, spec)
+        outcome += _play_open_loop_env(world, split, part_cells, part, spec)
     return outcome
 
 
 def _play_open_loop_env(
-    cfg: TrainConfig,
+    world: WorldConfig,
     split: str,
     cells: Sequence[Cell],
     actions: np.ndarray,
@@ -263,7 +259,7 @@ def _play_open_loop_env(
     seeds = [c[1] for c in cells]
     varied = any(s is not None for s in seeds)
     env = make_env(
-        cfg,
+        world,
         split=split,
         num_envs=k_envs,
         scenarios=[c[0] for c in cells],
@@ -302,7 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # No endpoint: the envs share this process's server of the pool and parameters.
     sets = [f"scenario_pool={args.pool}", f"server_params={args.params}", *args.set]
     found = open_loop_search(
-        apply_overrides(TrainConfig(), sets), rounds=args.rounds, per_round=args.per_round
+        WorldConfig.from_words(sets), rounds=args.rounds, per_round=args.per_round
     )
     solved = sorted(n for n, r in found.items() if r.get("replayed") == "success")
     summary = {

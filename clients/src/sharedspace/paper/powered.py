@@ -35,15 +35,11 @@ from sharedspace.cli import run_command
 from sharedspace.outcomes import BENCHMARK_VARIATIONS, STATUSES, mean_by_episode, outcome_rates
 from sharedspace.paper.drivers import DRIVERS, make_driver
 from sharedspace.stats import paired_clustered, wilson
-from sharedspace.train.config import (
-    TrainConfig,
-    add_overrides_argument,
-    apply_overrides,
-    command_parser,
-)
+from sharedspace.train.config import add_overrides_argument, command_parser
 from sharedspace.train.evaluation import play_variations
 from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.networks import network_label
+from sharedspace.world_config import WorldConfig
 
 __all__ = ["LABELS", "group_table", "comparisons", "label", "render", "main"]
 
@@ -265,7 +261,7 @@ def make_parser():
         help="also tabulate each comparison's half-widths on the first M variations",
     )
     ap.add_argument("--markdown", default="", help="write the two tables here")
-    add_overrides_argument(ap, "config overrides of every evaluation (e.g. server_endpoint=)")
+    add_overrides_argument(ap, "world keys of every evaluation (e.g. server_endpoint=)")
     return ap
 
 
@@ -290,15 +286,28 @@ def _play_groups(args, overrides: list[str], spec: dict[str, Any]) -> dict[str, 
     for group, path in checkpoints_of(args.policies):
         cfg, actor = load_checkpoint_actor(str(path), overrides)
         t0 = time.perf_counter()
-        eps = play_variations(cfg, actor, args.variations, args.split, spec)
+        eps = play_variations(
+            cfg.world,
+            actor,
+            args.variations,
+            args.split,
+            spec,
+            seed=cfg.seed,
+            driving=cfg.driving(),
+        )
         run = f"{path.parent.parent.name}/{path.stem}" if group else path.stem
-        groups.setdefault(group or cfg.network, {})[run] = eps
+        groups.setdefault(group or cfg.net.network, {})[run] = eps
         ok = sum(e["status"] == "success" for e in eps) / len(eps)
         print(f"{run}: success {ok:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
-    cfg = apply_overrides(TrainConfig(), overrides)
+    world = WorldConfig.from_words(overrides)
     for name in args.drivers:
         eps = play_variations(
-            cfg, None, args.variations, args.split, spec, fresh_policy=lambda n=name: make_driver(n)
+            world,
+            None,
+            args.variations,
+            args.split,
+            spec,
+            fresh_policy=lambda n=name: make_driver(n),
         )
         groups[name] = {name: eps}
         ok = sum(e["status"] == "success" for e in eps) / len(eps)
@@ -312,7 +321,7 @@ def _planner_bound(args, overrides: list[str], spec: dict[str, Any]) -> dict[str
 
     t0 = time.perf_counter()
     found = open_loop_search(
-        apply_overrides(TrainConfig(), overrides),
+        WorldConfig.from_words(overrides),
         rounds=args.planner_rounds,
         per_round=args.planner_per_round,
         variations=args.planner,

@@ -51,14 +51,10 @@ from sharedspace.pool import load_pool, split_indices
 from sharedspace.stats import paired_clustered, sign_test
 from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.checkpoint import ship as ship_checkpoint
-from sharedspace.train.config import (
-    TrainConfig,
-    add_overrides_argument,
-    apply_overrides,
-    command_parser,
-)
+from sharedspace.train.config import add_overrides_argument, command_parser
 from sharedspace.train.learners import load_checkpoint_actor
 from sharedspace.train.networks import NETWORKS, UnknownNetwork, canonical_network, network_label
+from sharedspace.world_config import WorldConfig
 
 __all__ = ["main", "render", "ship"]
 
@@ -107,7 +103,7 @@ def evaluate_run(run: Path, overrides: Sequence[str], split: str = "test") -> di
         if cached.get("frames") == frames and fresh:
             return cached
     cfg, actor = load_checkpoint_actor(str(ckpt), overrides)
-    result = evaluate_policy(cfg, actor, split)
+    result = evaluate_policy(cfg.world, actor, split, seed=cfg.seed, driving=cfg.driving())
     out = {"frames": frames, **result}
     cache.write_text(json.dumps(out))
     return out
@@ -499,16 +495,16 @@ def make_parser():
         default=48,
         help="action sequences per scenario and round of the planner search",
     )
-    add_overrides_argument(ap, "env overrides (server_endpoint=... max_agents=...)")
+    add_overrides_argument(ap, "world keys (server_endpoint=... max_agents=...)")
     return ap
 
 
-def _scripted(cfg: TrainConfig, pool: list[dict[str, Any]], outcomes: dict) -> tuple[dict, dict]:
+def _scripted(world: WorldConfig, pool: list[dict[str, Any]], outcomes: dict) -> tuple[dict, dict]:
     """Every scripted driver on the test split: its summary and reward terms; each episode's
     status goes into ``outcomes`` (scenario name -> who -> statuses)."""
     drivers, terms = {}, {}
     for name in [*DRIVERS, "human_replay"]:
-        result = evaluate_policy(cfg, make_driver(name, pool), "test")
+        result = evaluate_policy(world, make_driver(name, pool), "test")
         drivers[name] = result["summary"]
         terms[f"scripted: {name}"] = reward_terms(result["episodes"])
         for e in result["episodes"]:
@@ -548,8 +544,8 @@ def tabulate(args, runs: dict) -> tuple[dict[str, Any], dict]:
     """The whole table of the runs (every variant, driver, bound and analysis), and each run's
     evaluation."""
     t0 = time.time()
-    cfg = apply_overrides(TrainConfig(), args.set)
-    pool = load_pool(cfg.scenario_pool or None)
+    world = WorldConfig.from_words(args.set)
+    pool = load_pool(world.scenario_pool or None)
     test = split_indices(pool, "test")
     evaluated = {
         v: {s: evaluate_run(p, args.set) for s, p in sorted(r.items())} for v, r in runs.items()
@@ -557,11 +553,11 @@ def tabulate(args, runs: dict) -> tuple[dict[str, Any], dict]:
     variants = {v: variant_stats(evaluated[v]) for v in sorted(evaluated, key=_network_order)}
     success = {v: per_scenario_success(evaluated[v]) for v in variants}
     outcomes: dict[str, dict[str, str]] = {}
-    drivers, terms = _scripted(cfg, pool, outcomes)
+    drivers, terms = _scripted(world, pool, outcomes)
     _learned_outcomes(evaluated, pool, outcomes, terms)
-    unavoidable = unavoidable_first_step(cfg)
+    unavoidable = unavoidable_first_step(world)
     planner = (
-        open_loop_search(cfg, rounds=args.search_rounds, per_round=args.search_per_round)
+        open_loop_search(world, rounds=args.search_rounds, per_round=args.search_per_round)
         if args.search_rounds > 0
         else {}
     )

@@ -27,13 +27,9 @@ from sharedspace.cli import run_command
 from sharedspace.episodes import summarize
 from sharedspace.paper.demos import TRAINING_VARIATIONS
 from sharedspace.paper.drivers import CarAwareDriver
-from sharedspace.train.config import (
-    TrainConfig,
-    add_overrides_argument,
-    apply_overrides,
-    command_parser,
-)
+from sharedspace.train.config import add_overrides_argument, command_parser
 from sharedspace.train.evaluation import play_variations
+from sharedspace.world_config import WorldConfig
 
 __all__ = ["GRID", "tune_car_aware", "main"]
 
@@ -48,12 +44,12 @@ GRID: dict[str, Sequence[float]] = {
 
 
 def tune_car_aware(
-    cfg: TrainConfig,
+    world: WorldConfig,
     variations: int = 2,
     grid: dict[str, Sequence[float]] = GRID,
     log=print,
 ) -> list[dict[str, Any]]:
-    """Every combination of ``grid`` on the train split of ``cfg``'s world, best first: its
+    """Every combination of ``grid`` on the train split of ``world``, best first: its
     parameters and summary (success, collision, timeout, metrics)."""
     rows = []
     for values in itertools.product(*grid.values()):
@@ -61,7 +57,7 @@ def tune_car_aware(
         policy = TensorDictModule(
             CarAwareDriver(**params), in_keys=["features", "mask"], out_keys=["action"]
         )
-        episodes = play_variations(cfg, policy, variations, "train", TRAINING_VARIATIONS, 1000)
+        episodes = play_variations(world, policy, variations, "train", TRAINING_VARIATIONS, 1000)
         rows.append({"params": params, **summarize(episodes)})
         log(json.dumps(rows[-1]))
     return sorted(rows, key=lambda r: (-r["success"], r["collision"]))
@@ -73,12 +69,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--params", default="params/table2.json5", help="world parameters")
     ap.add_argument("--variations", type=int, default=2, help="seeded variations per scene")
     ap.add_argument("--out", default="", help="write every row here (JSON)")
-    add_overrides_argument(ap, "TrainConfig overrides, e.g. max_agents=10")
+    add_overrides_argument(ap, "world keys, e.g. max_agents=10")
     args = ap.parse_args(argv)
     t0 = time.time()
     # No endpoint: the envs share this process's server of the pool and parameters.
     sets = [f"scenario_pool={args.pool}", f"server_params={args.params}", *args.set]
-    rows = tune_car_aware(apply_overrides(TrainConfig(), sets), args.variations)
+    rows = tune_car_aware(WorldConfig.from_words(sets), args.variations)
     result = {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "split": "train",

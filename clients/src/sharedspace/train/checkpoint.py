@@ -71,7 +71,7 @@ def save_checkpoint(
         "modules": plugin_modules(cfg.algorithm, network),
         "specs": actor_specs(cfg),
         "network": network,
-        "world": world if world is not None else cfg.world(),
+        "world": world if world is not None else cfg.world_record(),
         "config": cfg.to_dict(),
         "actor": actor.state_dict(),
         "learner": learner.state_dict(),
@@ -97,7 +97,7 @@ def actor_specs(cfg) -> dict[str, Any]:
     """What an actor needs to be built with no env at hand: each car's observation (nodes,
     features per node) and action (its shape and bounds, ENV_CONTRACT.md)."""
     return {
-        "max_agents": int(cfg.max_agents),
+        "max_agents": int(cfg.world.max_agents),
         "node_features": NODE_FEATURES,
         "action": {"shape": [2], "low": -1.0, "high": 1.0},
     }

@@ -4,64 +4,78 @@ every learner (single-car and multi-car) puts between its policy and a scripted 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
+from sharedspace.cli import UserError
 from sharedspace.scripted import SCRIPTED
-from sharedspace.train.config import ConfigError
 from sharedspace.wire.errors import BadRequest
+from sharedspace.world_config import WorldConfig
 
-__all__ = ["ResidualAction", "make_env"]
+__all__ = ["Driving", "ResidualAction", "make_env"]
+
+
+@dataclass(frozen=True)
+class Driving:
+    """How a policy drives its envs beyond the world: the scripted driver its action is a
+    residual over (``base_driver``, ``residual_scale``), and the reward weights the envs are
+    created with. A trainer's: :meth:`sharedspace.train.config.TrainConfig.driving`; the
+    default: the policy's action as it is, under the world's reward."""
+
+    base_driver: str = ""  # scripted driver the action adds to; "" = none
+    residual_scale: float = 1.0  # env action = clip(script + residual_scale * policy's)
+    reward_weights: dict[str, float] = field(default_factory=dict)  # over the world's
 
 
 def make_env(
-    cfg,
+    world: WorldConfig,
     split: str = "train",
-    num_envs: int | None = None,
-    seed: int | None = None,
+    num_envs: int = 1,
+    seed: int = 0,
     scenario_order: str = "random",
     variations: dict[str, Any] | None = None,
     variation_seeds: Sequence[int] | None = None,
     scenarios: Sequence[str] | None = None,
+    driving: Driving = Driving(),  # noqa: B008 - frozen
 ) -> EnvBase:
-    """The batched env (ENV_CONTRACT.md) of ``cfg.env_spec`` (a
-    :class:`~sharedspace.train.config.TrainConfig`) on the Rust server of ``cfg.connection()``
-    (an endpoint, a zenoh file, or a ``sim-server`` this process starts). ``variations`` (and
-    fixed ``variation_seeds`` per sub-env): scene variations, SPEC 5.2.1; the trainer passes
-    ``cfg.variations`` for its training env only. ``scenarios``: sub-env ``k`` plays
-    ``scenarios[k]`` (scenes of ``split``), in sequential order; a ``validation`` env, and a
-    sequential ``train`` one, play :meth:`TrainConfig.scene_indices`'s scenes by name. With
-    ``cfg.base_driver`` the policy's action is a residual over that script
-    (:class:`ResidualAction`)."""
+    """The batched env (ENV_CONTRACT.md) of ``world.env_spec`` on the Rust server of
+    ``world.connection()`` (an endpoint, a zenoh file, or a ``sim-server`` this process
+    starts): ``num_envs`` sub-envs. ``variations`` (and fixed ``variation_seeds`` per sub-env):
+    scene variations, SPEC 5.2.1; the trainer passes the world's ``variations`` for its
+    training env only. ``scenarios``: sub-env ``k`` plays ``scenarios[k]`` (scenes of
+    ``split``), in sequential order; a ``validation`` env, and a sequential ``train`` one, play
+    :meth:`WorldConfig.scene_indices`'s scenes by name. With ``driving.base_driver`` the
+    policy's action is a residual over that script (:class:`ResidualAction`)."""
     from sharedspace.torchrl_env import RemoteBatchedEnv
 
-    spec = cfg.env_spec(split, cfg.seed if seed is None else seed, variations)
+    spec = world.env_spec(split, seed, variations, driving.reward_weights)
     if scenarios is None and split != "test":
         if split == "validation" or scenario_order == "sequential":  # by name, in pool order
-            pool = cfg.pool_scenes()
-            scenarios = [pool[i]["name"] for i in cfg.scene_indices(split)]
+            pool = world.pool_scenes()
+            scenarios = [pool[i]["name"] for i in world.scene_indices(split)]
     try:
         env = RemoteBatchedEnv(
             spec,
-            num_envs or cfg.num_envs,
+            num_envs,
             scenario_order=scenario_order,
             scenarios=scenarios,
             variation_seeds=variation_seeds,
-            client=cfg.connection(),
+            client=world.connection(),
         )
     except BadRequest as err:
         if "unknown pool" not in str(err):
             raise
-        raise ConfigError(
+        raise UserError(
             f"{err}: serve the run's pool (`sim-server serve --cfg 'pools:[...]'`; "
-            "docs/ARCHITECTURE.md, \"Validation, not test\") or point the run at a server "
+            'docs/ARCHITECTURE.md, "Validation, not test") or point the run at a server '
             "that does"
         ) from None
-    if not cfg.base_driver:
+    if not driving.base_driver:
         return env
-    return TransformedEnv(env, ResidualAction(cfg.base_driver, scale=cfg.residual_scale))
+    return TransformedEnv(env, ResidualAction(driving.base_driver, scale=driving.residual_scale))
 
 
 class ResidualAction(Transform):

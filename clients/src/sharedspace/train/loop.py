@@ -78,7 +78,7 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
 
     # ---- collect, learn, log, score, checkpoint
     collector = make_collector(cfg, env, learner, remaining, counters["frames"])
-    next_eval = next_multiple(counters["frames"], cfg.eval_interval)
+    next_eval = next_multiple(counters["frames"], cfg.algo.eval_interval)
     next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
     pbar = tqdm.tqdm(
         total=cfg.total_frames,
@@ -107,8 +107,10 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
             pbar.update(data.numel())
             pbar.set_postfix(progress_postfix(metrics, world.recent()))
 
-            if cfg.eval_interval and counters["frames"] >= next_eval:  # curves: nothing is chosen
-                next_eval = next_multiple(counters["frames"], cfg.eval_interval)
+            if (
+                cfg.algo.eval_interval and counters["frames"] >= next_eval
+            ):  # curves: nothing is chosen
+                next_eval = next_multiple(counters["frames"], cfg.algo.eval_interval)
                 last_eval = _evaluate(world, learner.actor, clock, logger, counters["frames"])
             if cfg.checkpoint_interval and counters["frames"] >= next_ckpt:
                 next_ckpt = next_multiple(counters["frames"], cfg.checkpoint_interval)
@@ -118,7 +120,7 @@ def train(cfg: TrainConfig, resume: str | None = None, world=None) -> dict[str, 
         collector.shutdown()
     pbar.close()
     _checkpoint(log_dir, cfg, world, learner, counters)
-    if cfg.eval_interval and last_eval.get("frames") != counters["frames"]:  # the run's policy
+    if cfg.algo.eval_interval and last_eval.get("frames") != counters["frames"]:  # the run's policy
         last_eval = _evaluate(world, learner.actor, clock, logger, counters["frames"])
     world.finish(learner.actor, log_dir, last_eval, clock.timing)
     logger.close()
@@ -156,7 +158,8 @@ def make_collector(
 def overlaps(cfg: TrainConfig) -> bool:
     """Whether a run of ``cfg`` collects its next batch while it updates: ``overlap`` set, for
     an on-policy learner (an off-policy one's updates per frame are its recipe)."""
-    return cfg.overlap and get_algorithm(cfg.algorithm).family == "on"
+    overlap = getattr(cfg.algo, "overlap", False)  # an option of the on-policy algorithms
+    return overlap and get_algorithm(cfg.algorithm).family == "on"
 
 
 def _evaluate(world, actor, clock: Clock, logger: MetricLogger, frames: int) -> dict[str, Any]:
@@ -177,7 +180,8 @@ def _checkpoint(log_dir: Path, cfg: TrainConfig, world, learner, counters) -> No
         d / f"step_{counters['frames']}.pt", cfg, learner.actor, learner, counters, **record
     )
     # A replay buffer goes with last.pt only: it is what a resumed run continues from.
-    buffer = getattr(learner, "buffer", None) if cfg.save_buffer else None
+    saved = getattr(cfg.algo, "save_buffer", False)  # an option of SAC's
+    buffer = getattr(learner, "buffer", None) if saved else None
     save_checkpoint(d / "last.pt", cfg, learner.actor, learner, counters, buffer, **record)
 
 
@@ -189,10 +193,18 @@ class OneCar:
 
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
-        self.tracker = EpisodeTracker(cfg.num_envs)
+        self.tracker = EpisodeTracker(cfg.algo.num_envs)
 
     def make_env(self, seed: int):
-        return make_env(self.cfg, split="train", seed=seed, variations=self.cfg.variations)
+        cfg = self.cfg
+        return make_env(
+            cfg.world,
+            "train",
+            cfg.algo.num_envs,
+            seed,
+            variations=cfg.world.variations,
+            driving=cfg.driving(),
+        )
 
     def outcomes(self, data) -> dict[str, float]:
         ended = self.tracker.update(data)
@@ -203,13 +215,15 @@ class OneCar:
         return self.tracker.recent
 
     def evaluate(self, actor) -> dict[str, Any]:
-        return evaluate_split(self.cfg, actor, self.cfg.eval_split)["summary"]
+        cfg = self.cfg
+        split = cfg.world.eval_split
+        return evaluate_split(cfg.world, actor, split, cfg.seed, cfg.driving())["summary"]
 
     def network(self) -> str:
-        return self.cfg.network
+        return self.cfg.net.network
 
     def record(self) -> dict[str, Any]:
-        return self.cfg.world()
+        return self.cfg.world_record()
 
     def finish(self, actor, log_dir: Path, summary: dict[str, Any], timing: dict) -> None:
         """Nothing beyond the checkpoints."""

@@ -41,8 +41,10 @@ if TYPE_CHECKING:  # torch is imported where a network is built, not where one i
 
 __all__ = [
     "NETWORKS",
+    "NETWORK_KEYS",
     "Network",
     "NetworkConfig",
+    "NetworkConfigError",
     "UnknownNetwork",
     "canonical_network",
     "get_network",
@@ -51,21 +53,38 @@ __all__ = [
 ]
 
 
-class UnknownNetwork(UserError):
+class NetworkConfigError(UserError):
+    """A network option with a wrong value."""
+
+
+class UnknownNetwork(NetworkConfigError):
     """A network name that no registered network has."""
 
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    """What a network's encoder is built from: the part of a run's config a network reads
-    (``TrainConfig.network_config()``; the multi-car learners give one car's)."""
+    """A run's network part: the network and its sizes (``--set`` keys :data:`NETWORK_KEYS`),
+    with the world's ``max_agents`` and the run's ``device`` that an encoder is built with
+    (:class:`~sharedspace.train.config.TrainConfig` fills those two in; the multi-car learners
+    give one car's)."""
 
-    network: str = "gcn_risk"  # a registered network
-    max_agents: int = 8  # M, graph nodes per observation (ego + M-1 nearest agents)
+    network: str = "gcn_risk"  # a registered network: gcn_risk (GCN on the risk graph) |
+    #                            gcn_uniform (GCN, uniform graph) | mlp (no graph); "" = each
+    #                            car's nodes flattened into its MLP (several cars)
     gcn_hidden: int = 64  # width of each GCN layer's output
     gcn_layers: int = 2  # number of GCN layers (ignored by mlp)
     readout: str = "ego_mean"  # graph readout: "ego" (node 0) | "ego_mean" (node 0 ++ mean)
-    device: str = "cpu"  # torch device the encoder is put on
+    max_agents: int = 8  # M, graph nodes per observation: the world's
+    device: str = "cpu"  # torch device the encoder is put on: the run's
+
+    def __post_init__(self):
+        if self.readout not in ("ego", "ego_mean"):
+            raise NetworkConfigError(f"readout must be ego or ego_mean, not {self.readout!r}")
+
+
+#: The ``--set`` keys of a run's network part (``max_agents`` is the world's, ``device`` the
+#: run's).
+NETWORK_KEYS = ("network", "gcn_hidden", "gcn_layers", "readout")
 
 
 @dataclass(frozen=True)

@@ -26,11 +26,11 @@ RESIDUAL_INIT_SCALE = 0.1
 
 
 def make_encoder(cfg: TrainConfig, norm: FeatureNorm | None = None) -> nn.Module:
-    """The encoder of the registered network ``cfg.network``
+    """The encoder of the registered network ``cfg.net.network``
     (:mod:`sharedspace.train.networks`), built from the config's network part
-    (:meth:`~sharedspace.train.config.TrainConfig.network_config`), with ``norm`` applied to its
+    (:attr:`~sharedspace.train.config.TrainConfig.net`), with ``norm`` applied to its
     node features if given."""
-    net = cfg.network_config()
+    net = cfg.net
     return get_network(net.network).make_encoder(net, norm).to(net.device)
 
 
@@ -57,7 +57,7 @@ def make_gaussian_actor(
     """Encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``. With
     ``init_scale`` the actor starts at ``loc`` 0 with that scale (:func:`start_at`);
     ``return_log_prob``: the collected data carry each action's log-probability (PPO)."""
-    net = ActorParams(ActorNet(encoder, cfg.hidden_sizes, action_spec.shape[-1]))
+    net = ActorParams(ActorNet(encoder, cfg.algo.hidden_sizes, action_spec.shape[-1]))
     if init_scale is not None:
         start_at(net.net.head[-1], action_spec.shape[-1], init_scale)
     module = TensorDictModule(net, in_keys=OBS_KEYS, out_keys=["loc", "scale"])

@@ -65,9 +65,9 @@ def make_actor(
     :data:`~sharedspace.train.policy.RESIDUAL_INIT_SCALE`), else holding speed and heading on
     average with a wide spread. ``norm``: the feature normalisation it shares with the critic
     (a new one with ``normalize_obs``, none without)."""
-    if norm is None and cfg.normalize_obs:
+    if norm is None and cfg.algo.normalize_obs:
         norm = FeatureNorm()
-    init = RESIDUAL_INIT_SCALE if cfg.base_driver else SCRATCH_INIT_SCALE
+    init = RESIDUAL_INIT_SCALE if cfg.algo.base_driver else SCRATCH_INIT_SCALE
     return make_gaussian_actor(
         cfg, action_spec, make_encoder(cfg, norm), init_scale=init, return_log_prob=True
     )
@@ -98,7 +98,7 @@ class ValueNet(nn.Module):
 
 def make_critic(cfg: TrainConfig, norm: FeatureNorm | None) -> ValueOperator:
     """``V(s)``: its own encoder of the config's network (sharing ``norm`` with the actor)."""
-    net = ValueNet(make_encoder(cfg, norm), cfg.hidden_sizes)
+    net = ValueNet(make_encoder(cfg, norm), cfg.algo.hidden_sizes)
     return ValueOperator(net, in_keys=OBS_KEYS, out_keys=["state_value"]).to(cfg.device)
 
 
@@ -108,7 +108,7 @@ def annealed_lr(cfg: TrainConfig, frames: int) -> float:
     start keeps the early learning of a constant rate and still lets the policy settle, so that
     the run's last checkpoint is its policy."""
     left = 1.0 - frames / cfg.total_frames
-    return cfg.lr * min(max(left / max(1.0 - cfg.anneal_start, 1e-9), 0.0), 1.0)
+    return cfg.algo.lr * min(max(left / max(1.0 - cfg.algo.anneal_start, 1e-9), 0.0), 1.0)
 
 
 class PPOUpdate(nn.Module):
@@ -123,21 +123,21 @@ class PPOUpdate(nn.Module):
         self.loss = ClipPPOLoss(
             actor_network=actor,
             critic_network=critic,
-            clip_epsilon=cfg.clip_epsilon,
-            entropy_bonus=cfg.entropy_coeff > 0,
-            entropy_coeff=cfg.entropy_coeff if cfg.entropy_coeff > 0 else None,
-            critic_coeff=cfg.critic_coeff,
+            clip_epsilon=cfg.algo.clip_epsilon,
+            entropy_bonus=cfg.algo.entropy_coeff > 0,
+            entropy_coeff=cfg.algo.entropy_coeff if cfg.algo.entropy_coeff > 0 else None,
+            critic_coeff=cfg.algo.critic_coeff,
             loss_critic_type="l2",
             normalize_advantage=True,
         )
         self.gae = GAE(
-            gamma=cfg.gamma,
-            lmbda=cfg.lmbda,
+            gamma=cfg.algo.gamma,
+            lmbda=cfg.algo.lmbda,
             value_network=critic,
             average_gae=False,
             deactivate_vmap=True,  # the encoders trim padding nodes: a data-dependent shape
         )
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.lr)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=cfg.algo.lr)
         # The minibatches' shuffles draw from their own generator: with the overlap, the
         # collector thread samples actions from torch's global one meanwhile, and a shared
         # generator would make a run's draws depend on the threads' timing.
@@ -150,20 +150,20 @@ class PPOUpdate(nn.Module):
         run to 0 at its end: :func:`annealed_lr`); returns the means of the losses and of the
         clip fraction, KL estimate and explained variance."""
         cfg = self.cfg
-        if cfg.anneal_lr:
+        if cfg.algo.anneal_lr:
             for group in self.optimizer.param_groups:
                 group["lr"] = annealed_lr(cfg, frames)
         data = data.to(cfg.device)
-        data["next", "reward"] = data["next", "reward"] * cfg.reward_scale
+        data["next", "reward"] = data["next", "reward"] * cfg.algo.reward_scale
         with torch.no_grad():
             self.gae(data)
         keys = [*OBS_KEYS, "action", self.log_prob_key, "advantage", "value_target"]
         flat = data.select(*keys, "state_value").reshape(-1)
         n = flat.numel()
-        mb = min(cfg.minibatch_size, n)
+        mb = min(cfg.algo.minibatch_size, n)
         sums: dict[str, float] = {}
         steps = 0
-        for _ in range(cfg.ppo_epochs):
+        for _ in range(cfg.algo.ppo_epochs):
             perm = torch.randperm(n, device=flat.device, generator=self.shuffle)
             for start in range(0, n - mb + 1, mb):
                 batch = flat[perm[start : start + mb]]
@@ -173,7 +173,7 @@ class PPOUpdate(nn.Module):
                     total = total + out["loss_entropy"]
                 self.optimizer.zero_grad(set_to_none=True)
                 total.backward()
-                grad_norm = nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
+                grad_norm = nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.algo.max_grad_norm)
                 self.optimizer.step()
                 steps += 1
                 for key in (
@@ -219,14 +219,14 @@ class PPOLearner:
         self.cfg = cfg
         self.actor = make_actor(cfg, action_spec)
         self.update = make_update(cfg, self.actor)
-        self.batch_frames = cfg.num_envs * cfg.rollout_steps
+        self.batch_frames = cfg.algo.num_envs * cfg.algo.rollout_steps
         self.random_frames = 0
 
     def start(self, counters: dict[str, Any], logger) -> None:
         """Nothing before the first batch."""
 
     def step(self, data: TensorDictBase, counters: dict[str, Any]) -> dict[str, float]:
-        torch_threads(self.cfg.update_threads)
+        torch_threads(self.cfg.algo.update_threads)
         stats = self.update.step(data, counters["frames"] - data.numel())
         torch_threads(self.cfg.num_threads)
         counters["updates"] += int(stats.pop("gradient_steps"))

@@ -46,6 +46,7 @@ from sharedspace.pool import DEFAULT_POOL_PATH
 from sharedspace.scripted import SCRIPTED
 from sharedspace.train.config import TrainConfig
 from sharedspace.wire import PROTOCOL_VERSION
+from sharedspace.world_config import WorldConfig
 
 __all__ = [
     "FORMAT",
@@ -97,23 +98,23 @@ def _sha256(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def world_of(cfg: TrainConfig) -> dict[str, Any]:
-    """What a transition means in the world of ``cfg``: the scenario pool and the world
-    parameters (their files' SHA-256), the observation layout and the reward. Two worlds
+def world_of(world: WorldConfig, reward_weights: dict[str, float]) -> dict[str, Any]:
+    """What a transition means in ``world`` under ``reward_weights``: the scenario pool and the
+    world parameters (their files' SHA-256), the observation layout and the reward. Two worlds
     with the same identity produce the same transitions for the same actions."""
-    pool = Path(cfg.scenario_pool) if cfg.scenario_pool else DEFAULT_POOL_PATH
+    pool = Path(world.scenario_pool) if world.scenario_pool else DEFAULT_POOL_PATH
     return {
         "pool": {"file": pool.name, "sha256": _sha256(pool)},
         "params": {
-            "file": Path(cfg.server_params).name if cfg.server_params else "",
-            "sha256": _sha256(cfg.server_params) if cfg.server_params else "defaults",
+            "file": Path(world.server_params).name if world.server_params else "",
+            "sha256": _sha256(world.server_params) if world.server_params else "defaults",
         },
-        "max_agents": cfg.max_agents,
+        "max_agents": world.max_agents,
         "feature_names": list(FEATURE_NAMES),
-        "pedestrian_model": cfg.pedestrian_model,
-        "vehicle_model": cfg.vehicle_model,
+        "pedestrian_model": world.pedestrian_model,
+        "vehicle_model": world.vehicle_model,
         "reward_terms": list(REWARD_TERMS),
-        "reward_weights": dict(sorted(cfg.world_reward_weights.items())),
+        "reward_weights": dict(sorted(reward_weights.items())),
         "protocol_version": PROTOCOL_VERSION,
     }
 
@@ -249,7 +250,7 @@ def load_prior(path: str | Path, cfg: TrainConfig) -> PriorData:
     """The dataset at ``path``, memory-mapped, if it was recorded in ``cfg``'s world
     (:func:`world_of`); else :class:`PriorDataError` naming every field that differs."""
     header = read_header(path)
-    diff = _differences(header["world"], world_of(cfg))
+    diff = _differences(header["world"], world_of(cfg.world, cfg.reward_weights))
     if diff:
         raise PriorDataError(
             f"{path} was recorded in another world than this trainer's: " + "; ".join(diff)
@@ -261,11 +262,11 @@ def make_prior(cfg: TrainConfig) -> PriorData | None:
     """The prior data of ``cfg`` (``prior_data``, its ``prior_sources``, successes only if
     ``prior_successes_only``), or None without. A residual learner (``base_driver``) gets
     the actions as residuals over its script (:meth:`PriorData.as_residual`)."""
-    if not cfg.prior_data:
+    if not cfg.algo.prior_data:
         return None
-    sources = [s.strip() for s in cfg.prior_sources.split(",") if s.strip()]
-    prior = load_prior(cfg.prior_data, cfg).select(sources, cfg.prior_successes_only)
-    return prior.as_residual(SCRIPTED[cfg.base_driver]()) if cfg.base_driver else prior
+    sources = [s.strip() for s in cfg.algo.prior_sources.split(",") if s.strip()]
+    prior = load_prior(cfg.algo.prior_data, cfg).select(sources, cfg.algo.prior_successes_only)
+    return prior.as_residual(SCRIPTED[cfg.algo.base_driver]()) if cfg.algo.base_driver else prior
 
 
 def mixed_batch(buffer, prior: PriorData | None, cfg: TrainConfig) -> tuple[TensorDict, int]:
@@ -273,10 +274,10 @@ def mixed_batch(buffer, prior: PriorData | None, cfg: TrainConfig) -> tuple[Tens
     ``round(batch_size * prior_ratio)`` rows come from the prior data, the rest from the
     online ``buffer``; and how many of its first rows are prior transitions of successful
     episodes (the rows a BC term imitates)."""
-    if prior is None or cfg.prior_ratio <= 0:
+    if prior is None or cfg.algo.prior_ratio <= 0:
         return buffer.sample(), 0
     online = buffer.sample().select(*KEYS)  # the buffer's batches are the online part
-    idx = torch.randint(len(prior), (cfg.batch_size - online.shape[0],))
+    idx = torch.randint(len(prior), (cfg.algo.batch_size - online.shape[0],))
     succeeded = int(prior.transitions["episode_success"][idx].sum())
     return torch.cat([prior.take(idx), online]), succeeded
 
@@ -287,5 +288,6 @@ def clone(update, prior: PriorData, steps: int, cfg: TrainConfig) -> list[float]
     of each."""
     good = prior.select(successes_only=True)
     return [
-        float(update.clone_step(good.sample(cfg.batch_size).to(cfg.device))) for _ in range(steps)
+        float(update.clone_step(good.sample(cfg.algo.batch_size).to(cfg.device)))
+        for _ in range(steps)
     ]

@@ -1,12 +1,14 @@
-"""Every ``--set`` key of the trainer with its doc line, read from :class:`~sharedspace.train.
-config.TrainConfig`'s source, so that the reference cannot drift from the config.
+"""Every ``--set`` key of the trainer with its doc line, read from the sources of the config's
+parts (the run's :class:`~sharedspace.train.config.TrainConfig`, the world's, the network's and
+each algorithm's config class), so that the reference cannot drift from the config.
 
     python -m sharedspace.train.reference            # the Markdown table of docs/USAGE.md
     python -m sharedspace.train.reference --write docs/USAGE.md
 
 A field's doc is the comment on its line (and the comment lines under it); its section is the
-``# --- name`` line above it. ``python -m sharedspace.train --help`` lists the same keys, and a
-test checks that docs/USAGE.md holds this module's table as it is generated now.
+``# --- name`` line above it. An algorithm's option shows each algorithm's own default.
+``python -m sharedspace.train --help`` lists the same keys (for the algorithm it is given), and
+a test checks that docs/USAGE.md holds this module's table as it is generated now.
 """
 
 from __future__ import annotations
@@ -21,8 +23,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sharedspace.cli import run_command
-from sharedspace.train import config as config_module
-from sharedspace.train.config import TrainConfig
+from sharedspace.train.algorithm_configs import AlgorithmConfig
+from sharedspace.train.config import RUN_DEFAULTS, TrainConfig
+from sharedspace.train.networks import NETWORK_KEYS, NetworkConfig
+from sharedspace.train.registry import ALGORITHMS
+from sharedspace.world_config import WorldConfig
 
 __all__ = ["FieldDoc", "config_reference", "help_text", "markdown", "write_into"]
 
@@ -37,29 +42,32 @@ _MORE = re.compile(r"^\s+#\s+(.*)$")
 
 @dataclass(frozen=True)
 class FieldDoc:
-    """One config key: its section, name, type, default (as ``--set`` would write it) and doc."""
+    """One config key: its part's section, name, type, defaults (as ``--set`` would write
+    them; by algorithm for an algorithm's option) and doc."""
 
     section: str
     name: str
     type: str
-    default: str
+    defaults: dict[str, str]  # "" -> the default; or algorithm name -> its default
     doc: str
 
 
-def _docs_from_source() -> dict[str, tuple[str, str]]:
-    """Field name -> (section, doc), read from the class body of ``TrainConfig``."""
-    lines = Path(config_module.__file__).read_text().splitlines()
-    start = next(i for i, line in enumerate(lines) if line.startswith("class TrainConfig"))
+def _class_docs(cls: type) -> dict[str, tuple[str, str]]:
+    """Field name -> (section, doc), read from the class body of the dataclass ``cls`` in its
+    module's source (its own fields only)."""
+    lines = Path(sys.modules[cls.__module__].__file__).read_text().splitlines()
+    head = re.compile(rf"^class {cls.__name__}\b")
+    start = next(i for i, line in enumerate(lines) if head.match(line))
     found: dict[str, list[str]] = {}
     sections: dict[str, str] = {}
     section, current = "", None
     for line in lines[start + 1 :]:
-        if line.startswith("    def "):
+        if line.startswith("    def ") or line.startswith("class ") or line.startswith("def "):
             break
         if m := _SECTION.match(line):
             section = m.group(1).split(" (")[0]
             continue
-        if m := _FIELD.match(line):
+        if (m := _FIELD.match(line)) and "ClassVar" not in line:
             current = m.group(1)
             found[current], sections[current] = [], section
         if current is None:
@@ -71,48 +79,102 @@ def _docs_from_source() -> dict[str, tuple[str, str]]:
     return {name: (sections[name], " ".join(parts)) for name, parts in found.items()}
 
 
-def _default(f: dataclasses.Field) -> str:
-    if f.default is not dataclasses.MISSING:
-        value = f.default
-    else:
-        value = f.default_factory()  # type: ignore[misc]
+def _text(value) -> str:
     return value if isinstance(value, str) and value else json.dumps(value)
 
 
-def config_reference() -> list[FieldDoc]:
-    """Every field of :class:`TrainConfig`, in the order of its source."""
-    docs = _docs_from_source()
+def _type_name(f: dataclasses.Field) -> str:
+    return f.type if isinstance(f.type, str) else f.type.__name__
+
+
+def _part_docs(cls: type, keys: Sequence[str]) -> list[FieldDoc]:
+    docs = _class_docs(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     out = []
-    for f in dataclasses.fields(TrainConfig):
-        if f.name.startswith("_"):
-            continue
-        section, doc = docs.get(f.name, ("", ""))
-        type_name = f.type if isinstance(f.type, str) else f.type.__name__
-        out.append(FieldDoc(section, f.name, type_name, _default(f), doc))
+    for name in keys:
+        section, doc = docs.get(name, ("", ""))
+        default = _text(_declared(fields[name]))
+        out.append(FieldDoc(section, name, _type_name(fields[name]), {"": default}, doc))
     return out
 
 
-def help_text() -> str:
-    """The keys as ``--help`` lists them: by section, one line each."""
-    lines, section = ["every --set key (docs/USAGE.md has the full reference):"], None
+def _declared(f: dataclasses.Field):
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default  # type: ignore[misc]
+
+
+def _algorithm_docs() -> list[FieldDoc]:
+    """Every algorithm's options, each with the default of every algorithm that has it."""
+    classes: dict[type, list[str]] = {}
+    for algo in ALGORITHMS.values():
+        classes.setdefault(algo.config, []).append(algo.name)
+    docs: dict[str, tuple[str, str]] = {}
+    for cls in (AlgorithmConfig, *classes):
+        for name, (section, doc) in _class_docs(cls).items():
+            docs.setdefault(name, (section or "algorithm", doc))
+    out: dict[str, FieldDoc] = {}
+    for cls, names in classes.items():
+        for f in dataclasses.fields(cls):
+            if f.name not in out:
+                section, doc = docs.get(f.name, ("algorithm", ""))
+                out[f.name] = FieldDoc(section, f.name, _type_name(f), {}, doc)
+            for algorithm in names:
+                out[f.name].defaults[algorithm] = _text(_declared(f))
+    return sorted(out.values(), key=lambda d: d.section != "algorithm")
+
+
+def config_reference() -> list[FieldDoc]:
+    """Every ``--set`` key, part by part: the run's own, the world's, the network's, then the
+    algorithms' options (their defaults by algorithm)."""
+    run = [f.name for f in dataclasses.fields(TrainConfig) if f.name in RUN_DEFAULTS]
+    return [
+        *_part_docs(TrainConfig, run),
+        *_part_docs(WorldConfig, [f.name for f in dataclasses.fields(WorldConfig)]),
+        *[
+            dataclasses.replace(d, section="network")
+            for d in _part_docs(NetworkConfig, NETWORK_KEYS)
+        ],
+        *_algorithm_docs(),
+    ]
+
+
+def help_text(algorithm: str = "") -> str:
+    """The keys as ``--help`` lists them, by part and section, one line each: the options of
+    ``algorithm`` (default: the run's default algorithm) with its defaults."""
+    algorithm = algorithm if algorithm in ALGORITHMS else RUN_DEFAULTS["algorithm"]
+    lines = [
+        f"every --set key for algorithm={algorithm} (--set algorithm=NAME --help: another's; "
+        "docs/USAGE.md has the full reference):"
+    ]
+    section = None
     for d in config_reference():
+        default = d.defaults.get("", d.defaults.get(algorithm))
+        if default is None:
+            continue  # another algorithm's option
         if d.section != section:
             section = d.section
             lines.append(f"  [{section}]")
-        lines.append(f"    {d.name} = {d.default}: {d.doc}")
+        lines.append(f"    {d.name} = {default}: {d.doc}")
     return "\n".join(lines)
 
 
 def markdown() -> str:
-    """One Markdown table per section: key, type, default, doc."""
+    """One Markdown table per section: key, type, default (by algorithm for an algorithm's
+    options; "-": not its option), doc."""
+    names = list(ALGORITHMS)
     out, section = [], None
     for d in config_reference():
+        by_algorithm = "" not in d.defaults
         if d.section != section:
             section = d.section
-            out += ["", f"#### {section}", "", "| key | type | default | what it is |"]
-            out.append("|---|---|---|---|")
+            head = " | ".join(names) if by_algorithm else "default"
+            out += ["", f"#### {section}", "", f"| key | type | {head} | what it is |"]
+            out.append("|---|---|" + "---|" * (len(names) if by_algorithm else 1) + "---|")
         doc, type_name = (text.replace("|", "\\|") for text in (d.doc, d.type))
-        out.append(f"| `{d.name}` | {type_name} | `{d.default}` | {doc} |")
+        if by_algorithm:
+            cells = " | ".join(f"`{d.defaults[n]}`" if n in d.defaults else "-" for n in names)
+        else:
+            cells = f"`{d.defaults['']}`"
+        out.append(f"| `{d.name}` | {type_name} | {cells} | {doc} |")
     return "\n".join(out).strip() + "\n"
 
 

@@ -1,5 +1,6 @@
 """Every learning algorithm, registered once by name: what it is (one car or several, on- or
-off-policy), the options only it reads, its defaults, and the module that implements it.
+off-policy), its config class (its options and their defaults,
+:mod:`sharedspace.train.algorithm_configs`), and the module that implements it.
 
 An algorithm's module has what the one training loop (:mod:`sharedspace.train.loop`) asks of
 it: ``make_world(cfg)`` (one car per env, :class:`~sharedspace.train.loop.OneCar`, or the
@@ -13,7 +14,9 @@ Adding one (docs/ARCHITECTURE.md, "Adding an algorithm")::
 
     from sharedspace.train.registry import Algorithm, register_algorithm
 
-    register_algorithm(Algorithm("my_algo", module="my_package.my_algo", family="on"))
+    register_algorithm(
+        Algorithm("my_algo", module="my_package.my_algo", config=MyAlgoConfig, family="on")
+    )
 
 after which ``python -m sharedspace.train --set algorithm=my_algo`` runs the one loop over
 ``my_package.my_algo``'s ``make_world`` and ``make_learner`` (their contract:
@@ -23,11 +26,17 @@ after which ``python -m sharedspace.train --set algorithm=my_algo`` runs the one
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import ModuleType
-from typing import Any
 
 from sharedspace.cli import UserError, did_you_mean
+from sharedspace.train.algorithm_configs import (
+    AlgorithmConfig,
+    MappoConfig,
+    MasacConfig,
+    PpoConfig,
+    SacConfig,
+)
 
 __all__ = [
     "ALGORITHMS",
@@ -52,10 +61,9 @@ class Algorithm:
     cars: str = "one"  # "one": a car per env; "many": the crossing task's cars; "any": either,
     #                    as the task says
     family: str = "off"  # "on" (fresh batches, PPO) or "off" (a replay buffer, SAC)
-    options: tuple[str, ...] = ()  # config fields only it reads (another's is refused)
-    #: its values of the config fields left to the algorithm (TrainConfig's AUTO_FIELDS);
-    #: those it does not name take the one-car defaults (TrainConfig's BASE_DEFAULTS)
-    defaults: dict[str, Any] = field(default_factory=dict)
+    #: its config class: its options with their defaults (an option of another algorithm's
+    #: class is refused by name)
+    config: type[AlgorithmConfig] = AlgorithmConfig
     fused_networks_only: bool = False  # its update is written for the built-in encoders
     centralized_critic: bool = False  # several cars: each car's critic sees every car (MAPPO)
     paper_labels: bool = False  # its rows take the paper's labels (S-SAC, G-SAC-NoCog, ...)
@@ -117,30 +125,13 @@ def get_algorithm(name: str, cars: str | None = None) -> Algorithm:
     return algo
 
 
-#: The built-in algorithms. PPO's defaults: docs/ARCHITECTURE.md, "Learners".
+#: The built-in algorithms, each with its config class (its options and their defaults).
 register_algorithm(
     Algorithm(
         "sac",
         "sharedspace.train.sac",
+        config=SacConfig,
         family="off",
-        options=(
-            "frames_per_batch",
-            "init_random_frames",
-            "utd_ratio",
-            "batch_size",
-            "buffer_size",
-            "tau",
-            "alpha_init",
-            "loss_function",
-            "critic_layer_norm",
-            "critic_warmup",
-            "prior_data",
-            "prior_sources",
-            "prior_successes_only",
-            "bc_weight",
-            "bc_steps",
-            "save_buffer",
-        ),
         fused_networks_only=True,
         paper_labels=True,
         doc="the paper's SAC-GCN (Algorithm 2): replay buffer, two critics, learned temperature",
@@ -150,95 +141,23 @@ register_algorithm(
     Algorithm(
         "ppo",
         "sharedspace.train.ppo",
+        config=PpoConfig,
         family="on",
-        options=(
-            "rollout_steps",
-            "ppo_epochs",
-            "minibatch_size",
-            "clip_epsilon",
-            "entropy_coeff",
-            "critic_coeff",
-            "lmbda",
-            "max_grad_norm",
-            "reward_scale",
-            "normalize_obs",
-            "update_threads",
-            "overlap",
-            "anneal_lr",
-            "anneal_start",
-        ),
-        # a validation scoring costs about as much as 40 k frames of PPO-GCN: every 500 k
-        # keeps it under a tenth of a run's wall time (docs/BENCHMARKS.md, "Learner")
-        # 2 epochs: the time to a driver (docs/BENCHMARKS.md "The time to a driver"), chosen
-        # on validation
-        defaults={
-            "num_envs": 256,
-            "reward": "learner",
-            "eval_interval": 524_288,
-            "ppo_epochs": 2,
-        },
         doc="PPO on wide batches of envs (clipped ratio, GAE), TorchRL's ClipPPOLoss",
     )
 )
-# The multi-car learners (the crossing task, sharedspace.marl): a residual over the car-aware
-# script by default, each car's action at twice the script's weight.
-_MULTI_CAR = {
-    "network": "",
-    "num_envs": 64,
-    "reward": "learner",
-    "eval_interval": 60_000,
-    "base_driver": "car_aware",
-    "residual_scale": 2.0,
-    "minibatch_size": 512,
-    "max_grad_norm": 1.0,
-    "hidden_sizes": [128, 128],
-}
-_MARL_PPO = (
-    "rollout_steps",
-    "ppo_epochs",
-    "minibatch_size",
-    "clip_epsilon",
-    "entropy_coeff",
-    "lmbda",
-    "max_grad_norm",
-    "share_params",
-    "init_scale",
-    "overlap",
-)
-_MARL_SAC = (
-    "frames_per_batch",
-    "utd_ratio",
-    "batch_size",
-    "buffer_size",
-    "tau",
-    "alpha_init",
-    "max_grad_norm",
-    "actor_warmup_frames",
-    "actor_lr",
-    "residual_penalty",
-    "share_params",
-    "init_scale",
-)
-for _name, _family, _options, _more, _central, _doc in (
-    ("mappo", "on", _MARL_PPO, {}, True, "MAPPO: PPO per car, a critic over every car"),
-    ("ippo", "on", _MARL_PPO, {}, False, "IPPO: PPO per car, each critic over its own car"),
-    (
-        "masac",
-        "off",
-        _MARL_SAC,
-        {"utd_ratio": 0.02, "buffer_size": 100_000, "alpha_init": 0.01, "frames_per_batch": 2048},
-        True,
-        "MASAC: SAC per car, centralised Q-critics",
-    ),
+for _name, _family, _config, _central, _doc in (
+    ("mappo", "on", MappoConfig, True, "MAPPO: PPO per car, a critic over every car"),
+    ("ippo", "on", MappoConfig, False, "IPPO: PPO per car, each critic over its own car"),
+    ("masac", "off", MasacConfig, True, "MASAC: SAC per car, centralised Q-critics"),
 ):
     register_algorithm(
         Algorithm(
             _name,
             "sharedspace.marl.masac" if _family == "off" else "sharedspace.marl.mappo",
+            config=_config,
             cars="many",
             family=_family,
-            options=_options,
-            defaults=_MULTI_CAR | _more,
             centralized_critic=_central,
             doc=_doc,
         )

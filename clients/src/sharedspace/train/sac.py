@@ -42,14 +42,17 @@ __all__ = [
 def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
     """Graph encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``; a
     residual actor starts at its script with :data:`RESIDUAL_INIT_SCALE`."""
-    init = RESIDUAL_INIT_SCALE if cfg.base_driver else None
+    init = RESIDUAL_INIT_SCALE if cfg.algo.base_driver else None
     return make_gaussian_actor(cfg, action_spec, make_encoder(cfg), init_scale=init)
 
 
 def make_critic(cfg: TrainConfig, action_spec) -> ValueOperator:
     """``Q(s, a)``: its own graph encoder + MLP; SACLoss makes the two critics and targets."""
     net = QNet(
-        make_encoder(cfg), cfg.hidden_sizes, action_spec.shape[-1], layer_norm=cfg.critic_layer_norm
+        make_encoder(cfg),
+        cfg.algo.hidden_sizes,
+        action_spec.shape[-1],
+        layer_norm=cfg.algo.critic_layer_norm,
     )
     return ValueOperator(net, in_keys=[*OBS_KEYS, "action"]).to(cfg.device)
 
@@ -62,30 +65,30 @@ def make_update(cfg: TrainConfig, actor, action_spec, num_critics: int = 2) -> S
     return SACUpdate(
         actor,
         qnets,
-        gamma=cfg.gamma,
-        tau=cfg.tau,
-        lr=cfg.lr,
-        alpha_init=cfg.alpha_init,
-        loss_function=cfg.loss_function,
+        gamma=cfg.algo.gamma,
+        tau=cfg.algo.tau,
+        lr=cfg.algo.lr,
+        alpha_init=cfg.algo.alpha_init,
+        loss_function=cfg.algo.loss_function,
         action_dim=action_spec.shape[-1],
-        bc_weight=cfg.bc_weight,
-        residual=bool(cfg.base_driver),
+        bc_weight=cfg.algo.bc_weight,
+        residual=bool(cfg.algo.base_driver),
     ).to(cfg.device)
 
 
 def make_replay_buffer(cfg: TrainConfig) -> TensorDictReplayBuffer:
     """Uniform replay over a preallocated (lazy) tensor storage of ``buffer_size`` transitions;
     its batches are the online part of a replay batch (all of it without prior data)."""
-    prior_rows = round(cfg.batch_size * cfg.prior_ratio) if cfg.prior_data else 0
+    prior_rows = round(cfg.algo.batch_size * cfg.algo.prior_ratio) if cfg.algo.prior_data else 0
     return TensorDictReplayBuffer(
-        storage=LazyTensorStorage(cfg.buffer_size, device=cfg.device),
-        batch_size=cfg.batch_size - prior_rows,
+        storage=LazyTensorStorage(cfg.algo.buffer_size, device=cfg.device),
+        batch_size=cfg.algo.batch_size - prior_rows,
     )
 
 
 def batch_frames(cfg: TrainConfig) -> int:
     """Frames per collected batch: ``frames_per_batch``, or 0: ``num_envs * 8``."""
-    return cfg.frames_per_batch or cfg.num_envs * 8
+    return cfg.algo.frames_per_batch or cfg.algo.num_envs * 8
 
 
 class SACLearner:
@@ -103,25 +106,28 @@ class SACLearner:
         self.update = make_update(cfg, self.actor, spec)
         self.buffer = make_replay_buffer(cfg)
         self.batch_frames = batch_frames(cfg)
-        self.random_frames = cfg.init_random_frames
-        self.num_updates = max(1, int(self.batch_frames * cfg.utd_ratio))
+        self.random_frames = cfg.algo.init_random_frames
+        self.num_updates = max(1, int(self.batch_frames * cfg.algo.utd_ratio))
 
     def start(self, counters: dict[str, Any], logger) -> None:
         """The actor cloned on the prior data first, if asked (``bc_steps``)."""
         done = counters.setdefault("clone_steps", 0)
-        if self.prior is not None and done < self.cfg.bc_steps:
-            losses = clone(self.update, self.prior, self.cfg.bc_steps - done, self.cfg)
-            counters["clone_steps"] = self.cfg.bc_steps
+        if self.prior is not None and done < self.cfg.algo.bc_steps:
+            losses = clone(self.update, self.prior, self.cfg.algo.bc_steps - done, self.cfg)
+            counters["clone_steps"] = self.cfg.algo.bc_steps
             logger.log({"train/loss_clone": float(np.mean(losses[-100:]))}, counters["frames"])
 
     def step(self, data: TensorDictBase, counters: dict[str, Any]) -> dict[str, float]:
         cfg = self.cfg
         self.buffer.extend(data.exclude("loc", "scale").reshape(-1))
         losses: dict[str, list[float]] = {}
-        if counters["frames"] >= cfg.init_random_frames and len(self.buffer) >= cfg.batch_size:
+        if (
+            counters["frames"] >= cfg.algo.init_random_frames
+            and len(self.buffer) >= cfg.algo.batch_size
+        ):
             for _ in range(self.num_updates):
                 batch, prior_rows = mixed_batch(self.buffer, self.prior, cfg)
-                warm = counters["updates"] >= cfg.critic_warmup
+                warm = counters["updates"] >= cfg.algo.critic_warmup
                 out = self.update.step(batch.to(cfg.device), prior_rows, train_actor=warm)
                 counters["updates"] += 1
                 for key, value in out.items():

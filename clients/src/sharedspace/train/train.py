@@ -48,7 +48,7 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     from sharedspace.train.reference import help_text
 
     ap = command_parser("python -m sharedspace.train", __doc__)
-    ap.epilog = help_text()
+    ap.epilog = help_text(_named_algorithm(argv, default_algorithm))
     ap.add_argument("--config", default=None, help="TOML or JSON file of config fields")
     add_overrides_argument(ap, "config overrides: KEY=VALUE (every key is listed below)")
     ap.add_argument(
@@ -73,10 +73,18 @@ def main(argv: Sequence[str] | None = None, default_algorithm: str = "") -> int:
     resume = args.resume
     if resume is True:  # bare: log_dir's last checkpoint, where there is one
         resume = last_checkpoint(cfg.log_dir)
-    out = dict(train(cfg, resume)) | {"log_dir": cfg.log_dir, "eval_split": cfg.eval_split}
+    out = dict(train(cfg, resume)) | {"log_dir": cfg.log_dir, "eval_split": cfg.world.eval_split}
     print(summary_line(out), flush=True)
     print(json.dumps(out, default=float))
     return 0
+
+
+def _named_algorithm(argv: Sequence[str] | None, default: str) -> str:
+    """The algorithm a command line names (``algorithm=NAME`` among its words), for its
+    ``--help`` alone: the config itself is built once, by :func:`load_config`."""
+    words = sys.argv[1:] if argv is None else argv
+    named = [w.split("=", 1)[1] for w in words if w.startswith("algorithm=")]
+    return named[-1] if named else default
 
 
 def summary_line(out: dict[str, Any]) -> str:
