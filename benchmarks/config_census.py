@@ -1,11 +1,13 @@
-"""Where a run's config travels: the modules of the package that receive the config (a
-``TrainConfig`` among a call's arguments, ``self`` included) on its way from the command line
-to the first collected batch, in order, and how often it comes back to a module it had left.
+"""Where a run's config travels: the modules of the package that receive the config or one
+of its parts (a ``TrainConfig``, ``WorldConfig``, algorithm config or ``NetworkConfig`` among
+a call's arguments, ``self`` included) on its way from the command line to the first
+collected batch, in order, and how often it comes back to a module it had left.
 
 Traced with ``sys.setprofile`` over ``python -m sharedspace.train``'s ``main`` (the command
 line builds the config, then the one loop makes the world, env, learner and collector), up to
-the first batch. Consecutive calls in one module count once; a *comeback* is an entry into a
-module the config had already left. Also counts the lines of ``train/``, ``marl/`` and
+the first batch, twice: following the run config alone, then the run config or any of its
+parts. Consecutive calls in one module count once; a *comeback* is an entry into a module the
+config had already left. Also counts the lines of ``train/``, ``marl/`` and
 ``bench/``, and of the reference arms (``arms/``). Run it on an old checkout too
 (``PYTHONPATH=OLD/clients/src``) for before and after.
 
@@ -28,14 +30,31 @@ from sharedspace.train.train import main as train_main
 PACKAGE = Path(sharedspace.__file__).parent
 
 
+def config_classes() -> tuple[type, ...]:
+    """The run config and its parts (an old checkout, before the parts: the run config and
+    the network config)."""
+    classes: list[type] = [TrainConfig]
+    for module, name in (
+        ("sharedspace.world_config", "WorldConfig"),
+        ("sharedspace.train.algorithm_configs", "AlgorithmConfig"),
+        ("sharedspace.train.networks", "NetworkConfig"),
+    ):
+        try:
+            classes.append(getattr(__import__(module, fromlist=[name]), name))
+        except (ImportError, AttributeError):
+            pass
+    return tuple(classes)
+
+
 class FirstBatch(Exception):
     """Raised when the loop has its first batch: the trace ends there."""
 
 
-def trace(words: list[str]) -> list[str]:
-    """The modules (package-relative) that received a config, in order, consecutive repeats
-    merged."""
+def trace(words: list[str], parts: bool = False) -> list[str]:
+    """The modules (package-relative) that received the run config (with ``parts``: or one of
+    its parts), in order, consecutive repeats merged."""
     seen: list[str] = []
+    configs = config_classes() if parts else (TrainConfig,)
 
     def profile(frame, event, arg):
         if event != "call":
@@ -45,7 +64,7 @@ def trace(words: list[str]) -> list[str]:
             return
         code = frame.f_code
         names = code.co_varnames[: code.co_argcount + code.co_kwonlyargcount]
-        if any(isinstance(frame.f_locals.get(n), TrainConfig) for n in names):
+        if any(isinstance(frame.f_locals.get(n), configs) for n in names):
             module = str(Path(path).relative_to(PACKAGE)).removesuffix(".py")
             if not seen or seen[-1] != module:
                 seen.append(module)
@@ -85,17 +104,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", nargs="*", default=["task=crowd", "algorithm=ppo", "network=gcn_risk"])
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        words = [*args.set, "progress=false", "eval_interval=0", f"log_dir={tmp}"]
-        sequence = trace(words)
-    out = {
-        "modules": sorted(set(sequence)),
-        "sequence": sequence,
-        "comebacks": comebacks(sequence),
-        "lines": lines("train", "marl", "bench", "arms"),
-    }
-    print(" -> ".join(sequence))
-    print(f"{len(out['modules'])} modules, {out['comebacks']} comebacks; lines {out['lines']}")
+    out = {"lines": lines("train", "marl", "bench", "arms")}
+    for name, parts in (("config", False), ("config_or_part", True)):
+        with tempfile.TemporaryDirectory() as tmp:
+            words = [*args.set, "progress=false", "eval_interval=0", f"log_dir={tmp}"]
+            sequence = trace(words, parts)
+        out[name] = {
+            "modules": sorted(set(sequence)),
+            "sequence": sequence,
+            "comebacks": comebacks(sequence),
+        }
+        print(f"{name}: " + " -> ".join(sequence))
+        print(f"  {len(set(sequence))} modules, {comebacks(sequence)} comebacks")
+    print(f"lines {out['lines']}")
     print(json.dumps(out))
 
 

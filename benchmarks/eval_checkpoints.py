@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from sharedspace.train.checkpoint import describe, load_checkpoint
+from sharedspace.train.checkpoint import describe, read_checkpoint
 from sharedspace.train.evaluation import evaluate_split
 from sharedspace.train.learners import load_checkpoint_actor
 
@@ -25,10 +25,10 @@ def main() -> None:
     out = {}
     for path in args.checkpoints:
         cfg, actor = load_checkpoint_actor(path)
-        summary = evaluate_split(cfg.world, actor, args.split, cfg.seed, cfg.driving())[
+        summary = evaluate_split(cfg.world, actor, args.split, cfg.seed, cfg.driving)[
             "summary"
         ]
-        ckpt = load_checkpoint(path)
+        ckpt = read_checkpoint(path)
         out[path] = {"frames": ckpt["counters"]["frames"], **summary}
         print(
             f"{path}: {describe(ckpt)}: success {summary['success']:.3f}, "

@@ -31,7 +31,7 @@ for label, pattern in (
         ck = pattern.format(s=s)
         cfg, actor = load_checkpoint_actor(ck, ov)
         fr = int(read_checkpoint(ck)["counters"]["frames"])
-        r = evaluate_policy(cfg, actor, "test")
+        r = evaluate_policy(cfg.world, actor, "test", seed=cfg.seed, driving=cfg.driving)
         runs.append(
             {
                 "checkpoint": ck,

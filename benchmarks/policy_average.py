@@ -20,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from sharedspace.train.checkpoint import load_checkpoint
+from sharedspace.train.checkpoint import read_checkpoint
 from sharedspace.train.evaluation import evaluate_split
 from sharedspace.train.learners import load_checkpoint_actor
 
@@ -44,7 +44,7 @@ def main() -> None:
     averages: dict[float, dict[str, torch.Tensor]] = {}
     rows = []
     for i, (frames, path) in enumerate(snaps):
-        state = load_checkpoint(str(path))["actor"]
+        state = read_checkpoint(str(path))["actor"]
         gap = (frames - (snaps[i - 1][0] if i else 0)) / (
             cfg.algo.num_envs * cfg.algo.rollout_steps
         )
@@ -64,7 +64,7 @@ def main() -> None:
         ]:
             actor.load_state_dict(params)
             summary = evaluate_split(
-                cfg.world, actor, cfg.world.eval_split, cfg.seed, cfg.driving()
+                cfg.world, actor, cfg.world.eval_split, cfg.seed, cfg.driving
             )["summary"]
             row[name] = summary["success"]
             row[f"{name}_collision"] = summary["collision"]

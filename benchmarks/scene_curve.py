@@ -132,7 +132,7 @@ def score_run(log_dir: Path, task: str) -> dict:
     cfg, actor = load_checkpoint_actor(ckpt)
     out = {"checkpoint": str(Path(ckpt).relative_to(REPO))}
     for split in ("train", "validation"):
-        summary = evaluate_split(cfg.world, actor, split, cfg.seed, cfg.driving())[
+        summary = evaluate_split(cfg.world, actor, split, cfg.seed, cfg.driving)[
             "summary"
         ]
         out[split] = {

@@ -54,7 +54,7 @@ def crowd_returns(pool: str, reward: str, seed: int) -> dict[str, list[float]]:
         cfg.seed,
         "sequential",
         variations=cfg.world.variations,
-        driving=cfg.driving(),
+        driving=cfg.driving,
     )
     driver = SCRIPTED["car_aware"]()
     td = env.reset()

@@ -180,8 +180,8 @@ def test_bad_configs_name_what_was_wrong():
     saved = TrainConfig.from_dict(
         {"algorithm": "mappo", "utd_ratio": 5, "eval_every": 7, "hidden": 16, "depth": 3}
     )
-    assert (saved.algorithm, saved.utd_ratio) == ("mappo", mappo.utd_ratio)
-    assert (saved.eval_interval, saved.hidden_sizes) == (7, [16, 16, 16])
+    assert saved.algorithm == "mappo" and not hasattr(saved.algo, "utd_ratio")  # masac's
+    assert (saved.algo.eval_interval, saved.algo.hidden_sizes) == (7, [16, 16, 16])
     with pytest.raises(ValueError, match="ppo_epochs is an option of algorithm=ppo|mappo|ippo"):
         TrainConfig(algorithm="masac", ppo_epochs=2)
     with pytest.raises(ValueError, match="a residual without a script"):
@@ -191,7 +191,12 @@ def test_bad_configs_name_what_was_wrong():
     with pytest.raises(ValueError, match="task paper has 1 learning car"):
         apply_overrides(mappo, ["task=paper"])
     # the multi-car defaults: a residual over the car-aware script, each car's nodes flattened
-    assert (mappo.task, mappo.base_driver, mappo.residual_scale, mappo.network) == (
+    assert (
+        mappo.world.task,
+        mappo.algo.base_driver,
+        mappo.algo.residual_scale,
+        mappo.net.network,
+    ) == (
         "crossing",
         "car_aware",
         2.0,

@@ -103,7 +103,7 @@ def test_ppo_resumes_from_its_checkpoint_and_evaluates(overlap, sim_server, tmp_
 
 def test_the_loss_is_torchrls_clip_ppo_loss(sim_server):
     cfg = apply_overrides(TrainConfig(), [*TINY, *_remote(sim_server)])
-    env = make_env(cfg.world, "train", cfg.algo.num_envs, driving=cfg.driving())
+    env = make_env(cfg.world, "train", cfg.algo.num_envs, driving=cfg.driving)
     actor = ppo.make_actor(cfg, env.action_spec_unbatched)
     update = ppo.make_update(cfg, actor)
     from torchrl.objectives import ClipPPOLoss
@@ -123,7 +123,7 @@ def test_a_residual_ppo_policy_starts_at_its_script(sim_server):
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     cfg = apply_overrides(TrainConfig(), [*TINY, *_remote(sim_server), "base_driver=car_aware"])
-    env = make_env(cfg.world, "train", cfg.algo.num_envs, driving=cfg.driving())
+    env = make_env(cfg.world, "train", cfg.algo.num_envs, driving=cfg.driving)
     actor = ppo.make_actor(cfg, env.action_spec_unbatched)
     td = env.reset()
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -175,8 +175,8 @@ def test_a_bad_config_names_its_field(overrides, field):
 
 
 def test_the_algorithm_fills_in_what_was_left_to_it():
-    """``num_envs`` and ``reward`` left unset take the algorithm's own defaults, also when an override
-    changes the algorithm of a config already made; set, they stay."""
+    """``num_envs`` and ``reward`` left unset take the algorithm's own defaults, also when an
+    override changes the algorithm of a config already made; set, they stay."""
     ppo_cfg = apply_overrides(TrainConfig(), ["algorithm=ppo"])
     assert (ppo_cfg.algo.num_envs, ppo_cfg.algo.reward) == (256, "learner")
     assert ppo_cfg.reward_weights == LEARNER_REWARD

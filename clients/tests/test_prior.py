@@ -72,7 +72,12 @@ def test_a_dataset_recorded_in_another_world_is_refused_naming_what_differs(tmp_
     params_a.write_text("{}")
     params_b.write_text('{risk: {"lambda": 2.0}}')
     cfg = TrainConfig(max_agents=M, server_params=str(params_a))
-    write_prior(tmp_path / "ds", synthetic_transitions(), world_of(cfg), {"car_aware": {}})
+    write_prior(
+        tmp_path / "ds",
+        synthetic_transitions(),
+        world_of(cfg.world, cfg.reward_weights),
+        {"car_aware": {}},
+    )
     assert len(load_prior(tmp_path / "ds", cfg)) == 12  # its own world loads
 
     other = apply_overrides(cfg, [f"server_params={params_b}", "max_agents=6"])
@@ -96,7 +101,12 @@ def test_a_dataset_of_another_format_version_or_none_is_refused(tmp_path):
     cfg = TrainConfig(max_agents=M)
     with pytest.raises(PriorDataError, match="not a prior dataset"):
         load_prior(tmp_path, cfg)
-    write_prior(tmp_path / "ds", synthetic_transitions(), world_of(cfg), {"car_aware": {}})
+    write_prior(
+        tmp_path / "ds",
+        synthetic_transitions(),
+        world_of(cfg.world, cfg.reward_weights),
+        {"car_aware": {}},
+    )
     header = json.loads((tmp_path / "ds" / "header.json").read_text())
     header["version"] = 99
     (tmp_path / "ds" / "header.json").write_text(json.dumps(header))
@@ -160,7 +170,7 @@ def test_the_mirror_is_a_symmetry_of_the_simulator(sim_server):
 
 def test_recorded_transitions_are_the_env_steps(sim_server):
     cfg = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
-    env = make_env(cfg.world, "train", 4, scenario_order="sequential", driving=cfg.driving())
+    env = make_env(cfg.world, "train", 4, scenario_order="sequential", driving=cfg.driving)
     try:
         got, episodes = record_episodes(env, make_driver("pursuit_3"))
     finally:
@@ -180,7 +190,7 @@ def test_the_trainer_learns_from_recorded_demonstrations(sim_server, tmp_path):
     """``make demos`` in miniature (the scripts, a noisy copy and the planner on the train
     split), then RLPD batches with a BC term and a cloned start against the live server."""
     cfg = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
-    transitions, sources = record_demos(cfg, TINY_RECIPE, log=lambda *_: None)
+    transitions, sources = record_demos(cfg.world, TINY_RECIPE, log=lambda *_: None)
     assert list(sources) == list(TINY_RECIPE)
     train_scenes = (
         59 - cfg.world.validation_scenes
@@ -189,7 +199,7 @@ def test_the_trainer_learns_from_recorded_demonstrations(sim_server, tmp_path):
     assert set(transitions["source"].tolist()) <= {0, 1, 2}
     failed = round(train_scenes * (1 - sources["car_aware"]["success"]))
     assert sources["planner"]["cells"] == failed
-    write_prior(tmp_path / "demos", transitions, world_of(cfg), sources)
+    write_prior(tmp_path / "demos", transitions, world_of(cfg.world, cfg.reward_weights), sources)
 
     log_dir = tmp_path / "run"
     run = load_config(
@@ -224,14 +234,14 @@ def test_a_fresh_residual_actor_drives_exactly_as_its_script(sim_server):
     base = apply_overrides(TrainConfig(), [*remote(sim_server), f"max_agents={M}"])
     residual = apply_overrides(base, ["base_driver=car_aware"])
     env = make_env(
-        residual.world, "train", 4, scenario_order="sequential", driving=residual.driving()
+        residual.world, "train", 4, scenario_order="sequential", driving=residual.driving
     )
     try:
         actor = make_actor(residual, env.action_spec_unbatched)
         learned = run_episodes(env, actor)
     finally:
         env.close()
-    env = make_env(base.world, "train", 4, scenario_order="sequential", driving=base.driving())
+    env = make_env(base.world, "train", 4, scenario_order="sequential", driving=base.driving)
     try:
         scripted = run_episodes(env, make_driver("car_aware"))
     finally:
@@ -251,13 +261,13 @@ def test_a_residual_learner_reads_prior_actions_as_residuals_over_its_script(sim
 
     world = [*remote(sim_server), f"max_agents={M}"]
     cfg = apply_overrides(TrainConfig(), world)
-    env = make_env(cfg.world, "train", 4, scenario_order="sequential", driving=cfg.driving())
+    env = make_env(cfg.world, "train", 4, scenario_order="sequential", driving=cfg.driving)
     try:  # pursuit_3 with noise: actions far from car_aware's
         got, _ = record_episodes(env, make_driver("pursuit_3"), noise_std=0.3, max_steps=30)
     finally:
         env.close()
     got["source"] = torch.zeros(got.shape[0], dtype=torch.int64)
-    write_prior(tmp_path / "demos", got, world_of(cfg), {"pursuit_3": {}})
+    write_prior(tmp_path / "demos", got, world_of(cfg.world, cfg.reward_weights), {"pursuit_3": {}})
     residual_cfg = apply_overrides(
         cfg, [f"prior_data={tmp_path / 'demos'}", "base_driver=car_aware"]
     )
@@ -314,10 +324,15 @@ def test_a_selection_of_no_transitions_or_of_an_unknown_source_is_refused(tmp_pa
     cfg = TrainConfig(max_agents=M)
     bad = synthetic_transitions()
     with pytest.raises(PriorDataError, match="lack"):
-        write_prior(tmp_path / "bad", bad.exclude("episode_success"), world_of(cfg), {})
+        write_prior(
+            tmp_path / "bad",
+            bad.exclude("episode_success"),
+            world_of(cfg.world, cfg.reward_weights),
+            {},
+        )
     failed = synthetic_transitions()
     failed["episode_success"] = torch.zeros(12, dtype=torch.bool)
-    write_prior(tmp_path / "ds", failed, world_of(cfg), {"car_aware": {}})
+    write_prior(tmp_path / "ds", failed, world_of(cfg.world, cfg.reward_weights), {"car_aware": {}})
     prior = load_prior(tmp_path / "ds", cfg)
     with pytest.raises(PriorDataError, match=r"no source \['planner'\]"):
         prior.select(["planner"])

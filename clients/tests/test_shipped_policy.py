@@ -45,7 +45,7 @@ def test_shipped_policy_loads_and_scores_as_recorded(path, table2_server):
         f"server_prefix={table2_server.prefix}",
     ]
     cfg, actor = load_checkpoint_actor(str(path), remote)
-    result = evaluate_policy(cfg, actor, "test")
+    result = evaluate_policy(cfg.world, actor, "test", seed=cfg.seed, driving=cfg.driving)
     episodes = result["episodes"]
     assert len(episodes) == 18
     status = {str(e["scenario_index"]): e["status"] for e in episodes}

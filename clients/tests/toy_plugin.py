@@ -49,7 +49,10 @@ register_network(Network("toy_mean", "ToyMean", lambda cfg, norm: MeanEncoder())
 
 def make_actor(cfg, action_spec):
     """The tanh-normal actor over the config's network, logging each action's probability."""
-    return make_gaussian_actor(cfg, action_spec, make_encoder(cfg), return_log_prob=True)
+    encoder = make_encoder(cfg.net)
+    return make_gaussian_actor(
+        action_spec, encoder, cfg.algo.hidden_sizes, cfg.device, return_log_prob=True
+    )
 
 
 class ToyLearner:
@@ -98,6 +101,9 @@ class ToyPgConfig(AlgorithmConfig):
 
     num_envs: int = 4  # K, sub-envs stepped together
     reward: str = "learner"  # named reward (sharedspace.train.reward): world | learner
+    # --- several cars (the crossing task's: sharedspace.marl.networks reads them)
+    share_params: bool = True  # one network for every car (they are alike)
+    init_scale: float = 0.4  # the policy's initial action standard deviation
 
 
 def make_world(cfg):

@@ -93,7 +93,7 @@ class WorldConfig:
             if getattr(self, name) < 1:
                 raise WorldConfigError(f"{name} must be at least 1, not {getattr(self, name)}")
         try:
-            self.env_spec("train", 0)  # a wrong env field (crowd, variations, ...) named now
+            self.env_spec("train", 0, self.variations)  # a wrong env field named now
         except ValueError as err:
             raise WorldConfigError(str(err)) from None
 

@@ -100,9 +100,7 @@ class TrainingTask:
 
 #: Every task's training world by name.
 TRAINING_TASKS: dict[str, TrainingTask] = {
-    "paper": TrainingTask(
-        "paper", "", "params/table2.json5", TABLE2_WORLD, 8, validation_scenes=12
-    ),
+    "paper": TrainingTask("paper", "", "params/table2.json5", TABLE2_WORLD, 8),
     "crowd": TrainingTask(
         "crowd",
         "out/table2g/pool-general.json",
@@ -112,8 +110,9 @@ TRAINING_TASKS: dict[str, TrainingTask] = {
         validation_scenes=60,
         validation_variations=4,
     ),
-    # generated scenes (sharedspace.marl.task.CrossingTask): its validation scenes are drawn
-    # from seeds of their own, apart from the train and the test scenes
+    # generated scenes (sharedspace.marl.crossing.CrossingTask, whose cars, M and validation
+    # size are these): its validation scenes are drawn from seeds of their own, apart from the
+    # train and the test scenes
     "crossing": TrainingTask(
         "crossing", "", "", {}, 10, variations={}, validation_scenes=50, cars=4
     ),

@@ -64,7 +64,7 @@ def score_on_validation(policy: Path, task: str) -> dict[str, Any]:
             "zenoh_config=",
         ],
     )
-    summary = evaluate_split(cfg.world, actor, "validation", driving=cfg.driving())["summary"]
+    summary = evaluate_split(cfg.world, actor, "validation", driving=cfg.driving)["summary"]
     return {k: summary[k] for k in ("episodes", "success", "collision", "timeout")} | {
         "held_out": held_out
     }

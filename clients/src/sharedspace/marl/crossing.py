@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from sharedspace.pool import synthetic_names
 from sharedspace.wire.requests import EnvSpec, SyntheticScenes
+from sharedspace.worlds import TRAINING_TASKS
 
 __all__ = ["CROSSING_CROWD", "VALIDATION_SEED", "CrossingTask"]
 
@@ -34,7 +35,8 @@ VALIDATION_SEED = 500_000
 class CrossingTask:
     """The frozen multi-car task; one field per choice, the defaults are the task."""
 
-    cars: int = 4  # controlled cars per scene (vehicle_0 .. vehicle_{cars-1}), 2-4
+    cars: int = TRAINING_TASKS["crossing"].cars  # controlled cars per scene (vehicle_0 ..
+    #                                               vehicle_{cars-1}), 2-4
     pedestrians: int = 12  # pedestrians per scene
     density: float = 0.06  # pedestrians per m² of the crowd's square (side 14.1 m at 12)
     layout: str = "crossing"  # where the pedestrians walk (SyntheticScenes.layout)
@@ -42,7 +44,8 @@ class CrossingTask:
     train_scenes: int = 256  # training scenes (seeds train_seed ..; a request makes at most 256)
     test_seed: int = 1_000_000  # seed of the first test scene
     test_scenes: int = 100  # test scenes: cars x test_scenes car-episodes
-    max_agents: int = 10  # M, nodes per observation (the car and its 9 nearest agents)
+    max_agents: int = TRAINING_TASKS["crossing"].max_agents  # M, nodes per observation (the
+    #                                                         car and its 9 nearest agents)
     crowd: dict[str, float] = field(default_factory=lambda: dict(CROSSING_CROWD))  # CR-SFM
 
     def __hash__(self) -> int:  # a dict field: hash the values that define the task
@@ -58,7 +61,7 @@ class CrossingTask:
         seeds: never trained on, never tested on)."""
         seed, default = {
             "train": (self.train_seed, self.train_scenes),
-            "validation": (VALIDATION_SEED, 50),
+            "validation": (VALIDATION_SEED, TRAINING_TASKS["crossing"].validation_scenes),
             "test": (self.test_seed, self.test_scenes),
         }[split]
         count = count or default

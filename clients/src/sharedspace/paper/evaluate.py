@@ -156,7 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.checkpoint:
         cfg, actor = load_checkpoint_actor(args.checkpoint, args.set, args.device)
         name = network_label(cfg.net.network, cfg.algorithm)
-        world, seed, driving = cfg.world, cfg.seed, cfg.driving()
+        world, seed, driving = cfg.world, cfg.seed, cfg.driving
     else:
         world, seed, driving = WorldConfig.from_words(args.set), 0, Driving()
         actor, name = make_driver(args.driver, load_pool(world.scenario_pool or None)), args.driver

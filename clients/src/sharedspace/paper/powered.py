@@ -293,7 +293,7 @@ def _play_groups(args, overrides: list[str], spec: dict[str, Any]) -> dict[str, 
             args.split,
             spec,
             seed=cfg.seed,
-            driving=cfg.driving(),
+            driving=cfg.driving,
         )
         run = f"{path.parent.parent.name}/{path.stem}" if group else path.stem
         groups.setdefault(group or cfg.net.network, {})[run] = eps

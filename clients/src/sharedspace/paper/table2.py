@@ -103,7 +103,7 @@ def evaluate_run(run: Path, overrides: Sequence[str], split: str = "test") -> di
         if cached.get("frames") == frames and fresh:
             return cached
     cfg, actor = load_checkpoint_actor(str(ckpt), overrides)
-    result = evaluate_policy(cfg.world, actor, split, seed=cfg.seed, driving=cfg.driving())
+    result = evaluate_policy(cfg.world, actor, split, seed=cfg.seed, driving=cfg.driving)
     out = {"frames": frames, **result}
     cache.write_text(json.dumps(out))
     return out

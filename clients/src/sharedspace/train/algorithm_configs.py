@@ -23,11 +23,24 @@ from sharedspace.train.reward import REWARDS
 __all__ = [
     "AlgorithmConfig",
     "AlgorithmConfigError",
+    "Driving",
     "MappoConfig",
     "MasacConfig",
     "PpoConfig",
     "SacConfig",
 ]
+
+
+@dataclass(frozen=True)
+class Driving:
+    """How a policy drives its envs beyond the world: the scripted driver its action is a
+    residual over (``base_driver``, ``residual_scale``), and the reward weights the envs are
+    created with. A trainer's: :attr:`sharedspace.train.config.TrainConfig.driving`; the
+    default: the policy's action as it is, under the world's reward."""
+
+    base_driver: str = ""  # scripted driver the action adds to; "" = none
+    residual_scale: float = 1.0  # env action = clip(script + residual_scale * policy's)
+    reward_weights: dict[str, float] = field(default_factory=dict)  # over the world's
 
 
 class AlgorithmConfigError(UserError):

@@ -25,8 +25,12 @@ from pathlib import Path
 from typing import Any
 
 from sharedspace.cli import UserError, did_you_mean, parse_value
-from sharedspace.train.algorithm_configs import AlgorithmConfig, AlgorithmConfigError, SacConfig
-from sharedspace.train.envs import Driving
+from sharedspace.train.algorithm_configs import (
+    AlgorithmConfig,
+    AlgorithmConfigError,
+    Driving,
+    SacConfig,
+)
 from sharedspace.train.networks import (
     NETWORK_KEYS,
     NetworkConfig,
@@ -110,6 +114,9 @@ class TrainConfig:
     world: WorldConfig = field(default_factory=WorldConfig)  # the world and its server
     algo: AlgorithmConfig = field(default_factory=SacConfig)  # the algorithm's options
     net: NetworkConfig = field(default_factory=NetworkConfig)  # the network
+    #: how the policy drives its envs (its residual over ``base_driver``, its reward weights),
+    #: made once from the algorithm's options so that the run never comes back for them
+    driving: Driving = field(default_factory=Driving, compare=False, repr=False)
     #: the keys this config was built from, as given (what :func:`apply_overrides` applies over)
     given: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
@@ -145,19 +152,17 @@ class TrainConfig:
 
             self.device = "cuda" if torch.cuda.is_available() else "cpu"
         self.world, self.algo, self.given = world, options, given
-        self.net = _network_part(parts["net"], algo, world, self.device)
+        self.net = _network_part(parts["net"], algo, world.cars, world.max_agents, self.device)
+        self.driving = Driving(
+            options.base_driver, options.residual_scale, options.world_reward_weights
+        )
         if self.total_frames < 1:
             raise ConfigError(f"total_frames must be at least 1, not {self.total_frames}")
 
     @property
     def reward_weights(self) -> dict[str, float]:
         """The weights sent with the envs: the named reward's, then ``reward_weights``."""
-        return self.algo.world_reward_weights
-
-    def driving(self) -> Driving:
-        """How this run's policy drives its envs: its residual over ``base_driver`` and its
-        reward weights."""
-        return Driving(self.algo.base_driver, self.algo.residual_scale, self.reward_weights)
+        return self.driving.reward_weights
 
     def world_record(self) -> dict[str, Any]:
         """What a checkpoint records of the world it was trained in: the world's record
@@ -259,16 +264,16 @@ def _declared(cls, name: str) -> Any:
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
-def _network_part(given: dict[str, Any], algo, world: WorldConfig, device: str) -> NetworkConfig:
+def _network_part(
+    given: dict[str, Any], algo, cars: int, max_agents: int, device: str
+) -> NetworkConfig:
     """The network part: the given keys over the algorithm's network; a network of several
     cars may be "" (each car's nodes flattened into its MLP)."""
     network = given.get("network", algo.config.default_network)
     try:
-        if network or world.cars == 1:
+        if network or cars == 1:
             network = canonical_network(network)
-        net = NetworkConfig(
-            **(given | {"network": network}), max_agents=world.max_agents, device=device
-        )
+        net = NetworkConfig(**(given | {"network": network}), max_agents=max_agents, device=device)
     except NetworkConfigError as err:
         raise ConfigError(str(err)) from None
     if algo.fused_networks_only and (not net.network or not get_network(net.network).fused_sac):

@@ -4,30 +4,18 @@ every learner (single-car and multi-car) puts between its policy and a scripted 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, Transform, TransformedEnv
 
-from sharedspace.cli import UserError
 from sharedspace.scripted import SCRIPTED
+from sharedspace.train.algorithm_configs import Driving
+from sharedspace.train.config import ConfigError
 from sharedspace.wire.errors import BadRequest
 from sharedspace.world_config import WorldConfig
 
 __all__ = ["Driving", "ResidualAction", "make_env"]
-
-
-@dataclass(frozen=True)
-class Driving:
-    """How a policy drives its envs beyond the world: the scripted driver its action is a
-    residual over (``base_driver``, ``residual_scale``), and the reward weights the envs are
-    created with. A trainer's: :meth:`sharedspace.train.config.TrainConfig.driving`; the
-    default: the policy's action as it is, under the world's reward."""
-
-    base_driver: str = ""  # scripted driver the action adds to; "" = none
-    residual_scale: float = 1.0  # env action = clip(script + residual_scale * policy's)
-    reward_weights: dict[str, float] = field(default_factory=dict)  # over the world's
 
 
 def make_env(
@@ -68,7 +56,7 @@ def make_env(
     except BadRequest as err:
         if "unknown pool" not in str(err):
             raise
-        raise UserError(
+        raise ConfigError(
             f"{err}: serve the run's pool (`sim-server serve --cfg 'pools:[...]'`; "
             'docs/ARCHITECTURE.md, "Validation, not test") or point the run at a server '
             "that does"

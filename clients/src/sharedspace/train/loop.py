@@ -203,7 +203,7 @@ class OneCar:
             cfg.algo.num_envs,
             seed,
             variations=cfg.world.variations,
-            driving=cfg.driving(),
+            driving=cfg.driving,
         )
 
     def outcomes(self, data) -> dict[str, float]:
@@ -217,7 +217,7 @@ class OneCar:
     def evaluate(self, actor) -> dict[str, Any]:
         cfg = self.cfg
         split = cfg.world.eval_split
-        return evaluate_split(cfg.world, actor, split, cfg.seed, cfg.driving())["summary"]
+        return evaluate_split(cfg.world, actor, split, cfg.seed, cfg.driving)["summary"]
 
     def network(self) -> str:
         return self.cfg.net.network

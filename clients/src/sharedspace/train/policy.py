@@ -12,9 +12,8 @@ from torch import nn
 from torchrl.modules import ProbabilisticActor
 from torchrl.modules.distributions import TanhNormal
 
-from sharedspace.train.config import TrainConfig
 from sharedspace.train.gcn import ActorNet, FeatureNorm
-from sharedspace.train.networks import get_network
+from sharedspace.train.networks import NetworkConfig, get_network
 
 __all__ = ["OBS_KEYS", "RESIDUAL_INIT_SCALE", "make_encoder", "make_gaussian_actor"]
 
@@ -25,12 +24,10 @@ OBS_KEYS = ["features", "adjacency", "mask"]
 RESIDUAL_INIT_SCALE = 0.1
 
 
-def make_encoder(cfg: TrainConfig, norm: FeatureNorm | None = None) -> nn.Module:
-    """The encoder of the registered network ``cfg.net.network``
-    (:mod:`sharedspace.train.networks`), built from the config's network part
-    (:attr:`~sharedspace.train.config.TrainConfig.net`), with ``norm`` applied to its
-    node features if given."""
-    net = cfg.net
+def make_encoder(net: NetworkConfig, norm: FeatureNorm | None = None) -> nn.Module:
+    """The encoder of the registered network ``net.network`` (:mod:`sharedspace.train.networks`),
+    built from a run's network part (:attr:`~sharedspace.train.config.TrainConfig.net`), with
+    ``norm`` applied to its node features if given."""
     return get_network(net.network).make_encoder(net, norm).to(net.device)
 
 
@@ -48,16 +45,18 @@ class ActorParams(nn.Module):
 
 
 def make_gaussian_actor(
-    cfg: TrainConfig,
     action_spec,
     encoder: nn.Module,
+    hidden_sizes: list[int],
+    device: str = "cpu",
     init_scale: float | None = None,
     return_log_prob: bool = False,
 ) -> ProbabilisticActor:
-    """Encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``. With
+    """Encoder + MLP heads of ``hidden_sizes`` -> TanhNormal over the normalised action box
+    ``[-1, 1]^2``, on ``device``. With
     ``init_scale`` the actor starts at ``loc`` 0 with that scale (:func:`start_at`);
     ``return_log_prob``: the collected data carry each action's log-probability (PPO)."""
-    net = ActorParams(ActorNet(encoder, cfg.algo.hidden_sizes, action_spec.shape[-1]))
+    net = ActorParams(ActorNet(encoder, hidden_sizes, action_spec.shape[-1]))
     if init_scale is not None:
         start_at(net.net.head[-1], action_spec.shape[-1], init_scale)
     module = TensorDictModule(net, in_keys=OBS_KEYS, out_keys=["loc", "scale"])
@@ -69,7 +68,7 @@ def make_gaussian_actor(
         distribution_kwargs={"low": -1.0, "high": 1.0, "tanh_loc": False},
         default_interaction_type=InteractionType.RANDOM,
         return_log_prob=return_log_prob,
-    ).to(cfg.device)
+    ).to(device)
 
 
 def start_at(last: nn.Linear, action_dim: int, scale: float) -> None:

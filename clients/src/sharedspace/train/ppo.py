@@ -69,7 +69,12 @@ def make_actor(
         norm = FeatureNorm()
     init = RESIDUAL_INIT_SCALE if cfg.algo.base_driver else SCRATCH_INIT_SCALE
     return make_gaussian_actor(
-        cfg, action_spec, make_encoder(cfg, norm), init_scale=init, return_log_prob=True
+        action_spec,
+        make_encoder(cfg.net, norm),
+        cfg.algo.hidden_sizes,
+        cfg.device,
+        init_scale=init,
+        return_log_prob=True,
     )
 
 
@@ -98,7 +103,7 @@ class ValueNet(nn.Module):
 
 def make_critic(cfg: TrainConfig, norm: FeatureNorm | None) -> ValueOperator:
     """``V(s)``: its own encoder of the config's network (sharing ``norm`` with the actor)."""
-    net = ValueNet(make_encoder(cfg, norm), cfg.algo.hidden_sizes)
+    net = ValueNet(make_encoder(cfg.net, norm), cfg.algo.hidden_sizes)
     return ValueOperator(net, in_keys=OBS_KEYS, out_keys=["state_value"]).to(cfg.device)
 
 

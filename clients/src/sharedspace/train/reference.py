@@ -102,11 +102,18 @@ def _declared(f: dataclasses.Field):
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default  # type: ignore[misc]
 
 
-def _algorithm_docs() -> list[FieldDoc]:
-    """Every algorithm's options, each with the default of every algorithm that has it."""
+def _built_in() -> list[str]:
+    """The algorithms the package registers itself (a plug-in's are listed by ``--help`` for
+    it, not in docs/USAGE.md)."""
+    return [n for n, a in ALGORITHMS.items() if a.config.__module__.startswith("sharedspace.")]
+
+
+def _algorithm_docs(names: Sequence[str]) -> list[FieldDoc]:
+    """The options of the algorithms ``names``, each with the default of every one of them
+    that has it."""
     classes: dict[type, list[str]] = {}
-    for algo in ALGORITHMS.values():
-        classes.setdefault(algo.config, []).append(algo.name)
+    for name in names:
+        classes.setdefault(ALGORITHMS[name].config, []).append(name)
     docs: dict[str, tuple[str, str]] = {}
     for cls in (AlgorithmConfig, *classes):
         for name, (section, doc) in _class_docs(cls).items():
@@ -122,9 +129,9 @@ def _algorithm_docs() -> list[FieldDoc]:
     return sorted(out.values(), key=lambda d: d.section != "algorithm")
 
 
-def config_reference() -> list[FieldDoc]:
+def config_reference(algorithms: Sequence[str] = ()) -> list[FieldDoc]:
     """Every ``--set`` key, part by part: the run's own, the world's, the network's, then the
-    algorithms' options (their defaults by algorithm)."""
+    options of ``algorithms`` (default: the built-in ones), their defaults by algorithm."""
     run = [f.name for f in dataclasses.fields(TrainConfig) if f.name in RUN_DEFAULTS]
     return [
         *_part_docs(TrainConfig, run),
@@ -133,7 +140,7 @@ def config_reference() -> list[FieldDoc]:
             dataclasses.replace(d, section="network")
             for d in _part_docs(NetworkConfig, NETWORK_KEYS)
         ],
-        *_algorithm_docs(),
+        *_algorithm_docs(list(algorithms) or _built_in()),
     ]
 
 
@@ -146,7 +153,7 @@ def help_text(algorithm: str = "") -> str:
         "docs/USAGE.md has the full reference):"
     ]
     section = None
-    for d in config_reference():
+    for d in config_reference([algorithm]):
         default = d.defaults.get("", d.defaults.get(algorithm))
         if default is None:
             continue  # another algorithm's option
@@ -160,7 +167,7 @@ def help_text(algorithm: str = "") -> str:
 def markdown() -> str:
     """One Markdown table per section: key, type, default (by algorithm for an algorithm's
     options; "-": not its option), doc."""
-    names = list(ALGORITHMS)
+    names = _built_in()
     out, section = [], None
     for d in config_reference():
         by_algorithm = "" not in d.defaults

@@ -43,13 +43,16 @@ def make_actor(cfg: TrainConfig, action_spec) -> ProbabilisticActor:
     """Graph encoder + MLP -> TanhNormal over the normalised action box ``[-1, 1]^2``; a
     residual actor starts at its script with :data:`RESIDUAL_INIT_SCALE`."""
     init = RESIDUAL_INIT_SCALE if cfg.algo.base_driver else None
-    return make_gaussian_actor(cfg, action_spec, make_encoder(cfg), init_scale=init)
+    encoder = make_encoder(cfg.net)
+    return make_gaussian_actor(
+        action_spec, encoder, cfg.algo.hidden_sizes, cfg.device, init_scale=init
+    )
 
 
 def make_critic(cfg: TrainConfig, action_spec) -> ValueOperator:
     """``Q(s, a)``: its own graph encoder + MLP; SACLoss makes the two critics and targets."""
     net = QNet(
-        make_encoder(cfg),
+        make_encoder(cfg.net),
         cfg.algo.hidden_sizes,
         action_spec.shape[-1],
         layer_norm=cfg.algo.critic_layer_norm,
