@@ -55,3 +55,34 @@ def test_shipped_policy_loads_and_scores_as_recorded(path, table2_server):
     # actor may flip a borderline episode, not more.
     assert same >= len(status) - 1, (status, recorded["status"])
     assert abs(result["summary"]["success"] - recorded["summary"]["success"]) <= 1 / 18 + 1e-9
+
+
+def tracked_checkpoints() -> list:
+    """Every checkpoint the repository ships (git-tracked ``.pt`` files)."""
+    import subprocess
+
+    done = subprocess.run(
+        ["git", "ls-files", "*.pt"], capture_output=True, text=True, cwd=REPO_ROOT, check=True
+    )
+    return [REPO_ROOT / line for line in done.stdout.split()]
+
+
+@pytest.mark.parametrize("path", tracked_checkpoints(), ids=lambda p: str(p.relative_to(REPO_ROOT)))
+def test_every_shipped_checkpoint_builds_its_config_and_loads_its_actor(path):
+    """The configs of every shipped checkpoint (from before the config's parts, with every
+    option of every algorithm, placeholders and retired names) build the config they trained
+    with, and the actor's weights load into the actor that config makes."""
+    from sharedspace.marl.crossing import CrossingTask
+    from sharedspace.marl.networks import make_actor as make_cars_actor
+    from sharedspace.train.checkpoint import read_checkpoint
+    from sharedspace.train.config import TrainConfig
+    from sharedspace.train.registry import get_algorithm
+
+    ckpt = read_checkpoint(path)
+    cfg = TrainConfig.from_dict(ckpt["config"] | {"device": "cpu"})
+    assert cfg.algorithm == ckpt["algorithm"]
+    if get_algorithm(cfg.algorithm).multi_car:
+        make_cars_actor(cfg, CrossingTask()).load_state_dict(ckpt["actor"])
+    else:
+        loaded, _ = load_checkpoint_actor(ckpt)
+        assert loaded == cfg

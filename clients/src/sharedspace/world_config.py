@@ -32,7 +32,7 @@ from sharedspace.worlds import (
     world_params_file,
 )
 
-__all__ = ["TRAINING_CHOICES", "WorldConfig", "WorldConfigError"]
+__all__ = ["TRAINING_CHOICES", "WorldConfig", "WorldConfigError", "task_fields"]
 
 
 class WorldConfigError(UserError):
@@ -98,25 +98,14 @@ class WorldConfig:
             raise WorldConfigError(str(err)) from None
 
     def _take_task(self) -> None:
-        try:
-            task = training_task(self.task)
-        except UnknownTask as err:
-            raise WorldConfigError(str(err)) from None
-        values = {
-            "scenario_pool": task.pool,
-            "server_params": task.server_params,
-            "max_agents": task.max_agents,
-            "variations": dict(task.variations),
-            "validation_scenes": task.validation_scenes,
-            "validation_variations": task.validation_variations,
-        }
+        values = task_fields(self.task)
         for name, value in values.items():
             given = getattr(self, name)
             if given == declared_default(name):
                 setattr(self, name, value)
             elif given != value and name not in TRAINING_CHOICES:  # the world's
                 raise WorldConfigError(
-                    f"{name} is set by task={task.name} ({value!r}); this config gives {given!r}"
+                    f"{name} is set by task={self.task} ({value!r}); this config gives {given!r}"
                 )
 
     @classmethod
@@ -235,6 +224,22 @@ class WorldConfig:
             params,
         )
         return conn.replace(failover=self.failover) if self.failover else conn
+
+
+def task_fields(name: str) -> dict[str, Any]:
+    """The world fields ``task=name`` fills in, with the task's values."""
+    try:
+        task = training_task(name)
+    except UnknownTask as err:
+        raise WorldConfigError(str(err)) from None
+    return {
+        "scenario_pool": task.pool,
+        "server_params": task.server_params,
+        "max_agents": task.max_agents,
+        "variations": dict(task.variations),
+        "validation_scenes": task.validation_scenes,
+        "validation_variations": task.validation_variations,
+    }
 
 
 def declared_default(name: str) -> Any:

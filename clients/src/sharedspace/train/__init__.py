@@ -1,8 +1,10 @@
 """The learners (paper Section IV.C, and PPO): read :mod:`.sac` or :mod:`.ppo` top to bottom.
 
-- :mod:`.config`: :class:`TrainConfig`, one field a knob, and the one ``--set`` grammar;
+- :mod:`.config`: :class:`TrainConfig`, a run's fields and its world, algorithm and network
+  parts (:mod:`sharedspace.world_config`, :mod:`.algorithm_configs`, :mod:`.networks`), and
+  the one ``--set`` grammar;
 - :mod:`.reward`: the named rewards (``world``, ``learner``);
-- :mod:`.envs`: the batched env of a config and the residual transform;
+- :mod:`.envs`: the batched env of a world and the residual transform;
 - :mod:`.registry`, :mod:`.networks`: every algorithm and every network, registered once;
 - :mod:`.gcn`, :mod:`.policy`: the graph encoders and the tanh-normal actor;
 - :mod:`.sac` (with :mod:`.update`, :mod:`.prior`) and :mod:`.ppo`: one algorithm each;

@@ -26,6 +26,7 @@ __all__ = [
     "Driving",
     "MappoConfig",
     "MasacConfig",
+    "MultiCarConfig",
     "PpoConfig",
     "SacConfig",
 ]
@@ -97,7 +98,7 @@ class AlgorithmConfig:
     @classmethod
     def options(cls) -> tuple[str, ...]:
         """Its ``--set`` keys, in the order of its source."""
-        return tuple(cls.__dataclass_fields__)
+        return tuple(f.name for f in dataclasses.fields(cls))
 
     @classmethod
     def declared(cls, name: str) -> Any:
@@ -182,8 +183,9 @@ class PpoConfig(AlgorithmConfig):
 
 
 @dataclass
-class MappoConfig(AlgorithmConfig):
-    """MAPPO and IPPO (the crossing task's cars, :mod:`sharedspace.marl.mappo`): PPO per car."""
+class MultiCarConfig(AlgorithmConfig):
+    """What the multi-car learners (the crossing task's cars) have in common: a residual over
+    the car-aware script at twice its weight, and each car's MLP."""
 
     default_network: ClassVar[str] = ""
 
@@ -195,6 +197,15 @@ class MappoConfig(AlgorithmConfig):
     #                              base_driver
     hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])  # MLP head widths
     eval_interval: int = 60_000  # frames between scorings (0 = never), and once at the end
+    # --- several cars
+    share_params: bool = True  # one network for every car (they are alike)
+    init_scale: float = 0.4  # the policy's initial action standard deviation
+
+
+@dataclass
+class MappoConfig(MultiCarConfig):
+    """MAPPO and IPPO (:mod:`sharedspace.marl.mappo`): PPO per car."""
+
     # --- on-policy
     rollout_steps: int = 32  # T, steps of every sub-env per iteration: batch = num_envs * T
     ppo_epochs: int = 4  # passes over each batch
@@ -204,29 +215,15 @@ class MappoConfig(AlgorithmConfig):
     lmbda: float = 0.95  # GAE lambda
     max_grad_norm: float = 1.0  # global gradient-norm clip
     overlap: bool = False  # collect the next batch while updating, one update behind
-    # --- several cars
-    share_params: bool = True  # one network for every car (they are alike)
-    init_scale: float = 0.4  # the policy's initial action standard deviation
 
     def counts(self) -> tuple[str, ...]:
         return ("num_envs", "rollout_steps", "ppo_epochs", "minibatch_size")
 
 
 @dataclass
-class MasacConfig(AlgorithmConfig):
-    """MASAC (the crossing task's cars, :mod:`sharedspace.marl.masac`): SAC per car,
-    centralised Q-critics."""
+class MasacConfig(MultiCarConfig):
+    """MASAC (:mod:`sharedspace.marl.masac`): SAC per car, centralised Q-critics."""
 
-    default_network: ClassVar[str] = ""
-
-    num_envs: int = 64  # K, sub-envs stepped together
-    reward: str = "learner"  # named reward (sharedspace.train.reward): world | learner
-    base_driver: str = "car_aware"  # scripted driver the policy's action adds to (residual);
-    #                                 "" = none
-    residual_scale: float = 2.0  # env action = clip(script + residual_scale * policy's); needs
-    #                              base_driver
-    hidden_sizes: list[int] = field(default_factory=lambda: [128, 128])  # MLP head widths
-    eval_interval: int = 60_000  # frames between scorings (0 = never), and once at the end
     # --- off-policy
     frames_per_batch: int = 2048  # frames per collector batch
     utd_ratio: float = 0.02  # gradient updates per collected frame
@@ -238,6 +235,3 @@ class MasacConfig(AlgorithmConfig):
     actor_warmup_frames: int = 20_000  # frames of critic-only updates first
     actor_lr: float = 3e-5  # the actor's Adam learning rate (critics and alpha use lr)
     residual_penalty: float = 10.0  # + this x mean(pre-tanh residual mean ^ 2) in the actor loss
-    # --- several cars
-    share_params: bool = True  # one network for every car (they are alike)
-    init_scale: float = 0.4  # the policy's initial action standard deviation

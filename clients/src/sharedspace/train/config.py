@@ -44,7 +44,8 @@ from sharedspace.train.registry import (
     algorithm_names,
     get_algorithm,
 )
-from sharedspace.world_config import WorldConfig, WorldConfigError
+from sharedspace.world_config import WorldConfig, WorldConfigError, task_fields
+from sharedspace.worlds import TRAINING_TASKS
 
 __all__ = [
     "ConfigError",
@@ -135,27 +136,27 @@ class TrainConfig:
             parts["world"]["task"] = "crossing"  # the one task of several learning cars
         try:
             world = WorldConfig(**parts["world"])
-            if not algo.drives(world.cars):
+            cars = world.cars
+            if not algo.drives(cars):
                 raise ConfigError(
-                    f"task {world.task} has {world.cars} learning car(s) per scene and "
-                    f"algorithm {algorithm} learns {'several' if algo.multi_car else 'one'}: "
-                    f"one of {', '.join(algorithm_names('many' if world.cars > 1 else 'one'))}"
+                    f"task {world.task} has {cars} learning car(s) per scene and algorithm "
+                    f"{algorithm} learns {'several' if algo.multi_car else 'one'}: one of "
+                    f"{', '.join(algorithm_names('many' if cars > 1 else 'one'))}"
                 )
             options = algo.config(**parts["algo"])
+            driving = Driving(
+                options.base_driver, options.residual_scale, options.world_reward_weights
+            )
         except (WorldConfigError, AlgorithmConfigError) as err:
             raise ConfigError(str(err)) from None
-        run = RUN_DEFAULTS | parts["run"]
-        for name, value in run.items():
+        for name, value in (RUN_DEFAULTS | parts["run"]).items():
             setattr(self, name, value)
         if self.device == "auto":
             import torch  # the machine's: imported once a config is made
 
             self.device = "cuda" if torch.cuda.is_available() else "cpu"
-        self.world, self.algo, self.given = world, options, given
-        self.net = _network_part(parts["net"], algo, world.cars, world.max_agents, self.device)
-        self.driving = Driving(
-            options.base_driver, options.residual_scale, options.world_reward_weights
-        )
+        self.world, self.algo, self.driving, self.given = world, options, driving, given
+        self.net = _network_part(parts["net"], algo, cars, world.max_agents, self.device)
         if self.total_frames < 1:
             raise ConfigError(f"total_frames must be at least 1, not {self.total_frames}")
 
@@ -186,9 +187,10 @@ class TrainConfig:
     @classmethod
     def saved_fields(cls, fields: dict[str, Any], algorithm: str | None = None) -> dict[str, Any]:
         """The fields of a saved config as :meth:`from_dict` takes them (for ``algorithm``, if
-        given, rather than the saved one's): renamed fields under their names, retired ones,
-        the options of other algorithms (older configs held every option) and the old
-        placeholders dropped; for another algorithm, the saved algorithm's defaults too."""
+        given, rather than the saved one's): renamed fields under their names; retired ones,
+        the options of other algorithms (older configs held every option), the old
+        placeholders and the values its task filled in dropped (so that an override of the
+        task fills them in anew); for another algorithm, the saved algorithm's defaults too."""
         fields = {RENAMED_FIELDS.get(k, k): v for k, v in fields.items() if k not in RETIRED_FIELDS}
         saved_algorithm = fields.get("algorithm", RUN_DEFAULTS["algorithm"])
         fields["algorithm"] = algorithm or saved_algorithm
@@ -207,6 +209,9 @@ class TrainConfig:
         mine = set(RUN_DEFAULTS) | set(WORLD_KEYS) | set(NETWORK_KEYS) | set(algo.config.options())
         out = {k: v for k, v in fields.items() if k in mine}
         out = {k: v for k, v in out.items() if OLD_PLACEHOLDERS.get(k, _NONE) != v}
+        if out.get("task") in TRAINING_TASKS:  # what the task filled in: the task's again
+            filled = task_fields(out["task"])
+            out = {k: v for k, v in out.items() if filled.get(k, _NONE) != v}
         if saved_algorithm != out["algorithm"] and saved_algorithm in ALGORITHMS:
             theirs = get_algorithm(saved_algorithm).config
             for name in set(theirs.options()) & set(out):
@@ -237,9 +242,9 @@ def part_of(key: str, algorithm: str) -> str:
         return "world"
     if key in NETWORK_KEYS:
         return "net"
-    if key in get_algorithm(algorithm).config.__dataclass_fields__:
+    if key in get_algorithm(algorithm).config.options():
         return "algo"
-    owners = [a.name for a in ALGORITHMS.values() if key in a.config.__dataclass_fields__]
+    owners = [a.name for a in ALGORITHMS.values() if key in a.config.options()]
     raise ConfigError(
         f"{key} is an option of algorithm={'|'.join(owners)}, and this config's algorithm is "
         f"{algorithm}"

@@ -60,9 +60,7 @@ def load_checkpoint_actor(
     action = ckpt.get("specs", {}).get("action")  # checkpoints before the specs: the contract's
     spec = ACTION_SPEC if action is None else Bounded(**action, dtype=torch.float32)
     actor = learner(cfg.algorithm).make_actor(cfg, spec)
-    with torch.no_grad():
-        actor(
-            observation_example(cfg.world.max_agents).to(device)
-        )  # materialise lazy shapes, if any
+    with torch.no_grad():  # materialise lazy shapes, if any
+        actor(observation_example(cfg.world.max_agents).to(device))
     actor.load_state_dict(ckpt["actor"])
     return cfg, actor

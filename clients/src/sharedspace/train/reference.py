@@ -115,7 +115,8 @@ def _algorithm_docs(names: Sequence[str]) -> list[FieldDoc]:
     for name in names:
         classes.setdefault(ALGORITHMS[name].config, []).append(name)
     docs: dict[str, tuple[str, str]] = {}
-    for cls in (AlgorithmConfig, *classes):
+    declaring = [k for c in classes for k in reversed(c.__mro__) if issubclass(k, AlgorithmConfig)]
+    for cls in dict.fromkeys(declaring):  # every class that declares options, bases first
         for name, (section, doc) in _class_docs(cls).items():
             docs.setdefault(name, (section or "algorithm", doc))
     out: dict[str, FieldDoc] = {}

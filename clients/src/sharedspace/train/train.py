@@ -2,13 +2,15 @@
 
     python -m sharedspace.train [--config cfg.toml] [--set key=value ...] [--resume [CKPT]]
 
-One config (:class:`~sharedspace.train.config.TrainConfig`) for every learner. ``algorithm``
-names a registered algorithm (:mod:`sharedspace.train.registry`): ``sac`` (the default, the
-paper's SAC-GCN) and ``ppo`` drive one car per env; ``mappo``, ``ippo`` and ``masac`` drive
-the crossing task's cars. ``network`` names a registered network
-(``gcn_risk``, ``gcn_uniform``, ``mlp``; the old names ``g_sac_cog``, ``g_sac_nocog``,
-``s_sac`` still work). ``task=paper`` (or ``crowd``) trains in a benchmark task's world, and
-``python -m sharedspace.bench TASK --policy LOG_DIR/checkpoints/last.pt`` scores the result.
+One config (:class:`~sharedspace.train.config.TrainConfig`: the run's fields, its world, the
+algorithm's options with the algorithm's own defaults, its network) for every learner, built
+once from the flat ``--set`` keys. ``algorithm`` names a registered algorithm
+(:mod:`sharedspace.train.registry`): ``sac`` (the default, the paper's SAC-GCN) and ``ppo``
+drive one car per env; ``mappo``, ``ippo`` and ``masac`` drive the crossing task's cars.
+``network`` names a registered network (``gcn_risk``, ``gcn_uniform``, ``mlp``; the old names
+``g_sac_cog``, ``g_sac_nocog``, ``s_sac`` still work). ``task=paper`` (or ``crowd``) trains
+in a benchmark task's world, and ``python -m sharedspace.bench TASK --policy
+LOG_DIR/checkpoints/last.pt`` scores the result.
 
 Every run writes into ``log_dir``: ``config.json``, ``metrics.csv`` (long format: frames,
 wall_s, metric, value; ``train/`` per iteration, ``eval/`` on the validation split),

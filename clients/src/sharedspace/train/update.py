@@ -185,8 +185,8 @@ class SACUpdate(nn.Module):
         actor: the trainer's ``ProbabilisticActor`` (its weights are trained in place, so the
             collector and the evaluation keep using it).
         qnets: ``E`` freshly initialised :class:`QNet` critics (weights are copied).
-        gamma, tau, lr, alpha_init, loss_function: as :class:`~sharedspace.train.config.
-            TrainConfig`.
+        gamma, tau, lr, alpha_init, loss_function: as
+            :class:`~sharedspace.train.algorithm_configs.SacConfig`.
         action_dim: ``|A|``; the target entropy is ``-action_dim``.
     """
 
