@@ -82,3 +82,35 @@ def test_a_task_s_training_variations_may_be_set_its_world_may_not():
     assert TrainConfig(algorithm="ppo", task="paper", device="cpu").world.variations != wide
     with pytest.raises(ConfigError, match="max_agents is set by task=paper"):
         TrainConfig(algorithm="ppo", task="paper", max_agents=5, device="cpu")
+
+
+def test_a_tool_s_world_takes_world_keys_and_names_any_other():
+    """The paper's tools build a world alone (``WorldConfig.from_words``): a world key is parsed
+    like its field; a key of another part, a misspelt key, a word without ``=`` or a value of
+    the wrong type is refused by name, in one line."""
+    import subprocess
+    import sys
+
+    from sharedspace.world_config import WorldConfig, WorldConfigError
+
+    world = WorldConfig.from_words(["task=crowd", "validation_variations=2", "failover=false"])
+    assert (world.max_agents, world.validation_variations, world.failover) == (10, 2, False)
+    for words, named in (
+        (["lr=1e-3"], "'lr' is no key of the world"),
+        (["max_agent=4"], "did you mean 'max_agents'"),
+        (["max_agents"], "expected KEY=VALUE"),
+        (["max_agents=many"], "--set max_agents=many: expected int"),
+        (["task=paper", "max_agents=5"], "max_agents is set by task=paper"),
+    ):
+        with pytest.raises(WorldConfigError, match=named):
+            WorldConfig.from_words(words)
+    done = subprocess.run(
+        [sys.executable, "-m", "sharedspace.paper.evaluate", "--driver", "hold", "--set", "lr=1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+        done.stderr.strip().splitlines()[0]
+    ]
+    assert "error: 'lr' is no key of the world" in done.stderr

@@ -10,6 +10,7 @@ traceback.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import json
 import os
@@ -17,7 +18,7 @@ import sys
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-__all__ = ["UserError", "did_you_mean", "parse_value", "run_command"]
+__all__ = ["UserError", "declared_default", "did_you_mean", "parse_value", "run_command"]
 
 
 class UserError(ValueError):
@@ -73,3 +74,10 @@ def parse_value(key: str, text: str, like: Any, error: type[Exception] = UserErr
     except ValueError as exc:
         raise error(f"--set {key}={text}: expected {type(like).__name__} ({exc})") from None
     return text
+
+
+def declared_default(cls: type, name: str) -> Any:
+    """The default the dataclass ``cls`` declares for its field ``name`` (a fresh copy of a
+    factory's): what a config key takes when it is not given, and what a value is parsed like."""
+    f = cls.__dataclass_fields__[name]
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default

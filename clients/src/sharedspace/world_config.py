@@ -14,12 +14,11 @@ names) to check the split.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from sharedspace.cli import UserError, did_you_mean, parse_value
+from sharedspace.cli import UserError, declared_default, did_you_mean, parse_value
 from sharedspace.client import Connection
 from sharedspace.models import DEFAULT_MODEL
 from sharedspace.pool import load_pool, split_indices
@@ -101,7 +100,7 @@ class WorldConfig:
         values = task_fields(self.task)
         for name, value in values.items():
             given = getattr(self, name)
-            if given == declared_default(name):
+            if given == declared_default(WorldConfig, name):
                 setattr(self, name, value)
             elif given != value and name not in TRAINING_CHOICES:  # the world's
                 raise WorldConfigError(
@@ -123,7 +122,9 @@ class WorldConfig:
                     f"{key!r} is no key of the world{did_you_mean(key, cls.__dataclass_fields__)}"
                     f"; the world's keys: {', '.join(cls.__dataclass_fields__)}"
                 )
-            given[key] = parse_value(key, text, declared_default(key), WorldConfigError)
+            given[key] = parse_value(
+                key, text, declared_default(WorldConfig, key), WorldConfigError
+            )
         return cls(**given)
 
     @property
@@ -240,9 +241,3 @@ def task_fields(name: str) -> dict[str, Any]:
         "validation_scenes": task.validation_scenes,
         "validation_variations": task.validation_variations,
     }
-
-
-def declared_default(name: str) -> Any:
-    """The default :class:`WorldConfig` declares for its field ``name`` (a fresh copy)."""
-    f = WorldConfig.__dataclass_fields__[name]
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import ClassVar
 
 from sharedspace.cli import UserError
 from sharedspace.scripted import SCRIPTED
@@ -99,14 +99,6 @@ class AlgorithmConfig:
     def options(cls) -> tuple[str, ...]:
         """Its ``--set`` keys, in the order of its source."""
         return tuple(f.name for f in dataclasses.fields(cls))
-
-    @classmethod
-    def declared(cls, name: str) -> Any:
-        """The default it declares for its option ``name`` (a fresh copy)."""
-        f = cls.__dataclass_fields__[name]
-        if f.default_factory is not dataclasses.MISSING:
-            return f.default_factory()
-        return f.default
 
 
 @dataclass

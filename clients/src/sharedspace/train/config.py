@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sharedspace.cli import UserError, did_you_mean, parse_value
+from sharedspace.cli import UserError, declared_default, did_you_mean, parse_value
 from sharedspace.train.algorithm_configs import (
     AlgorithmConfig,
     AlgorithmConfigError,
@@ -215,7 +215,7 @@ class TrainConfig:
         if saved_algorithm != out["algorithm"] and saved_algorithm in ALGORITHMS:
             theirs = get_algorithm(saved_algorithm).config
             for name in set(theirs.options()) & set(out):
-                if out[name] == theirs.declared(name):
+                if out[name] == declared_default(theirs, name):
                     del out[name]  # the saved algorithm's default: the new one's
             if out.get("network") == theirs.default_network:
                 del out["network"]
@@ -256,17 +256,12 @@ def all_keys() -> dict[str, Any]:
     world's, the network's, or the first algorithm's that has it): what a value is parsed
     like."""
     out: dict[str, Any] = dict(RUN_DEFAULTS)
-    out |= {k: _declared(WorldConfig, k) for k in WORLD_KEYS}
-    out |= {k: _declared(NetworkConfig, k) for k in NETWORK_KEYS}
+    out |= {k: declared_default(WorldConfig, k) for k in WORLD_KEYS}
+    out |= {k: declared_default(NetworkConfig, k) for k in NETWORK_KEYS}
     for algo in ALGORITHMS.values():
         for name in algo.config.options():
-            out.setdefault(name, algo.config.declared(name))
+            out.setdefault(name, declared_default(algo.config, name))
     return out
-
-
-def _declared(cls, name: str) -> Any:
-    f = cls.__dataclass_fields__[name]
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
 def _network_part(

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sharedspace.cli import run_command
+from sharedspace.cli import declared_default, run_command
 from sharedspace.train.algorithm_configs import AlgorithmConfig
 from sharedspace.train.config import RUN_DEFAULTS, TrainConfig
 from sharedspace.train.networks import NETWORK_KEYS, NetworkConfig
@@ -93,13 +93,9 @@ def _part_docs(cls: type, keys: Sequence[str]) -> list[FieldDoc]:
     out = []
     for name in keys:
         section, doc = docs.get(name, ("", ""))
-        default = _text(_declared(fields[name]))
+        default = _text(declared_default(cls, name))
         out.append(FieldDoc(section, name, _type_name(fields[name]), {"": default}, doc))
     return out
-
-
-def _declared(f: dataclasses.Field):
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default  # type: ignore[misc]
 
 
 def _built_in() -> list[str]:
@@ -126,7 +122,7 @@ def _algorithm_docs(names: Sequence[str]) -> list[FieldDoc]:
                 section, doc = docs.get(f.name, ("algorithm", ""))
                 out[f.name] = FieldDoc(section, f.name, _type_name(f), {}, doc)
             for algorithm in names:
-                out[f.name].defaults[algorithm] = _text(_declared(f))
+                out[f.name].defaults[algorithm] = _text(declared_default(cls, f.name))
     return sorted(out.values(), key=lambda d: d.section != "algorithm")
 
 
