@@ -167,6 +167,16 @@ def test_feature_norm_tracks_present_nodes_by_role():
         (["task=crossing"], "task"),
         (["task=paper", "max_agents=12"], "max_agents"),
         (["eval_split=train"], "eval_split"),
+        # each part checks its own values: the world's, the network's, the algorithm's
+        (["max_agents=0"], "max_agents"),
+        (["validation_scenes=0"], "validation_scenes"),
+        (["scenes=-2"], "scenes"),
+        (["readout=sum"], "readout"),
+        (["algorithm=ppo", "anneal_start=1.5"], "anneal_start"),
+        (["prior_ratio=1"], "prior_ratio"),
+        (["bc_steps=10"], "bc_steps"),
+        (["total_frames=0"], "total_frames"),
+        (["default_network=mlp"], "default_network"),  # a class attribute, no key
     ],
 )
 def test_a_bad_config_names_its_field(overrides, field):
